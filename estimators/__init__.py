@@ -1,0 +1,1 @@
+"""Wheel-ground normal-force estimators."""

@@ -1,0 +1,1 @@
+"""Simulation scenarios: open-loop traversals and closed-loop control runs."""
