@@ -1,5 +1,7 @@
-"""The reference machine: a ~4.2 t skid-steer forwarder-like carrier with two actively
-articulated bogies and a 7-DoF parallel-serial hydraulic crane (HIAB XS031 boom).
+"""The reference machine: a 4.3 t skid-steer carrier with a 7-DoF hydraulic crane.
+
+The carrier has two actively articulated bogies; the crane is a parallel-serial HIAB XS031
+boom with a slew chain and a 3-DoF wrist added.
 
 Every number is listed with its source in `SOURCES` (rendered in docs/machine.md). Sources:
 
