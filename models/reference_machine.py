@@ -151,9 +151,17 @@ def build_reference_machine(payload_mass: float = 200.0) -> Machine:
         "chassis", None, (0, 0, wheel_r + axle_drop), np.eye(3), Joint("free"),
         box_inertia(2200.0, (2.5, 0.7, 0.5)),
         (Geom("box", (1.25, 0.35, 0.25), rgba=_YELLOW),
-         Geom("box", (0.3, 0.34, 0.2), (-0.85, 0, 0.45), rgba=_DARK)),
+),
     )
-    bodies: list[Body] = [chassis]
+    # Engine, tank and ballast at the rear: without them the crane at full forward reach
+    # puts the centre of mass ahead of the front axle (x = 1.21 m > 1.15 m).
+    counterweight = Body("counterweight", "chassis", (-1.0, 0.0, 0.1), np.eye(3),
+                         Joint("fixed"), box_inertia(900.0, (0.5, 0.7, 0.6)),
+                         (Geom("box", (0.25, 0.35, 0.3), rgba=_DARK),))
+    note("counterweight (engine, tank, ballast)", "900 kg box 0.5 x 0.7 x 0.6 m centred at "
+         "(-1.0, 0, 0.1) m in fb", "design: keeps the CoM behind the front axle at full "
+         "forward reach (WMM's chassis carries no crane counterweight)")
+    bodies: list[Body] = [chassis, counterweight]
     loops: list[Loop] = []
     chains: dict[str, ChainBinding] = {}
 

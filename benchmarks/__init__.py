@@ -1,0 +1,56 @@
+"""Benchmarks that print their figures and write them to ``<out>/<name>.json``.
+
+Speed and accuracy targets live here, never in tests: ``make bench`` or ``wbc bench``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+import time
+from pathlib import Path
+
+BENCHES = ("simulator", "estimator", "controller")
+
+
+def _machine_info() -> dict:
+    import os
+
+    return {"python": platform.python_version(), "machine": platform.machine(),
+            "processor": platform.processor() or platform.machine(),
+            "cpus": os.cpu_count(), "date": time.strftime("%Y-%m-%d %H:%M:%S")}
+
+
+def _run_one(name: str, out: Path) -> dict:
+    if name == "simulator":
+        from benchmarks.bench_simulator import run
+    elif name == "estimator":
+        from benchmarks.bench_estimator import run
+    elif name == "controller":
+        from benchmarks.bench_wbc import run
+    else:
+        raise ValueError(f"unknown benchmark '{name}'; valid: {', '.join(BENCHES)}")
+    result = run(out)
+    result["host"] = _machine_info()
+    (out / f"{name}.json").write_text(json.dumps(result, indent=2, default=float))
+    return result
+
+
+def main(argv: list[str] | None = None) -> dict:
+    """Run the benchmarks; print and write their figures."""
+    p = argparse.ArgumentParser(prog="python -m benchmarks")
+    p.add_argument("--out", default="out/bench")
+    p.add_argument("--only", default=None, choices=BENCHES)
+    args = p.parse_args(argv)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    results = {}
+    for name in ([args.only] if args.only else BENCHES):
+        print(f"== benchmark: {name}", flush=True)
+        results[name] = _run_one(name, out)
+        for k, v in results[name].items():
+            if k != "host":
+                print(f"   {k:40s} {v}")
+    print(f"wrote {out}/*.json")
+    return results

@@ -1,0 +1,5 @@
+import sys
+
+from benchmarks import main
+
+main(sys.argv[1:])

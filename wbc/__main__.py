@@ -1,0 +1,7 @@
+"""``python -m wbc``."""
+
+import sys
+
+from wbc.cli import main
+
+sys.exit(main())
