@@ -61,6 +61,12 @@ def _cmd_machine(args) -> int:
     from models import build_reference_machine
 
     machine = build_reference_machine()
+    if args.doc:
+        from models.report import machine_markdown
+
+        Path(args.doc).parent.mkdir(parents=True, exist_ok=True)
+        Path(args.doc).write_text(machine_markdown(machine))
+        print("wrote", args.doc)
     if args.write_mjcf:
         from models.mujoco_model import write_mjcf
 
@@ -106,6 +112,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     m = sub.add_parser("machine", help="print the machine's figures and sources")
     m.add_argument("--write-mjcf", default=None, help="folder to write the MJCF files to")
+    m.add_argument("--doc", default=None, help="markdown file to write the figures to")
     m.set_defaults(func=_cmd_machine)
     return p
 
