@@ -1,0 +1,474 @@
+"""The machine as a kinematic tree for the screw-theory recursion (paper eqs. 2-11).
+
+`TreeModel` precomputes, from a `models.description.Machine`, everything the recursion needs:
+bodies with fixed joints merged into their moving parent, constant joint placements, screw
+axes, spatial inertias, the body groups of the paper (crane ``m``, suspension ``B``, wheels
+``w``), the closed cylinder chains and the wheels.
+
+The recursion is written once against a tiny array backend (``ops``): `NumpyOps` evaluates
+it numerically (the paper-faithful reference) and `estimators._symbolic.CasadiOps` builds a
+CasADi SX graph of the very same code (compiled batch kernel, exact derivatives). A pose is a
+pair ``(R, p)``: the rotation and position of a frame in another (the paper's ``G``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from estimators import spatial
+from models.coordinates import TreeCoordinates
+from models.description import Inertia, Machine
+
+__all__ = ["ChainSpec", "NumpyOps", "TreeBody", "TreeDynamics", "TreeModel"]
+
+
+class NumpyOps:
+    """Numeric backend of the recursion: plain numpy, vectors of shape (n,)."""
+
+    cos = staticmethod(np.cos)
+    sin = staticmethod(np.sin)
+    sqrt = staticmethod(np.sqrt)
+    acos = staticmethod(np.arccos)
+    fabs = staticmethod(np.abs)
+
+    @staticmethod
+    def const(x) -> np.ndarray:
+        """A constant array."""
+        return np.asarray(x, float)
+
+    @staticmethod
+    def vcat(parts) -> np.ndarray:
+        """Stack scalars and vectors into one vector."""
+        return np.concatenate([np.atleast_1d(np.asarray(p, float)) for p in parts])
+
+    @staticmethod
+    def rows(rows) -> np.ndarray:
+        """Matrix from a list of rows (each a list of scalars)."""
+        return np.array([[float(v) for v in r] for r in rows])
+
+    @staticmethod
+    def hcat(cols) -> np.ndarray:
+        """Matrix from a list of column vectors."""
+        return np.column_stack(cols)
+
+    @staticmethod
+    def vstack(mats) -> np.ndarray:
+        """Stack matrices vertically."""
+        return np.vstack(mats)
+
+    @staticmethod
+    def dot(a, b):
+        """Inner product of two vectors."""
+        return float(np.dot(a, b))
+
+    @staticmethod
+    def cross(a, b) -> np.ndarray:
+        """Cross product of two 3-vectors."""
+        return np.cross(a, b)
+
+    @staticmethod
+    def inv(m) -> np.ndarray:
+        """Matrix inverse (pseudo-inverse when exactly singular, e.g. while tipping)."""
+        try:
+            return np.linalg.inv(m)
+        except np.linalg.LinAlgError:
+            return np.linalg.pinv(m)
+
+    @staticmethod
+    def norm_1(m) -> float:
+        """Induced 1-norm (max column sum)."""
+        return float(np.abs(m).sum(axis=0).max())
+
+    @staticmethod
+    def norm_2(v) -> float:
+        """Euclidean norm of a vector."""
+        return float(np.linalg.norm(v))
+
+    @staticmethod
+    def det3(m) -> float:
+        """Determinant of a 3x3 matrix."""
+        return float(np.linalg.det(m))
+
+    @staticmethod
+    def entry(v, i):
+        """Scalar entry ``i`` of a vector."""
+        return float(v[i])
+
+    @staticmethod
+    def col(m, j):
+        """Column ``j`` of a matrix as a vector."""
+        return m[:, j]
+
+    adjoint_rp = staticmethod(lambda r, p: spatial.adjoint(spatial.se3(r, p)))
+    coadjoint_rp = staticmethod(lambda r, p: spatial.coadjoint(spatial.se3(r, p)))
+    ad = staticmethod(spatial.ad)
+    ad_star = staticmethod(spatial.ad_star)
+    skew = staticmethod(spatial.skew)
+
+
+@dataclass(frozen=True)
+class TreeBody:
+    """One moving body of the tree (fixed children merged in).
+
+    Attributes:
+        name: Body (and joint) name.
+        parent: Index of the parent in `TreeModel.bodies`, -1 for the floating base.
+        kind: ``free``, ``revolute`` or ``prismatic``.
+        axis: Joint axis in the body frame, shape (3,).
+        rotation: Body orientation in the parent frame at zero joint coordinate, (3, 3).
+        position: Body origin in the parent frame at zero joint coordinate [m], (3,).
+        inertia: Inertia of the body and its merged fixed children, body frame.
+        spatial: Its spatial inertia M (6, 6), eq. (11).
+        screw: Joint screw axis s in the body frame, shape (6,) (the paper's s_x, s_z).
+        group: ``suspension`` (chassis, bogies, their cylinders: eq. 15), ``crane`` (eq. 14)
+            or ``wheel`` (eqs. 16-17).
+        damping: Viscous joint damping [N m s/rad or N s/m].
+        armature: Reflected rotor inertia [kg m^2 or kg].
+    """
+
+    name: str
+    parent: int
+    kind: str
+    axis: np.ndarray
+    rotation: np.ndarray
+    position: np.ndarray
+    inertia: Inertia
+    spatial: np.ndarray
+    screw: np.ndarray
+    group: str
+    damping: float
+    armature: float
+
+
+@dataclass(frozen=True)
+class ChainSpec:
+    """Constants of one cylinder chain for eqs. (2)-(8), in the form the recursion uses.
+
+    Attributes:
+        name: Chain name (its independent coordinate).
+        coordinate: Index in the independent coordinates.
+        driven, barrel, piston: Body indices in `TreeModel.bodies`.
+        la, lb: Triangle sides joint-to-base-pivot and joint-to-rod-eye [m].
+        lx0: Pin-to-pin length at zero stroke, L_c0 + L_c [m].
+        psi, psi_b: Offsets of eq. (5) for the driven joint and the barrel [rad].
+        sigma: Sign of eq. (5) (+1 or -1).
+        stroke_range: Valid stroke interval [m].
+    """
+
+    name: str
+    coordinate: int
+    driven: int
+    barrel: int
+    piston: int
+    la: float
+    lb: float
+    lx0: float
+    psi: float
+    psi_b: float
+    sigma: float
+    stroke_range: tuple[float, float]
+
+
+@dataclass
+class TreeDynamics:
+    """Result of the forward and backward recursions for one state.
+
+    Lists are indexed like `TreeModel.bodies`. Vectors are numpy arrays or CasADi SX columns.
+
+    Attributes:
+        rotation_fb: Rotation fb <- body, per body.
+        position_fb: Body origin in fb [m], per body.
+        twist: Body twist [v; w] in the body frame, per body, eqs. (9a-b), (10a-c).
+        acceleration: Its derivative *plus the gravity offset*, per body, eqs. (9c-d), (10d-f).
+        wrench: Euler-Poincare wrench of the body alone (weight included), eq. (11).
+        subtree_wrench: Wrench of the body and all its descendants, in the body frame.
+        joint_force: Joint torque/force of the tree, ``s^T subtree_wrench`` [N m or N].
+        q, qd, qdd: Tree joint coordinates per body (0 for the base).
+        k1, k2, dk1, dk2: Per chain (`TreeModel.chains` order), eqs. (6)-(7).
+    """
+
+    rotation_fb: list
+    position_fb: list
+    twist: list
+    acceleration: list
+    wrench: list
+    subtree_wrench: list
+    joint_force: list
+    q: list
+    qd: list
+    qdd: list
+    k1: list
+    k2: list
+    dk1: list
+    dk2: list
+
+    @property
+    def base_wrench(self):
+        """Total wrench the environment must apply to the machine, in fb at its origin."""
+        return self.subtree_wrench[0]
+
+
+class TreeModel:
+    """Precomputed tree of a `Machine` for the recursion.
+
+    Args:
+        machine: The machine description; its first body is the floating base fb.
+
+    Attributes:
+        machine: The description.
+        bodies: Moving bodies (the base first), parents before children.
+        index: Body name -> index.
+        chains: One `ChainSpec` per cylinder chain, in independent-coordinate order.
+        direct: (independent index, body index) of the directly driven coordinates.
+        wheels: Body indices of the wheels, order FL, RL, FR, RR.
+        wheel_axes: Spin axis of each wheel in its body frame, shape (4, 3).
+        wheel_is_sphere: True when the wheels touch the ground with a sphere (the contact is
+            straight below the centre); False for a disc (lowest point of the rim).
+        suspension: Chain indices (into `chains`) of the two suspension chains, order L, R.
+        side_wheels: For each suspension chain, the wheel slots (0..3) on its bogie.
+        crane_root: Index of the crane's first body (its parent frame hosts frame m).
+        gravity: [m/s^2] along world -z.
+    """
+
+    def __init__(self, machine: Machine):
+        self.machine = machine
+        self.gravity = float(machine.gravity)
+        coords = TreeCoordinates(machine)
+        self.independent_names = coords.independent_names
+        host: dict[str, tuple[str, np.ndarray]] = {}  # fixed body -> (moving host, T_host_body)
+        merged: dict[str, Inertia] = {}
+        order: list = []
+        for b in machine.bodies:
+            if b.joint.kind == "fixed" and b.parent is not None:
+                h, t_hp = host.get(b.parent, (b.parent, np.eye(4)))
+                t_hb = t_hp @ spatial.se3(b.rotation, b.position)
+                host[b.name] = (h, t_hb)
+                merged[h] = merged[h] + b.inertia.transformed(t_hb[:3, :3], t_hb[:3, 3])
+            else:
+                merged[b.name] = b.inertia
+                order.append(b)
+        self.index = {b.name: i for i, b in enumerate(order)}
+
+        suspension_bodies = {order[0].name}
+        for name in machine.suspension_coordinates:
+            cb = machine.chains[name]
+            suspension_bodies.update((cb.driven_joint, cb.barrel, cb.piston))
+        bodies = []
+        for b in order:
+            if b.name in machine.wheels:
+                group = "wheel"
+            elif b.name in suspension_bodies:
+                group = "suspension"
+            else:
+                group = "crane"
+            axis = np.asarray(b.joint.axis, float)
+            screw = np.zeros(6)
+            if b.joint.kind == "revolute":
+                screw[3:] = axis
+            elif b.joint.kind == "prismatic":
+                screw[:3] = axis
+            inertia = merged[b.name]
+            bodies.append(TreeBody(
+                name=b.name, parent=-1 if b.parent is None else self.index[b.parent],
+                kind=b.joint.kind, axis=axis, rotation=np.asarray(b.rotation, float),
+                position=np.asarray(b.position, float), inertia=inertia,
+                spatial=spatial.spatial_inertia(inertia), screw=screw, group=group,
+                damping=float(b.joint.damping), armature=float(b.joint.armature)))
+        self.bodies: tuple[TreeBody, ...] = tuple(bodies)
+        self.children: tuple[tuple[int, ...], ...] = tuple(
+            tuple(j for j, c in enumerate(bodies) if c.parent == i) for i in range(len(bodies)))
+
+        chains, direct = [], []
+        for i, name in enumerate(self.independent_names):
+            if name in machine.chains:
+                cb = machine.chains[name]
+                ch = cb.chain
+                mid = 0.5 * sum(ch.stroke_range)
+                s = ch.state(mid)
+                la, lb = ch.side_lengths
+                chains.append(ChainSpec(
+                    name=name, coordinate=i, driven=self.index[cb.driven_joint],
+                    barrel=self.index[cb.barrel], piston=self.index[cb.piston], la=la, lb=lb,
+                    lx0=ch.dead_length + ch.rod_length,
+                    psi=s.theta - ch.sigma * s.q, psi_b=s.theta_barrel + ch.sigma * s.q1,
+                    sigma=ch.sigma, stroke_range=ch.stroke_range))
+            else:
+                direct.append((i, self.index[name]))
+        self.chains: tuple[ChainSpec, ...] = tuple(chains)
+        self.direct: tuple[tuple[int, int], ...] = tuple(direct)
+        self.wheels = tuple(self.index[w] for w in machine.wheels)
+        self.wheel_axes = np.array([bodies[w].axis for w in self.wheels])
+        wheel_body = machine.body(machine.wheels[0])
+        kinds = [g.kind for g in wheel_body.geoms if g.collision]
+        self.wheel_is_sphere = bool(kinds) and kinds[0] == "sphere"
+        self.wheel_radius = float(machine.wheel_radius)
+        names = [c.name for c in self.chains]
+        self.suspension = tuple(names.index(n) for n in machine.suspension_coordinates)
+        side = []
+        for ci in self.suspension:
+            drv = self.chains[ci].driven
+            side.append(tuple(k for k, w in enumerate(self.wheels) if self._descends(w, drv)))
+        self.side_wheels: tuple[tuple[int, ...], ...] = tuple(side)
+        crane = [i for i, b in enumerate(bodies) if b.group == "crane" and b.parent == 0]
+        first = self.index.get(machine.crane_coordinates[0], crane[0] if crane else 0)
+        self.crane_root = first if bodies[first].group == "crane" else (crane[0] if crane else 0)
+        self.coordinates = coords
+
+    def _descends(self, i: int, ancestor: int) -> bool:
+        while i >= 0:
+            if i == ancestor:
+                return True
+            i = self.bodies[i].parent
+        return False
+
+    @property
+    def transform_fb_to_m(self) -> np.ndarray:
+        """Pose of the manipulator base frame m in fb (4x4): the crane root's joint frame."""
+        b = self.bodies[self.crane_root]
+        t = np.eye(4)
+        i = b.parent
+        chain = []
+        while i > 0:
+            chain.append(self.bodies[i])
+            i = self.bodies[i].parent
+        for c in reversed(chain):  # crane root on a fixed-in-fb body: constant
+            t = t @ spatial.se3(c.rotation, c.position)
+        return t @ spatial.se3(b.rotation, b.position)
+
+    # ------------------------------------------------------------------ eqs. (2)-(8)
+    @staticmethod
+    def chain_motion(ops, c: ChainSpec, x, xd, xdd):
+        """Driven-joint and barrel motion of one chain from its stroke, eqs. (2)-(7).
+
+        Returns:
+            ``(theta, theta_d, theta_dd, barrel, barrel_d, barrel_dd, k1, k2, dk1, dk2)``
+            [rad, rad/s, rad/s^2, rad/m, rad/m^2], with ``dk = dk/dx``.
+        """
+        la, lb = c.la, c.lb
+        lx = c.lx0 + x
+        # eq. (2) with L_x squared (erratum), and its x-derivatives.
+        cq = (la * la + lb * lb - lx * lx) / (2 * la * lb)
+        sq = ops.sqrt(1 - cq * cq)
+        q = -ops.acos(cq)
+        dc, ddc = -lx / (la * lb), -1.0 / (la * lb)
+        dq = dc / sq
+        ddq = ddc / sq + cq * dc * dc / (sq * sq * sq)
+        # eq. (3)
+        c1 = (la * la + lx * lx - lb * lb) / (2 * la * lx)
+        s1 = ops.sqrt(1 - c1 * c1)
+        q1 = -ops.acos(c1)
+        dc1 = 1.0 / (2 * la) - (la * la - lb * lb) / (2 * la * lx * lx)
+        ddc1 = (la * la - lb * lb) / (la * lx * lx * lx)
+        dq1 = dc1 / s1
+        ddq1 = ddc1 / s1 + c1 * dc1 * dc1 / (s1 * s1 * s1)
+        sg = c.sigma
+        k1, dk1 = sg * dq, sg * ddq  # eq. (6)
+        k2, dk2 = -sg * dq1, -sg * ddq1  # eq. (7)
+        return (c.psi + sg * q, k1 * xd, dk1 * xd * xd + k1 * xdd,  # eq. (5)
+                c.psi_b - sg * q1, k2 * xd, dk2 * xd * xd + k2 * xdd, k1, k2, dk1, dk2)
+
+    def tree_coordinates(self, ops, q, qd, qdd):
+        """Tree joint motion (per body) from the independent coordinates, eqs. (5)-(8).
+
+        Returns:
+            ``(q_t, qd_t, qdd_t, k1, k2, dk1, dk2)``: per-body lists and per-chain lists.
+        """
+        n = len(self.bodies)
+        qt, qdt, qddt = [0.0] * n, [0.0] * n, [0.0] * n
+        for i, b in self.direct:
+            qt[b], qdt[b], qddt[b] = q[i], qd[i], qdd[i]
+        k1s, k2s, dk1s, dk2s = [], [], [], []
+        for c in self.chains:
+            i = c.coordinate
+            th, thd, thdd, br, brd, brdd, k1, k2, dk1, dk2 = self.chain_motion(
+                ops, c, q[i], qd[i], qdd[i])
+            qt[c.driven], qdt[c.driven], qddt[c.driven] = th, thd, thdd
+            qt[c.barrel], qdt[c.barrel], qddt[c.barrel] = br, brd, brdd
+            qt[c.piston], qdt[c.piston], qddt[c.piston] = q[i], qd[i], qdd[i]
+            k1s.append(k1)
+            k2s.append(k2)
+            dk1s.append(dk1)
+            dk2s.append(dk2)
+        return qt, qdt, qddt, k1s, k2s, dk1s, dk2s
+
+    def joint_placement(self, ops, i: int, q):
+        """Pose (R, p) of body ``i`` in its parent at joint coordinate ``q``."""
+        b = self.bodies[i]
+        r0 = ops.const(b.rotation)
+        p0 = ops.const(b.position)
+        if b.kind == "revolute":
+            k = spatial.skew(b.axis)
+            rot = ops.const(np.eye(3)) + ops.sin(q) * ops.const(k) \
+                + (1 - ops.cos(q)) * ops.const(k @ k)
+            return r0 @ rot, p0
+        if b.kind == "prismatic":
+            return r0, p0 + ops.const(b.rotation @ b.axis) * q
+        return r0, p0
+
+    # ------------------------------------------------------------------ eqs. (9)-(11)
+    def dynamics(self, ops, rotation_world_fb, twist, acceleration, q, qd, qdd,
+                 gravity: bool = True) -> TreeDynamics:
+        """Forward recursion of twists and accelerations, then the backward wrench sums.
+
+        Args:
+            ops: Array backend (`NumpyOps` or `estimators._symbolic.CasadiOps`).
+            rotation_world_fb: Base orientation, world <- fb, (3, 3).
+            twist: Base body twist [v; w] in fb, shape (6,).
+            acceleration: Its time derivative, shape (6,).
+            q: Independent coordinates, shape (13,).
+            qd: Their velocities, shape (13,).
+            qdd: Their accelerations, shape (13,).
+            gravity: Include the weights (as the base acceleration offset, see `spatial`).
+
+        Returns:
+            The per-body kinematics, wrenches and tree joint forces.
+        """
+        qt, qdt, qddt, k1, k2, dk1, dk2 = self.tree_coordinates(ops, q, qd, qdd)
+        n = len(self.bodies)
+        rot_fb, pos_fb = [None] * n, [None] * n
+        nu, nud, wrench = [None] * n, [None] * n, [None] * n
+        local = [None] * n
+        g_up = ops.const([0.0, 0.0, self.gravity if gravity else 0.0])
+        offset = ops.vcat([rotation_world_fb.T @ g_up, ops.const(np.zeros(3))])
+        for i, b in enumerate(self.bodies):
+            if b.parent < 0:
+                rot_fb[i], pos_fb[i] = ops.const(np.eye(3)), ops.const(np.zeros(3))
+                nu[i] = twist
+                nud[i] = acceleration + offset
+            else:
+                p = b.parent
+                r_pi, p_pi = self.joint_placement(ops, i, qt[i])
+                local[i] = (r_pi, p_pi)
+                # Ad_{G_i^p}: twist of the parent expressed in this body's frame.
+                ad_ip = ops.adjoint_rp(r_pi.T, -(r_pi.T @ p_pi))
+                s = ops.const(b.screw)
+                nu[i] = ad_ip @ nu[p] + s * qdt[i]  # eqs. (9a), (10a-c)
+                nud[i] = (ad_ip @ nud[p] + s * qddt[i]
+                          + ops.ad(nu[i]) @ (s * qdt[i]))  # eqs. (9c), (10d-f)
+                rot_fb[i] = rot_fb[p] @ r_pi
+                pos_fb[i] = pos_fb[p] + rot_fb[p] @ p_pi
+            m = ops.const(b.spatial)
+            wrench[i] = m @ nud[i] + ops.ad_star(nu[i]) @ (m @ nu[i])  # eq. (11)
+        # Backward accumulation. By Theorem 1 the total wrench of a closed chain at its base
+        # does not depend on how successor wrenches are shared between its two branches, so
+        # the tree's own routing (everything through the driven joint) is as good as any.
+        sub = list(wrench)
+        for i in range(n - 1, 0, -1):
+            r_pi, p_pi = local[i]
+            sub[self.bodies[i].parent] = sub[self.bodies[i].parent] \
+                + ops.coadjoint_rp(r_pi, p_pi) @ sub[i]
+        tau = [0.0] + [ops.dot(ops.const(self.bodies[i].screw), sub[i]) for i in range(1, n)]
+        return TreeDynamics(rot_fb, pos_fb, nu, nud, wrench, sub, tau, qt, qdt, qddt,
+                            k1, k2, dk1, dk2)
+
+    def check_strokes(self, q) -> list[tuple[str, int, float, tuple[float, float]]]:
+        """Chains whose stroke is out of range: (name, coordinate, stroke, range)."""
+        bad = []
+        for c in self.chains:
+            x = float(q[c.coordinate])
+            lo, hi = c.stroke_range
+            if not (lo - 1e-12 <= x <= hi + 1e-12):
+                bad.append((c.name, c.coordinate, x, (lo, hi)))
+        return bad

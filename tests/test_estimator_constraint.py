@@ -1,0 +1,106 @@
+"""Constraint form f_z = G a + g0 (exact) and derivatives against finite differences."""
+
+import numpy as np
+import pytest
+
+from estimators import NormalForceEstimator
+from estimators.testing import random_state
+from models import MachineState, WheelContacts, build_reference_machine
+
+
+@pytest.fixture(scope="module")
+def machine():
+    return build_reference_machine()
+
+
+def with_acc(s, a):
+    return MachineState(s.base_position, s.base_rotation, s.base_twist, a[:6], s.q, s.qd, a[6:],
+                        contacts=s.contacts, suspension_force=s.suspension_force)
+
+
+def with_contacts(est, s, flags, rng):
+    pts = est.estimate(s).contact_points + 0.02 * rng.normal(size=(4, 3))
+    s.contacts = WheelContacts(np.array(flags, bool), 1000 * rng.normal(size=(4, 3)), pts,
+                               np.tile([0, 0, 1.0], (4, 1)))
+    return s
+
+
+CASES = [("full", "d-beta", [1, 1, 1, 1]), ("full", "cylinder-force", [1, 1, 1, 1]),
+         ("quasi-static", "d-beta", [1, 1, 1, 1]), ("full", "d-beta", [1, 0, 1, 1]),
+         ("full", "d-beta", [0, 1, 1, 0])]
+
+
+@pytest.mark.parametrize("method,fourth,flags", CASES)
+def test_affine_in_accelerations(machine, method, fourth, flags):
+    est = NormalForceEstimator(machine, method=method, fourth=fourth, D=1.2, beta=300.0)
+    rng = np.random.default_rng(1)
+    for _ in range(3):
+        s = with_contacts(est, random_state(machine, rng, max_tilt=0.4), flags, rng)
+        s.suspension_force = 1e4 * rng.normal(size=2)
+        g, g0 = est.constraint(s)
+        assert g.shape == (4, 19) and g0.shape == (4,)
+        for _ in range(4):
+            a = 3 * rng.normal(size=19)
+            e = est.estimate(with_acc(s, a)).normal_forces
+            np.testing.assert_allclose(g @ a + g0, e, rtol=1e-9,
+                                       atol=1e-9 * np.abs(e).max())
+        if method == "quasi-static":
+            np.testing.assert_array_equal(g[:, :6], 0.0)
+            np.testing.assert_array_equal(g[:, 6 + np.array([0, 1, 9, 10, 11, 12])], 0.0)
+
+
+def test_reference_backend_constraint_matches_compiled(machine):
+    rng = np.random.default_rng(2)
+    s = random_state(machine, rng, max_tilt=0.4)
+    g1, c1 = NormalForceEstimator(machine).constraint(s)
+    g2, c2 = NormalForceEstimator(machine, backend="reference").constraint(s)
+    np.testing.assert_allclose(g1, g2, rtol=1e-7, atol=1e-6)
+    np.testing.assert_allclose(c1, c2, rtol=1e-9, atol=1e-6)
+
+
+def fd_jacobian(est, s, name, h=1e-6):
+    base = getattr(s, name)
+    out = np.zeros((4, 13))
+    for j in range(13):
+        vals = []
+        for step in (-h, h):
+            v = base.copy()
+            v[j] += step
+            kw = dict(base_position=s.base_position, base_rotation=s.base_rotation,
+                      base_twist=s.base_twist, base_acceleration=s.base_acceleration, q=s.q,
+                      qd=s.qd, qdd=s.qdd, contacts=s.contacts,
+                      suspension_force=s.suspension_force)
+            kw[name] = v
+            vals.append(est.estimate(MachineState(**kw)).normal_forces)
+        out[:, j] = (vals[1] - vals[0]) / (2 * h)
+    return out
+
+
+@pytest.mark.parametrize("method,fourth,contacts", [("full", "d-beta", False),
+                                                    ("full", "cylinder-force", True),
+                                                    ("quasi-static", "d-beta", False)])
+def test_derivatives_match_finite_differences(machine, method, fourth, contacts):
+    est = NormalForceEstimator(machine, method=method, fourth=fourth, D=0.8)
+    rng = np.random.default_rng(3)
+    s = random_state(machine, rng, max_tilt=0.4, margin=0.01)
+    if contacts:
+        s = with_contacts(est, s, [1, 1, 1, 1], rng)
+        s.suspension_force = 1e4 * rng.normal(size=2)
+    d = est.constraint_derivatives(s)
+    np.testing.assert_allclose(d.normal_forces, est.estimate(s).normal_forces, rtol=1e-12)
+    np.testing.assert_allclose(d.d_acceleration, est.constraint(s)[0], rtol=1e-9, atol=1e-6)
+    for name, jac in (("q", d.d_q), ("qd", d.d_qd)):
+        fd = fd_jacobian(est, s, name)
+        scale = np.abs(fd).max()
+        np.testing.assert_allclose(jac, fd, atol=2e-6 * scale)
+    if method == "quasi-static":
+        np.testing.assert_array_equal(d.d_qd[:, [0, 1, 9, 10, 11, 12]], 0.0)
+
+
+def test_tipping_derivatives_are_finite(machine):
+    est = NormalForceEstimator(machine)
+    rng = np.random.default_rng(4)
+    s = with_contacts(est, random_state(machine, rng, max_tilt=0.3), [1, 0, 0, 1], rng)
+    d = est.constraint_derivatives(s)
+    assert all(np.isfinite(x).all() for x in (d.normal_forces, d.d_acceleration, d.d_q,
+                                               d.d_qd))
