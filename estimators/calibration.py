@@ -194,7 +194,8 @@ def _ipopt(xp, n, gt, x0, scale):
 def calibrate_d_beta_sliding(a: np.ndarray, b: np.ndarray, normal_forces_gt: np.ndarray,
                              window: int, stride: int | None = None,
                              valid: np.ndarray | None = None,
-                             solver: str = "scipy") -> SlidingCalibration:
+                             solver: str = "scipy",
+                             min_samples: int = 1) -> SlidingCalibration:
     """Fit (D, beta) on sliding windows of a log (paper Fig. 9).
 
     Args:
@@ -205,6 +206,9 @@ def calibrate_d_beta_sliding(a: np.ndarray, b: np.ndarray, normal_forces_gt: np.
         stride: Step between window starts [samples], default ``window // 2``.
         valid: Samples usable for the fit (four wheels in contact), shape (N,).
         solver: ``scipy`` or ``ipopt``.
+        min_samples: Windows with fewer valid samples are not fitted (NaN): with one or two
+            samples the pair (D, beta) is a whole line of optima and the fit returns an
+            arbitrary, often huge, point of it.
     """
     a = np.asarray(a, float)
     n_total = a.shape[0]
@@ -222,7 +226,7 @@ def calibrate_d_beta_sliding(a: np.ndarray, b: np.ndarray, normal_forces_gt: np.
         sl = slice(s, s + window)
         use = np.flatnonzero(valid[sl]) + s
         counts[w] = use.size
-        if use.size == 0:
+        if use.size < max(1, min_samples):
             continue
         r = calibrate_d_beta(a[use], np.asarray(b)[use], np.asarray(normal_forces_gt)[use],
                              x0=None if x0 is None else x0, solver=solver)

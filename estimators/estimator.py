@@ -98,6 +98,10 @@ class BatchEstimate:
         singular: (N,) rows whose system was singular (only with ``strict=False``; their
             forces are the least-squares solution).
         backend: Which code computed it.
+        normals: (N, 4, 3) terrain normals in fb used for `normal_forces_terrain` (the
+            logged ones, else the world z axis in fb).
+        friction: (N, 4, 3) measured ground forces in fb (only their x-y part is used;
+            zeros without measured contacts) [N].
     """
 
     normal_forces: np.ndarray
@@ -112,9 +116,25 @@ class BatchEstimate:
     system_rhs: np.ndarray
     singular: np.ndarray
     backend: str
+    normals: np.ndarray | None = None
+    friction: np.ndarray | None = None
 
     def __len__(self) -> int:
         return self.normal_forces.shape[0]
+
+    @property
+    def normal_forces_terrain(self) -> np.ndarray:
+        """Ground force along the terrain normal [N], (N, 4): ``n . (F_a + f_z e_z)``.
+
+        As `Estimate.normal_forces_terrain`: the estimated f_z plus the measured friction
+        (fb x-y part of `friction`) projected on the terrain normal.
+        """
+        n = self.normals
+        if n is None:
+            raise EstimatorInputError("this BatchEstimate carries no terrain normals")
+        f = self.friction if self.friction is not None else np.zeros_like(n)
+        return n[..., 2] * self.normal_forces + np.einsum("nkj,nkj->nk", n[..., :2],
+                                                          f[..., :2])
 
 
 @dataclass
@@ -597,8 +617,11 @@ class NormalForceEstimator:
         for i in np.flatnonzero(tip | singular):
             x[i], cond[i] = _least_squares(a[i], b[i], ic[i].astype(float))
             residual[i] = a[i] @ x[i] - b[i]
+        normals = sb.normal_in_fb if sb.normal_in_fb is not None else np.repeat(
+            sb.base_rotation[:, 2][:, None, :], 4, axis=1)
+        friction = sb.force_in_fb if sb.force_in_fb is not None else np.zeros((n, 4, 3))
         return BatchEstimate(x, ic.copy(), xi, cond, mode, tip, residual, points, a, b,
-                             singular, self.backend)
+                             singular, self.backend, normals, friction)
 
     def _validate_batch(self, sb: StateBatch) -> None:
         n = len(sb)
