@@ -33,3 +33,11 @@ class JointOutOfRangeError(ModelError, ValueError):
 
 class StateError(ModelError, ValueError):
     """A machine state has a wrong shape or a non-finite entry."""
+
+
+class TerrainError(ModelError, ValueError):
+    """A terrain was given invalid parameters, or queried outside its extent."""
+
+
+class PlacementError(ModelError, RuntimeError):
+    """The machine could not be placed on the terrain at the requested pose."""

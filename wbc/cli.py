@@ -71,7 +71,7 @@ def _cmd_machine(args) -> int:
         from models.mujoco_model import write_mjcf
 
         paths = write_mjcf(machine, Path(args.write_mjcf))
-        print("wrote", *map(str, paths))
+        print("wrote", *map(str, paths.values()))
     print(f"total mass {machine.total_mass:.1f} kg, {len(machine.bodies)} bodies, "
           f"{len(machine.loops)} closed chains")
     for item, value, source in machine.sources:

@@ -1,0 +1,105 @@
+"""Controller speed: the whole-body QP step and the MPC step, per control tick.
+
+Goals (2-core machine): whole-body QP median <= 0.5 ms and p99 <= 2 ms; MPC (>= 1 s
+horizon) median <= 10 ms. Each figure is the wall time of ``controller.step(state)`` (goal
+handling, references, building the QP, solving it, the command), in closed loop with a
+kinematic stand-in for the machine (`wbc.testing.KinematicPlant`) while the crane moves to
+a goal that the normal-force constraint partly blocks.
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import numpy as np
+
+from models import build_reference_machine
+from wbc.control import (
+    AffineForceModel,
+    ForceModelError,
+    JointGoal,
+    WholeBodyQPController,
+    load_estimator,
+    make_controller,
+)
+from wbc.testing import KinematicPlant, make_state
+
+DT = 0.01
+WARMUP = 20
+STEPS = 600
+GOALS = {"qp_median_ms": 0.5, "qp_p99_ms": 2.0, "mpc_median_ms": 10.0}
+
+
+def _time_loop(controller, machine, steps: int = STEPS) -> dict:
+    st = make_state(machine)
+    goal = st.q[2:9].copy()
+    goal[0] += 0.12  # slew: moves load to one side
+    goal[1] += 0.15  # lift
+    goal[3] += 0.45  # telescope out
+    controller.set_goal(JointGoal(crane=goal, suspension=st.q[:2] + 0.03))
+    plant = KinematicPlant(st, DT, servo_time_constant=0.02)
+    times, iters, solve = [], [], []
+    fallbacks = 0
+    for k in range(WARMUP + steps):
+        t0 = time.perf_counter()
+        cmd = controller.step(plant.state)
+        elapsed = time.perf_counter() - t0
+        plant.apply(cmd)
+        if k >= WARMUP:
+            times.append(elapsed)
+            iters.append(cmd.info.get("iterations", -1))
+            solve.append(cmd.info.get("solve_time", np.nan))
+        fallbacks += int(cmd.fallback)
+    t = 1e3 * np.asarray(times)
+    return {"median_ms": float(np.median(t)), "p99_ms": float(np.percentile(t, 99)),
+            "max_ms": float(t.max()), "mean_ms": float(t.mean()),
+            "solver_median_ms": float(1e3 * np.nanmedian(solve)),
+            "iterations_median": float(np.median(iters)), "fallbacks": fallbacks,
+            "steps": steps}
+
+
+def run(out_dir: Path | None = None) -> dict:
+    """Time the controllers; return (and print) the figures."""
+    machine = build_reference_machine()
+    st = make_state(machine)
+    synthetic = AffineForceModel.reference(machine, st.q)
+    models = {"synthetic": synthetic}
+    for method in ("full", "quasi-static"):
+        try:
+            models[method] = load_estimator(machine, method)
+        except ForceModelError as exc:
+            print(f"   estimator '{method}' not available: {exc}")
+    result: dict = {"goals": GOALS, "dt_s": DT}
+    result["qp_tracking"] = _time_loop(make_controller("tracking", machine), machine)
+    for name, model in models.items():
+        ctrl = WholeBodyQPController(machine, force_model=model)
+        result[f"qp_force_{name}"] = _time_loop(ctrl, machine)
+    for name, model in models.items():
+        label = {"synthetic": "mpc-full", "full": "mpc-full",
+                 "quasi-static": "mpc-quasi-static"}[name]
+        ctrl = make_controller(label, machine, force_model=model)
+        r = _time_loop(ctrl, machine)
+        r["horizon_s"] = ctrl.horizon
+        r["n_steps"] = ctrl.layout.n_steps
+        r["n_linearizations"] = ctrl.config.mpc.n_linearizations
+        result[f"mpc_{name}"] = r
+    qp = result["qp_tracking"]
+    mpcs = [v for k, v in result.items() if k.startswith("mpc_")]
+    result["meets_goals"] = {
+        "qp_median": qp["median_ms"] <= GOALS["qp_median_ms"],
+        "qp_p99": qp["p99_ms"] <= GOALS["qp_p99_ms"],
+        "mpc_median": all(m["median_ms"] <= GOALS["mpc_median_ms"] for m in mpcs),
+    }
+    for k, v in result.items():
+        if isinstance(v, dict) and "median_ms" in v:
+            extra = f", horizon {v['horizon_s']:.2f} s" if "horizon_s" in v else ""
+            print(f"   {k:24s} median {v['median_ms']:.3f} ms, p99 {v['p99_ms']:.3f} ms, "
+                  f"max {v['max_ms']:.2f} ms, solver {v['solver_median_ms']:.3f} ms, "
+                  f"fallbacks {v['fallbacks']}{extra}")
+    print(f"   goals met: {result['meets_goals']}")
+    return result
+
+
+if __name__ == "__main__":
+    run()

@@ -1,0 +1,207 @@
+"""Whole-body QP: the Problem is what the tasks and constraints say; limits hold."""
+
+import numpy as np
+import pytest
+import qpsolvers
+
+from wbc.control import (
+    CRANE_AXES,
+    AccelerationLimit,
+    AxisLimits,
+    Box,
+    ControlCommand,
+    DampingTask,
+    Inequality,
+    JointGoal,
+    JointTask,
+    PositionLimit,
+    ProxQPWorkspace,
+    QPContext,
+    ReferenceSample,
+    SuspensionPostureTask,
+    VariableLayout,
+    VelocityLimit,
+    build_qp,
+    make_controller,
+)
+from wbc.testing import KinematicPlant, make_state
+
+DT = 0.01
+
+
+@pytest.fixture(scope="module")
+def limits(machine):
+    return AxisLimits.from_machine(machine)
+
+
+def _ctx(machine, limits, q=None, qd=None, ref=None, layout=None):
+    st = make_state(machine, q=q, qd=qd)
+    return QPContext.from_state(st, DT, layout or VariableLayout(), limits, ref)
+
+
+def _solve(problem):
+    return ProxQPWorkspace(eps_abs=1e-10).solve(problem).x
+
+
+def test_no_task_gives_zero_motion(machine, limits):
+    ctx = _ctx(machine, limits)
+    cons = [AccelerationLimit(), VelocityLimit(), PositionLimit()]
+    x = _solve(build_qp(ctx, [], cons))
+    np.testing.assert_allclose(x, 0.0, atol=1e-9)
+    # And a controller without a goal keeps a machine at rest still.
+    c = make_controller("tracking", machine)
+    cmd = c.step(make_state(machine))
+    np.testing.assert_allclose(cmd.rates, 0.0, atol=1e-9)
+    assert cmd.wheel_speed_scale == 1.0 and not cmd.fallback
+
+
+def test_met_task_gives_zero_motion(machine, limits):
+    st = make_state(machine)
+    q9 = st.q[:9]
+    ref = ReferenceSample(q9.copy(), np.zeros(9), np.zeros(9))
+    ctx = _ctx(machine, limits, ref=ref)
+    tasks = [JointTask(CRANE_AXES, 16.0, 8.0), SuspensionPostureTask(), DampingTask()]
+    x = _solve(build_qp(ctx, tasks, [AccelerationLimit(), VelocityLimit(), PositionLimit()]))
+    np.testing.assert_allclose(x, 0.0, atol=1e-9)
+    c = make_controller("tracking", machine)
+    c.set_goal(JointGoal(crane=st.q[2:9], suspension=st.q[:2]))
+    for _ in range(3):
+        cmd = c.step(st)
+        np.testing.assert_allclose(cmd.rates, 0.0, atol=1e-9)
+
+
+def test_problem_matrices_are_what_tasks_and_constraints_say(machine, limits):
+    rng = np.random.default_rng(0)
+    st = make_state(machine)
+    qd = np.zeros(13)
+    qd[:9] = 0.05 * rng.standard_normal(9)
+    ref = ReferenceSample(st.q[:9] + 0.02 * rng.standard_normal(9),
+                          0.05 * rng.standard_normal(9), 0.1 * rng.standard_normal(9))
+    ctx = _ctx(machine, limits, qd=qd, ref=ref)
+    kp, kd, w = 9.0, 6.0, 2.0
+    joint = JointTask(CRANE_AXES, kp, kd, w)
+    damp = DampingTask(0.5, 1e-3)
+    cons = [AccelerationLimit(), VelocityLimit(), PositionLimit()]
+    reg = 1e-9
+    prob = build_qp(ctx, [joint, damp], cons, regularization=reg)
+    assert isinstance(prob, qpsolvers.Problem)
+    # Cost: 1/2 ||S x - qdd*||^2 w + 1/2 ||x + qd/T||^2 w_d, written out by hand.
+    S = np.zeros((7, 9))
+    S[np.arange(7), CRANE_AXES] = 1.0
+    qdd_star = (ref.acceleration + kp * (ref.position - ctx.q) + kd * (ref.velocity - ctx.qd))
+    P = w * S.T @ S + 1e-3 * np.eye(9) + reg * np.eye(9)
+    q = -w * S.T @ qdd_star[CRANE_AXES] + 1e-3 * ctx.qd / 0.5
+    np.testing.assert_allclose(prob.P, P, atol=1e-12)
+    np.testing.assert_allclose(prob.q, q, atol=1e-12)
+    # Bounds: the intersection of the three boxes, each one as its docstring says.
+    a = limits.acceleration
+    brake = -np.clip(ctx.qd / DT, -a, a)
+    v_lo = np.minimum((limits.velocity_lower - ctx.qd) / DT, brake)
+    v_hi = np.maximum((limits.velocity_upper - ctx.qd) / DT, brake)
+    boxes = [c.compute(ctx) for c in cons]
+    assert all(isinstance(b, Box) for b in boxes)
+    np.testing.assert_allclose(boxes[0].lower, -a)
+    np.testing.assert_allclose(boxes[1].lower, v_lo)
+    np.testing.assert_allclose(boxes[1].upper, v_hi)
+    np.testing.assert_allclose(prob.lb, np.max([b.lower for b in boxes], axis=0))
+    np.testing.assert_allclose(prob.ub, np.min([b.upper for b in boxes], axis=0))
+    assert prob.G is None and prob.A is None
+    # The solution is the unconstrained optimum clipped where a bound is active.
+    x = _solve(prob)
+    assert np.all(x >= prob.lb - 1e-8) and np.all(x <= prob.ub + 1e-8)
+    x_free = np.linalg.solve(P, -q)
+    inside = (x_free > prob.lb) & (x_free < prob.ub)
+    np.testing.assert_allclose(x[inside], x_free[inside], atol=1e-7)
+
+
+def test_position_limit_bounds(machine, limits):
+    st = make_state(machine)
+    q = st.q.copy()
+    i = 5  # telescope
+    q[i] = limits.position_upper[i] - 0.01
+    qd = np.zeros(13)
+    qd[i] = 0.3
+    ctx = _ctx(machine, limits, q=q, qd=qd)
+    box = PositionLimit(braking_fraction=0.5).compute(ctx)
+    b = 0.5 * limits.acceleration[i]
+    v_next = -b * DT + np.sqrt((b * DT) ** 2 + 2 * b * max(0.01 - 0.3 * DT / 2, 0))
+    viab = (v_next - 0.3) / DT
+    horizon = 2 * (0.01 - 0.3 * DT) / DT**2
+    brake = -min(0.3 / DT, limits.acceleration[i])
+    assert box.upper[i] == pytest.approx(max(min(viab, horizon), brake))
+    # Past the limit and moving out: braking is still admitted (never infeasible).
+    q[i] = limits.position_upper[i] + 0.02
+    ctx = _ctx(machine, limits, q=q, qd=qd)
+    box = PositionLimit().compute(ctx)
+    assert box.lower[i] <= brake <= box.upper[i]
+    assert box.upper[i] == pytest.approx(brake)  # nothing but braking is allowed
+
+
+def test_limits_hold_in_closed_loop(machine, limits):
+    """Goals at the ends of the ranges: positions, rates, accelerations stay inside."""
+    c = make_controller("tracking", machine)
+    st = make_state(machine)
+    plant = KinematicPlant(st, DT)
+    goal = limits.position_upper[CRANE_AXES].copy()
+    goal[4:] = limits.position_lower[CRANE_AXES][4:]
+    c.set_goal(JointGoal(crane=goal, suspension=limits.position_lower[:2]))
+    prev = plant.state.qd[:9].copy()
+    for _ in range(800):
+        cmd = c.step(plant.state)
+        assert np.all(cmd.rates <= limits.velocity_upper + 1e-9)
+        assert np.all(cmd.rates >= limits.velocity_lower - 1e-9)
+        assert np.all(np.abs(cmd.rates - prev) <= limits.acceleration * DT + 1e-7)
+        plant.apply(cmd)
+        prev = cmd.rates.copy()
+        q = plant.state.q[:9]
+        assert np.all(q <= limits.position_upper + 1e-9)
+        assert np.all(q >= limits.position_lower - 1e-9)
+    np.testing.assert_allclose(plant.state.q[2:9], goal, atol=2e-3)
+
+
+def test_position_limit_stops_a_fast_axis(machine, limits):
+    """An axis driven at the limit at full speed stops before it (viability bound)."""
+    ctx_layout = VariableLayout()
+    i = 5
+    q = make_state(machine).q.copy()
+    q[i] = limits.position_upper[i] - 0.2
+    qd = np.zeros(13)
+    qd[i] = limits.velocity_upper[i]
+    plant = KinematicPlant(make_state(machine, q=q, qd=qd), DT)
+    for _ in range(300):
+        st = plant.state
+        ref = ReferenceSample(st.q[:9].copy(), np.zeros(9), np.zeros(9))
+        ref.position[i] = 10.0  # pull far beyond the limit
+        ctx = QPContext.from_state(st, DT, ctx_layout, limits, ref)
+        prob = build_qp(ctx, [JointTask([i], 16.0, 8.0), DampingTask()],
+                        [AccelerationLimit(), VelocityLimit(), PositionLimit()])
+        x = _solve(prob)
+        rates = np.clip(st.qd[:9] + x * DT, limits.velocity_lower, limits.velocity_upper)
+        plant.apply(ControlCommand(rates, 1.0, x))
+        assert plant.state.q[i] <= limits.position_upper[i] + 1e-9
+    assert abs(plant.state.qd[i]) < 1e-3
+    assert plant.state.q[i] > limits.position_upper[i] - 1e-3
+
+
+def test_qpsolvers_backend_agrees(machine, limits):
+    """The Problem solves to the same x through qpsolvers' own ProxQP interface."""
+    rng = np.random.default_rng(5)
+    st = make_state(machine)
+    ref = ReferenceSample(st.q[:9] + 0.3 * rng.standard_normal(9), np.zeros(9), np.zeros(9))
+    ctx = _ctx(machine, limits, ref=ref)
+    prob = build_qp(ctx, [JointTask(CRANE_AXES, 16, 8), DampingTask()],
+                    [AccelerationLimit(), VelocityLimit(), PositionLimit()])
+    x = _solve(prob)
+    sol = qpsolvers.solve_problem(prob, solver="proxqp", eps_abs=1e-10, eps_rel=0.0)
+    np.testing.assert_allclose(x, sol.x, atol=1e-7)
+
+
+def test_inequality_type_is_checked(machine, limits):
+    from wbc.control import Constraint, WbcError
+
+    class Bad(Constraint):
+        def compute(self, ctx):
+            return Inequality(np.zeros((1, 3)), np.zeros(1))
+
+    with pytest.raises(WbcError, match="expected"):
+        build_qp(_ctx(machine, limits), [], [Bad()])

@@ -1,0 +1,110 @@
+"""Ruckig references: within the description's limits, at the goal, typed errors."""
+
+import numpy as np
+import pytest
+
+from wbc.control import (
+    CRANE_AXES,
+    SUSPENSION_AXES,
+    AxisLimits,
+    RuckigReference,
+    TrajectoryError,
+    WbcInputError,
+)
+
+
+@pytest.fixture(scope="module")
+def limits(machine):
+    return AxisLimits.from_machine(machine)
+
+
+def test_axis_limits_come_from_the_description(machine, limits):
+    lift = machine.chains["lift"]
+    lo, hi = lift.chain.stroke_range
+    i = limits.names.index("lift")
+    assert limits.position_lower[i] == pytest.approx(lo + 0.01 * (hi - lo))
+    assert limits.position_upper[i] == pytest.approx(hi - 0.01 * (hi - lo))
+    assert limits.velocity_lower[i] == pytest.approx(lift.cylinder.velocity_range[0])
+    assert limits.velocity_upper[i] == pytest.approx(lift.cylinder.velocity_range[1])
+    assert limits.acceleration[i] == lift.cylinder.max_acceleration
+    k = limits.names.index("rotator")
+    d = machine.direct_drives["rotator"]
+    assert limits.velocity_upper[k] == d.velocity_limit
+    assert limits.acceleration[k] == d.acceleration_limit
+    assert limits.names[:2] == machine.suspension_coordinates
+
+
+def _dense_samples(ref, t_end, dt=1e-3):
+    t = np.arange(0.0, t_end, dt)
+    p, v, a = ref.sample_many(t)
+    return t, p, v, a
+
+
+@pytest.mark.parametrize("axes", [CRANE_AXES, SUSPENSION_AXES])
+def test_reference_respects_limits_and_reaches_goal(limits, axes):
+    rng = np.random.default_rng(3)
+    ref = RuckigReference(limits, axes, jerk_time=0.25, velocity_fraction=0.8,
+                          acceleration_fraction=0.8)
+    lo, hi = limits.position_lower[axes], limits.position_upper[axes]
+    for _ in range(5):
+        start = rng.uniform(lo, hi)
+        goal = rng.uniform(lo, hi)
+        v0 = 0.5 * ref.min_velocity * rng.uniform(0, 1, axes.size)  # moving backwards
+        ref.plan(2.0, start, v0, np.zeros(axes.size), goal)
+        t, p, v, a = _dense_samples(ref, 2.0 + ref.duration + 0.5)
+        tol = 1e-9
+        assert np.all(v <= ref.max_velocity + tol) and np.all(v >= ref.min_velocity - tol)
+        assert np.all(np.abs(a) <= ref.max_acceleration + tol)
+        jerk = np.diff(a, axis=0) / np.diff(t)[:, None]
+        assert np.all(np.abs(jerk) <= ref.max_jerk * (1 + 1e-6) + 1e-6)
+        # The reference's own limits are inside the machine's.
+        assert np.all(ref.max_velocity <= limits.velocity_upper[axes])
+        assert np.all(ref.min_velocity >= limits.velocity_lower[axes])
+        # Before t0 the reference sits at the start; at the end at rest at the goal.
+        np.testing.assert_allclose(p[0], np.clip(start, lo, hi), atol=1e-12)
+        pe, ve, ae = ref.sample(2.0 + ref.duration + 1.0)
+        np.testing.assert_allclose(pe, goal, atol=1e-9)
+        np.testing.assert_allclose(ve, 0.0, atol=1e-9)
+        np.testing.assert_allclose(ae, 0.0, atol=1e-9)
+        assert np.all(p >= lo - 1e-12) and np.all(p <= hi + 1e-12)
+
+
+def test_reference_is_time_synchronized(limits):
+    ref = RuckigReference(limits, CRANE_AXES)
+    start = 0.5 * (limits.position_lower + limits.position_upper)[CRANE_AXES]
+    goal = start.copy()
+    goal[0] += 0.1
+    goal[3] += 0.3
+    ref.plan(0.0, start, np.zeros(7), np.zeros(7), goal)
+    # Every moving axis arrives at the same time (straight line in joint space).
+    t, p, _, _ = _dense_samples(ref, ref.duration)
+    frac = (p[:, [0, 3]] - start[[0, 3]]) / (goal - start)[[0, 3]]
+    assert np.max(np.abs(frac[:, 0] - frac[:, 1])) < 0.2
+
+
+def test_hold_and_errors(limits):
+    ref = RuckigReference(limits, SUSPENSION_AXES)
+    with pytest.raises(TrajectoryError):
+        ref.sample(0.0)
+    ref.hold([0.1, 0.12])
+    p, v, a = ref.sample(5.0)
+    np.testing.assert_allclose(p, [0.1, 0.12])
+    assert not v.any() and not a.any()
+    with pytest.raises(WbcInputError, match="outside .* for axis 'bogie_L'"):
+        ref.plan(0.0, [0.1, 0.1], [0, 0], [0, 0], [0.9, 0.1])
+    with pytest.raises(WbcInputError):
+        ref.plan(0.0, [0.1, 0.1], [0, 0], [0, 0], [0.1, np.nan])
+    with pytest.raises(WbcInputError):
+        ref.plan(0.0, [0.1, 0.1], [0, 0], [0, 0], [0.1, 0.1, 0.1])
+    with pytest.raises(ValueError):  # the typed errors are ValueErrors too
+        ref.check_goal([1.0, 1.0])
+
+
+def test_ruckig_boundary_case_is_planned(limits):
+    """ruckig 0.19 raises on this exact boundary case; the reference retries off it."""
+    ref = RuckigReference(limits, SUSPENSION_AXES[:1] + 3)  # the lift axis
+    a, j = ref.max_acceleration[0], ref.max_jerk[0]
+    d = a**3 / j**2 * 2  # a reaches its limit exactly, no constant-acceleration phase
+    start = 0.3392170339050292
+    ref.plan(0.0, [start], [0.0], [0.0], [start + d])
+    assert ref.sample(10.0)[0][0] == pytest.approx(start + d, abs=1e-9)

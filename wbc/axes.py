@@ -1,0 +1,129 @@
+"""The controllable coordinates and their limits, read from the machine description.
+
+The controller acts on the first nine independent coordinates of `models.coordinates`
+(``N_AXES = 9``), in this order::
+
+    [x_bogie_L, x_bogie_R,                  suspension cylinder strokes [m]
+     x_slew, x_lift, x_tilt, telescope,     crane cylinder strokes and telescope [m]
+     wrist_pitch, wrist_roll, rotator]      wrist joint angles [rad]
+
+The four wheel angles are not controlled here (the carrier drive only gets a speed scale).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from models.coordinates import CRANE, SUSPENSION
+from models.description import Machine
+from wbc.errors import ConfigurationError
+
+__all__ = ["CRANE_AXES", "N_AXES", "SUSPENSION_AXES", "AxisLimits"]
+
+N_AXES = 9
+SUSPENSION_AXES = np.arange(SUSPENSION.start, SUSPENSION.stop)  # (0, 1)
+CRANE_AXES = np.arange(CRANE.start, CRANE.stop)  # (2, ..., 8)
+
+
+def _frozen(x) -> np.ndarray:
+    a = np.array(x, dtype=float)
+    a.setflags(write=False)
+    return a
+
+
+@dataclass(frozen=True)
+class AxisLimits:
+    """Per-axis limits of the nine controllable coordinates, shapes (9,).
+
+    Attributes:
+        names: Coordinate names, order above.
+        position_lower, position_upper: Usable position range [m or rad], the description's
+            range shrunk by the margin.
+        velocity_lower, velocity_upper: Rate limits [m/s or rad/s]; cylinders are asymmetric
+            (retract Q/A_b, extend Q/A_a); direct drives are symmetric.
+        acceleration: Symmetric acceleration limit [m/s^2 or rad/s^2].
+    """
+
+    names: tuple[str, ...]
+    position_lower: np.ndarray
+    position_upper: np.ndarray
+    velocity_lower: np.ndarray
+    velocity_upper: np.ndarray
+    acceleration: np.ndarray
+
+    def __post_init__(self):
+        for f in ("position_lower", "position_upper", "velocity_lower", "velocity_upper",
+                  "acceleration"):
+            a = _frozen(getattr(self, f))
+            if a.shape != (N_AXES,) or not np.all(np.isfinite(a)):
+                raise ConfigurationError(f"AxisLimits.{f} must be finite with shape "
+                                         f"({N_AXES},), got {a}")
+            object.__setattr__(self, f, a)
+        bad = ((self.position_lower >= self.position_upper) | (self.velocity_lower >= 0)
+               | (self.velocity_upper <= 0) | (self.acceleration <= 0))
+        if np.any(bad):
+            i = int(np.argmax(bad))
+            raise ConfigurationError(
+                f"inconsistent limits for axis '{self.names[i]}': position "
+                f"[{self.position_lower[i]}, {self.position_upper[i]}], velocity "
+                f"[{self.velocity_lower[i]}, {self.velocity_upper[i]}], acceleration "
+                f"{self.acceleration[i]} (need lower < upper, velocity_lower < 0 < "
+                f"velocity_upper, acceleration > 0)")
+
+    @classmethod
+    def from_machine(cls, machine: Machine, position_margin: float = 0.01) -> AxisLimits:
+        """Read the limits of the nine controllable coordinates from ``machine``.
+
+        Cylinder chains give their valid stroke range (`CylinderChain.stroke_range`), the
+        cylinder's flow-limited speeds (`HydraulicCylinder.velocity_range`) and its
+        ``max_acceleration``; direct drives give the joint range, ``velocity_limit`` and
+        ``acceleration_limit``.
+
+        Args:
+            machine: The machine description.
+            position_margin: Fraction of each position range kept free at both ends, in
+                [0, 0.25).
+        """
+        if not 0.0 <= position_margin < 0.25:
+            raise ConfigurationError(f"position_margin {position_margin} outside [0, 0.25)")
+        names = tuple(machine.suspension_coordinates) + tuple(machine.crane_coordinates)
+        if len(names) != N_AXES:
+            raise ConfigurationError(f"expected {N_AXES} controllable coordinates, got {names}")
+        plo, pup, vlo, vup, acc = [], [], [], [], []
+        for name in names:
+            if name in machine.chains:
+                b = machine.chains[name]
+                lo, hi = b.chain.stroke_range
+                v = b.cylinder.velocity_range
+                a = b.cylinder.max_acceleration
+            elif name in machine.direct_drives:
+                d = machine.direct_drives[name]
+                rng = machine.body(name).joint.range
+                if rng is None:
+                    raise ConfigurationError(f"direct drive '{name}' has no joint range")
+                lo, hi = rng
+                v = (-d.velocity_limit, d.velocity_limit)
+                a = d.acceleration_limit
+            else:
+                raise ConfigurationError(f"coordinate '{name}' is neither a cylinder chain nor "
+                                         f"a direct drive")
+            m = position_margin * (hi - lo)
+            plo.append(lo + m)
+            pup.append(hi - m)
+            vlo.append(v[0])
+            vup.append(v[1])
+            acc.append(a)
+        return cls(names, np.array(plo), np.array(pup), np.array(vlo), np.array(vup),
+                   np.array(acc))
+
+    def brake_acceleration(self, velocity: np.ndarray, dt: float) -> np.ndarray:
+        """Acceleration that brakes each axis to rest at the acceleration limit, shape (9,).
+
+        ``-clip(velocity / dt, -a_max, a_max)``: full deceleration while the axis moves,
+        exactly the acceleration that reaches zero velocity in the last step. Every limit
+        constraint of this package admits it, so a QP built from them is never infeasible
+        because of the limits alone.
+        """
+        return -np.clip(velocity / dt, -self.acceleration, self.acceleration)

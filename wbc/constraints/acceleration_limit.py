@@ -1,0 +1,26 @@
+"""Acceleration limits of every cylinder and joint."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from wbc.constraints.constraint import Box, Constraint
+
+__all__ = ["AccelerationLimit"]
+
+
+class AccelerationLimit(Constraint):
+    """``-a_max <= qdd_k <= a_max`` for every axis and every step of the layout.
+
+    ``a_max`` is `AxisLimits.acceleration` (cylinder ``max_acceleration``, drive
+    ``acceleration_limit``). Works for the whole-body QP and the MPC alike.
+    """
+
+    def compute(self, ctx) -> Box:
+        """Box on all axis accelerations."""
+        lay = ctx.layout
+        lb, ub = np.full(lay.n, -np.inf), np.full(lay.n, np.inf)
+        a = np.tile(ctx.limits.acceleration, lay.n_steps)
+        lb[lay.accelerations] = -a
+        ub[lay.accelerations] = a
+        return Box(lb, ub)

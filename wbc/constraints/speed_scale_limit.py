@@ -1,0 +1,42 @@
+"""Bounds and rate limit of the base-drive wheel-speed scale."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from wbc.constraints.constraint import Box, Constraint
+from wbc.errors import ConfigurationError
+
+__all__ = ["SpeedScaleLimit"]
+
+
+class SpeedScaleLimit(Constraint):
+    """``max(s_min, s_prev - r dt) <= s <= min(1, s_prev + r dt)``.
+
+    Args:
+        minimum: s_min in [0, 1).
+        rate: r [1/s]: the largest change of the scale per second (the operator sees no
+            jumps in speed).
+    """
+
+    def __init__(self, minimum: float = 0.0, rate: float = 0.5):
+        if not (0.0 <= minimum < 1.0 and rate > 0):
+            raise ConfigurationError(f"need 0 <= minimum < 1 and rate > 0, got {minimum}, "
+                                     f"{rate}")
+        self.minimum = float(minimum)
+        self.rate = float(rate)
+
+    def bounds(self, previous: float, dt: float) -> tuple[float, float]:
+        """(lower, upper) for a previous scale and a period [s]."""
+        lo = max(self.minimum, min(previous, 1.0) - self.rate * dt)
+        hi = min(1.0, max(previous, self.minimum) + self.rate * dt)
+        return lo, hi
+
+    def compute(self, ctx) -> Box | None:
+        """Box on s; None when the layout has no speed scale."""
+        if ctx.layout.scale is None:
+            return None
+        n = ctx.layout.n
+        lb, ub = np.full(n, -np.inf), np.full(n, np.inf)
+        lb[ctx.layout.scale], ub[ctx.layout.scale] = self.bounds(ctx.speed_scale, ctx.dt)
+        return Box(lb, ub)

@@ -1,0 +1,31 @@
+"""Velocity (valve flow) limits as acceleration bounds over one control period."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from wbc.constraints.constraint import Box, Constraint
+
+__all__ = ["VelocityLimit"]
+
+
+class VelocityLimit(Constraint):
+    r"""``v_lo <= \dot q + \ddot q\, dt <= v_hi`` for the nine axes (whole-body QP).
+
+    The limits are the cylinders' flow-limited speeds (`HydraulicCylinder.velocity_range`,
+    asymmetric) and the drives' ``velocity_limit``. Each bound is relaxed to admit the
+    braking acceleration (`AxisLimits.brake_acceleration`): an axis measured above its limit
+    is brought back at the acceleration limit instead of making the QP infeasible.
+    """
+
+    def compute(self, ctx) -> Box:
+        """Box on step 0's accelerations."""
+        lim, dt, qd = ctx.limits, ctx.dt, ctx.qd
+        brake = lim.brake_acceleration(qd, dt)
+        lower = np.minimum((lim.velocity_lower - qd) / dt, brake)
+        upper = np.maximum((lim.velocity_upper - qd) / dt, brake)
+        n = ctx.layout.n
+        lb, ub = np.full(n, -np.inf), np.full(n, np.inf)
+        s = ctx.layout.step(0)
+        lb[s], ub[s] = lower, upper
+        return Box(lb, ub)

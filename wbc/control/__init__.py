@@ -1,0 +1,89 @@
+"""Public API of the whole-body controller (the lead owns `wbc/__init__.py`).
+
+Import from here::
+
+    from wbc.control import make_controller, JointGoal, TcpGoal, ControllerConfig
+"""
+
+from wbc.axes import CRANE_AXES, N_AXES, SUSPENSION_AXES, AxisLimits
+from wbc.constraints import (
+    AccelerationLimit,
+    Box,
+    Constraint,
+    HorizonNormalForceConstraint,
+    HorizonPositionLimit,
+    HorizonVelocityLimit,
+    Inequality,
+    NormalForceConstraint,
+    PositionLimit,
+    SpeedScaleLimit,
+    VelocityLimit,
+)
+from wbc.context import QPContext, ReferenceSample
+from wbc.controllers import (
+    CONTROLLER_NAMES,
+    ControlCommand,
+    Controller,
+    ControllerConfig,
+    ForceConfig,
+    MpcConfig,
+    MpcController,
+    QPConfig,
+    ReferenceConfig,
+    WholeBodyQPController,
+    make_controller,
+)
+from wbc.errors import (
+    ConfigurationError,
+    ForceModelError,
+    IKError,
+    QPSolveError,
+    TrajectoryError,
+    UnknownControllerError,
+    UnknownSolverError,
+    WbcError,
+    WbcInputError,
+)
+from wbc.force_models import (
+    AffineForceModel,
+    ForceLinearization,
+    NormalForceModel,
+    linearize_forces,
+    load_estimator,
+)
+from wbc.kinematics import TcpKinematics, solve_tcp_ik
+from wbc.layout import VariableLayout
+from wbc.mpc import CondensedPrediction, HorizonContext, MpcPlan, MpcPlanner
+from wbc.qp import build_qp
+from wbc.references import JointGoal, RuckigReference, TcpGoal
+from wbc.solvers import ProxQPWorkspace, QPSolution, QpsolversBackend, make_solver
+from wbc.tasks import (
+    DampingTask,
+    HorizonInputTask,
+    HorizonSmoothnessTask,
+    HorizonTrackingTask,
+    JointTask,
+    SlackPenaltyTask,
+    SpeedScaleTask,
+    SuspensionPostureTask,
+    Task,
+    TcpPositionTask,
+)
+
+__all__ = [
+    "AccelerationLimit", "AffineForceModel", "AxisLimits", "Box", "CONTROLLER_NAMES",
+    "CRANE_AXES", "CondensedPrediction", "ConfigurationError", "Constraint", "ControlCommand",
+    "Controller", "ControllerConfig", "DampingTask", "ForceConfig", "ForceLinearization",
+    "ForceModelError", "HorizonContext", "HorizonInputTask", "HorizonNormalForceConstraint",
+    "HorizonPositionLimit", "HorizonSmoothnessTask", "HorizonTrackingTask",
+    "HorizonVelocityLimit", "IKError", "Inequality", "JointGoal", "JointTask", "MpcConfig",
+    "MpcController", "MpcPlan", "MpcPlanner", "N_AXES", "NormalForceConstraint",
+    "NormalForceModel", "PositionLimit", "ProxQPWorkspace", "QPConfig", "QPContext",
+    "QPSolution", "QPSolveError", "QpsolversBackend", "ReferenceConfig", "ReferenceSample",
+    "RuckigReference", "SUSPENSION_AXES", "SlackPenaltyTask", "SpeedScaleLimit",
+    "SpeedScaleTask", "SuspensionPostureTask", "Task", "TcpGoal", "TcpKinematics",
+    "TcpPositionTask", "TrajectoryError", "UnknownControllerError", "UnknownSolverError",
+    "VariableLayout", "VelocityLimit", "WbcError", "WbcInputError", "WholeBodyQPController",
+    "build_qp", "linearize_forces", "load_estimator", "make_controller", "make_solver",
+    "solve_tcp_ik",
+]

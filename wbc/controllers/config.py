@@ -1,0 +1,212 @@
+"""Controller settings. Every number has a unit; every tolerance is explicit."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from wbc.errors import ConfigurationError
+
+__all__ = ["ControllerConfig", "ForceConfig", "MpcConfig", "QPConfig", "ReferenceConfig"]
+
+
+def _positive(obj, *names, allow_zero=False):
+    for n in names:
+        v = getattr(obj, n)
+        ok = np.all(np.isfinite(v)) and (np.all(np.asarray(v) >= 0) if allow_zero
+                                         else np.all(np.asarray(v) > 0))
+        if not ok:
+            raise ConfigurationError(f"{type(obj).__name__}.{n} must be "
+                                     f"{'>= 0' if allow_zero else '> 0'} and finite, got {v}")
+
+
+@dataclass(frozen=True)
+class ReferenceConfig:
+    """Ruckig references.
+
+    Attributes:
+        jerk_time: Time to build up full acceleration [s] (jerk = a / jerk_time).
+        velocity_fraction: Fraction of the axis velocity limits the reference uses.
+        acceleration_fraction: Fraction of the axis acceleration limits.
+        governor_error: Tracking error [m or rad] at which the reference clock stops. The
+            clock slows down from half this error on (time scaling), so a reference does
+            not run away from a machine held back by a constraint and then pull it with a
+            lurch when the constraint releases.
+    """
+
+    jerk_time: float = 0.25
+    velocity_fraction: float = 0.8
+    acceleration_fraction: float = 0.8
+    governor_error: float = 0.05
+
+    def __post_init__(self):
+        _positive(self, "jerk_time", "velocity_fraction", "acceleration_fraction",
+                  "governor_error")
+        if self.velocity_fraction > 1 or self.acceleration_fraction > 1:
+            raise ConfigurationError("reference fractions must be <= 1")
+
+
+@dataclass(frozen=True)
+class QPConfig:
+    """Whole-body QP (the ``tracking`` controller).
+
+    Attributes:
+        crane_kp, crane_kd: PD gains of the crane task [1/s^2], [1/s].
+        crane_weight: Weight of the crane task.
+        suspension_kp, suspension_kd, suspension_weight: Suspension posture task.
+        damping_weight, damping_time: Damping regularization (`DampingTask`).
+        position_horizon: T of `PositionLimit` [s]; None: the control period.
+        braking_fraction: Braking deceleration of `PositionLimit`, fraction of a_max.
+        force_lookahead: T of `NormalForceConstraint` [s] when a force model is given.
+    """
+
+    crane_kp: float = 16.0
+    crane_kd: float = 8.0
+    crane_weight: float = 1.0
+    suspension_kp: float = 4.0
+    suspension_kd: float = 4.0
+    suspension_weight: float = 0.1
+    damping_weight: float = 1e-3
+    damping_time: float = 0.5
+    position_horizon: float | None = None
+    braking_fraction: float = 0.5
+    force_lookahead: float = 0.0
+
+    def __post_init__(self):
+        _positive(self, "crane_kp", "crane_kd", "crane_weight", "suspension_kp",
+                  "suspension_kd", "suspension_weight", "damping_weight", "damping_time",
+                  "braking_fraction")
+        _positive(self, "force_lookahead", allow_zero=True)
+
+
+@dataclass(frozen=True)
+class MpcConfig:
+    """MPC (the ``mpc-*`` controllers).
+
+    Attributes:
+        step: Length of the steps after the first [s].
+        n_steps: N, the number of steps.
+        first_step: Length of the first step [s]; None: the control period (the applied
+            input then sees the constraints exactly one period ahead).
+        crane_position_weight, crane_velocity_weight: Tracking weights of the crane axes.
+        suspension_position_weight, suspension_velocity_weight: Suspension posture weights.
+        input_weight: Inputs towards the reference acceleration.
+        smoothness_weight: Input steps (discrete jerk).
+        terminal_factor: Weight factor of the last node.
+        n_linearizations: Force-model evaluations per tick along the horizon.
+
+    The horizon ``first_step + (n_steps - 1) step`` must be >= 1 s.
+    """
+
+    step: float = 0.1
+    n_steps: int = 11
+    first_step: float | None = None
+    crane_position_weight: float = 400.0
+    crane_velocity_weight: float = 20.0
+    suspension_position_weight: float = 4.0
+    suspension_velocity_weight: float = 1.0
+    input_weight: float = 0.05
+    smoothness_weight: float = 0.5
+    terminal_factor: float = 5.0
+    n_linearizations: int = 3
+
+    def __post_init__(self):
+        _positive(self, "step", "n_steps", "crane_position_weight", "crane_velocity_weight",
+                  "suspension_position_weight", "suspension_velocity_weight", "input_weight",
+                  "n_linearizations")
+        _positive(self, "smoothness_weight", allow_zero=True)
+        if self.first_step is not None:
+            _positive(self, "first_step")
+        if self.terminal_factor < 1:
+            raise ConfigurationError(f"terminal_factor must be >= 1, got {self.terminal_factor}")
+
+    def step_lengths(self, dt: float) -> np.ndarray:
+        """Step lengths [s], shape (n_steps,), for control period ``dt``.
+
+        Raises:
+            ConfigurationError: The horizon is shorter than 1 s.
+        """
+        h = np.full(self.n_steps, float(self.step))
+        h[0] = dt if self.first_step is None else self.first_step
+        if h.sum() < 1.0 - 1e-9:
+            raise ConfigurationError(
+                f"MPC horizon {h[0]:g} + {self.n_steps - 1} x {self.step:g} s = {h.sum():g} s "
+                f"is shorter than 1 s")
+        return h
+
+
+@dataclass(frozen=True)
+class ForceConfig:
+    """Normal-force constraint and base-drive slow-down.
+
+    Attributes:
+        thresholds: Per-wheel f_min [N], order FL, RL, FR, RR; None: ``threshold_fraction``
+            of the static wheel load (total weight / 4).
+        threshold_fraction: See above.
+        soft: Exact-penalty slacks (one per wheel) instead of hard rows.
+        slack_linear, slack_quadratic: Penalties of the slacks (`SlackPenaltyTask`).
+        speed_scale: Whether the wheel-speed scale is a decision variable.
+        speed_scale_min: Its lower bound. speed_scale_rate: Its rate limit [1/s].
+        speed_scale_weight: Cost of slowing down (`SpeedScaleTask`).
+        drive_time_constant: tau of the base drive [s] (`wbc.drive_model`).
+    """
+
+    thresholds: tuple[float, float, float, float] | None = None
+    threshold_fraction: float = 0.1
+    soft: bool = True
+    slack_linear: float = 1e6
+    slack_quadratic: float = 1e4
+    speed_scale: bool = True
+    speed_scale_min: float = 0.0
+    speed_scale_rate: float = 0.5
+    speed_scale_weight: float = 10.0
+    drive_time_constant: float = 0.5
+
+    def __post_init__(self):
+        _positive(self, "threshold_fraction", "slack_linear", "slack_quadratic",
+                  "speed_scale_rate", "speed_scale_weight", "drive_time_constant")
+        if self.thresholds is not None:
+            t = np.asarray(self.thresholds, float)
+            if t.shape != (4,) or not np.all(np.isfinite(t)):
+                raise ConfigurationError(f"thresholds must be 4 finite forces [N], got "
+                                         f"{self.thresholds}")
+            object.__setattr__(self, "thresholds", tuple(float(x) for x in t))
+        if not 0 <= self.speed_scale_min < 1:
+            raise ConfigurationError(f"speed_scale_min must be in [0, 1), got "
+                                     f"{self.speed_scale_min}")
+
+
+@dataclass(frozen=True)
+class ControllerConfig:
+    """All settings of a controller.
+
+    Attributes:
+        dt: Control period [s].
+        solver: ``proxqp`` (warm-started workspace) or any qpsolvers backend name.
+        eps_abs, eps_rel, max_iter: Solver tolerances and iteration cap.
+        position_margin: Fraction of each position range kept free at both ends.
+        reference, qp, mpc, force: Sub-settings.
+    """
+
+    dt: float = 0.01
+    solver: str = "proxqp"
+    eps_abs: float = 1e-7
+    eps_rel: float = 0.0
+    max_iter: int = 1000
+    position_margin: float = 0.01
+    reference: ReferenceConfig = field(default_factory=ReferenceConfig)
+    qp: QPConfig = field(default_factory=QPConfig)
+    mpc: MpcConfig = field(default_factory=MpcConfig)
+    force: ForceConfig = field(default_factory=ForceConfig)
+
+    def __post_init__(self):
+        _positive(self, "dt", "eps_abs", "max_iter")
+        _positive(self, "eps_rel", "position_margin", allow_zero=True)
+        for f, cls in (("reference", ReferenceConfig), ("qp", QPConfig), ("mpc", MpcConfig),
+                       ("force", ForceConfig)):
+            if not isinstance(getattr(self, f), cls):
+                raise ConfigurationError(f"ControllerConfig.{f} must be a {cls.__name__}")
+        if not isinstance(self.solver, str):
+            raise ConfigurationError(f"solver must be a name, got {self.solver!r}")
+        self.mpc.step_lengths(self.dt)  # the horizon must reach 1 s

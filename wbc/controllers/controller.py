@@ -1,0 +1,280 @@
+"""The controller interface: goals in, actuator rate commands out, one `step` per tick.
+
+A closed loop reads::
+
+    controller = make_controller("mpc-full", machine)
+    controller.set_goal(JointGoal(crane=q_goal))
+    while running:
+        state, _ = sim.measure()
+        cmd = controller.step(state)
+        sim.set_command(cmd.cylinder_rates, cmd.wrist_rates,
+                        cmd.wheel_speeds(left_nominal, right_nominal))
+
+`step` must be called every ``config.dt`` seconds; references are timed with
+``state.time``.
+"""
+
+from __future__ import annotations
+
+import abc
+import logging
+from typing import ClassVar
+
+import numpy as np
+
+from models.coordinates import N_INDEPENDENT
+from models.description import Machine
+from models.state import MachineState
+from wbc.axes import CRANE_AXES, N_AXES, SUSPENSION_AXES, AxisLimits
+from wbc.context import ReferenceSample
+from wbc.controllers.command import ControlCommand
+from wbc.controllers.config import ControllerConfig
+from wbc.errors import (
+    ConfigurationError,
+    ForceModelError,
+    IKError,
+    QPSolveError,
+    TrajectoryError,
+    WbcInputError,
+)
+from wbc.kinematics.tcp_ik import solve_tcp_ik
+from wbc.kinematics.tcp_kinematics import TcpKinematics
+from wbc.references.goals import JointGoal, TcpGoal
+from wbc.references.ruckig_reference import RuckigReference
+
+__all__ = ["Controller"]
+
+_STATE_FIELDS = {"base_position": (3,), "base_rotation": (3, 3), "base_twist": (6,),
+                 "base_acceleration": (6,), "q": (N_INDEPENDENT,), "qd": (N_INDEPENDENT,),
+                 "qdd": (N_INDEPENDENT,)}
+
+
+class Controller(abc.ABC):
+    """Common part of the controllers: goals, Ruckig references, commands, fallback.
+
+    Subclasses implement `_solve`, which returns the nine axis accelerations and the
+    wheel-speed scale for this tick, or raises `QPSolveError` / `ForceModelError`; the
+    base class then takes the safe action (`fallback_command`) and logs it.
+
+    Args:
+        machine: The machine description.
+        config: Settings; defaults if None.
+        tcp_kinematics: TCP kinematics for `TcpGoal` (built from the Pinocchio model on
+            first use if None).
+    """
+
+    name: ClassVar[str] = ""
+
+    def __init__(self, machine: Machine, config: ControllerConfig | None = None, *,
+                 tcp_kinematics: TcpKinematics | None = None):
+        if not isinstance(machine, Machine):
+            raise WbcInputError(f"machine must be a models.Machine, got {type(machine)!r}")
+        config = ControllerConfig() if config is None else config
+        if not isinstance(config, ControllerConfig):
+            raise ConfigurationError(f"config must be a ControllerConfig, got {type(config)!r}")
+        self.machine = machine
+        self.config = config
+        self.dt = config.dt
+        self.limits = AxisLimits.from_machine(machine, config.position_margin)
+        rc = config.reference
+        self.crane_reference = RuckigReference(self.limits, CRANE_AXES, rc.jerk_time,
+                                               rc.velocity_fraction, rc.acceleration_fraction)
+        self.suspension_reference = RuckigReference(self.limits, SUSPENSION_AXES, rc.jerk_time,
+                                                    rc.velocity_fraction,
+                                                    rc.acceleration_fraction)
+        self.static_wheel_load = machine.total_mass * machine.gravity / 4
+        fc = config.force
+        self.force_thresholds = (np.array(fc.thresholds) if fc.thresholds is not None
+                                 else np.full(4, fc.threshold_fraction * self.static_wheel_load))
+        self._tcp = tcp_kinematics
+        self.logger = logging.getLogger(f"wbc.controllers.{self.name or type(self).__name__}")
+        self.n_fallbacks = 0
+        self._init_loop_state()
+
+    # ------------------------------------------------------------------ goals
+    @property
+    def tcp_kinematics(self) -> TcpKinematics:
+        """TCP kinematics (built on first use)."""
+        if self._tcp is None:
+            self._tcp = TcpKinematics(self.machine)
+        return self._tcp
+
+    def resolve_tcp_goal(self, goal: TcpGoal, state: MachineState) -> JointGoal:
+        """Crane joint goals that put the TCP at ``goal.position_in_fb``, from ``state``.
+
+        Raises:
+            IKError: The position is not reachable.
+        """
+        self._check_state(state)
+        res = solve_tcp_ik(self.tcp_kinematics, goal.position_in_fb, state.q, self.limits)
+        return JointGoal(crane=res.q[CRANE_AXES], suspension=goal.suspension)
+
+    def set_goal(self, goal: JointGoal | TcpGoal, state: MachineState | None = None) -> None:
+        """Set a new goal; the references are planned at the next `step`.
+
+        A `TcpGoal` is resolved by inverse kinematics now when ``state`` is given (an
+        unreachable target raises `IKError`), otherwise at the next step (an unreachable
+        target is then logged, reported in ``info['goal_error']`` and dropped).
+
+        Raises:
+            WbcInputError: Wrong goal type or a joint goal outside the position limits.
+            IKError: Unreachable TCP target (only with ``state``).
+        """
+        if isinstance(goal, TcpGoal) and state is not None:
+            goal = self.resolve_tcp_goal(goal, state)
+        if isinstance(goal, JointGoal):
+            if goal.crane is not None:
+                self.crane_reference.check_goal(goal.crane)
+            if goal.suspension is not None:
+                self.suspension_reference.check_goal(goal.suspension)
+        elif not isinstance(goal, TcpGoal):
+            raise WbcInputError(f"goal must be a JointGoal or a TcpGoal, got {type(goal)!r}")
+        self._pending = goal
+
+    def reset(self) -> None:
+        """Forget goals, references, the previous command and solver warm starts."""
+        self._init_loop_state()
+        self._reset()
+
+    def _init_loop_state(self) -> None:
+        self._pending: JointGoal | TcpGoal | None = None
+        self._references_ready = False
+        self._speed_scale = 1.0
+        self._last_qdd = np.zeros(N_AXES)
+        self._last_time: float | None = None
+        # Reference clocks (time-scaled): reference time and rate of the crane and suspension.
+        self._clock = {"crane": [0.0, 1.0], "suspension": [0.0, 1.0]}
+        self._goal_error: str | None = None
+
+    def _reset(self) -> None:
+        """Subclass hook of `reset`."""
+
+    # ------------------------------------------------------------------ references
+    def _plan(self, ref: RuckigReference, state: MachineState, goal) -> None:
+        i = ref.axes
+        ref.plan(state.time, state.q[i], state.qd[i], state.qdd[i], goal)
+
+    def _references(self):
+        return (("crane", self.crane_reference), ("suspension", self.suspension_reference))
+
+    def _update_references(self, state: MachineState) -> None:
+        """Hold at the first step, plan pending goals, advance the reference clocks.
+
+        Time scaling (a reference governor): each reference's clock advances at the rate
+        ``sigma = clip(2 (1 - e / e_g), 0, 1)`` with ``e`` the largest tracking error of its
+        axes and ``e_g = governor_error``.
+        """
+        if not self._references_ready:
+            self.crane_reference.hold(state.q[CRANE_AXES])
+            self.suspension_reference.hold(state.q[SUSPENSION_AXES])
+            self._references_ready = True
+        elapsed = 0.0 if self._last_time is None else max(state.time - self._last_time, 0.0)
+        self._last_time = state.time
+        goal, self._pending = self._pending, None
+        if isinstance(goal, TcpGoal):
+            try:
+                goal = self.resolve_tcp_goal(goal, state)
+            except IKError as exc:
+                self._goal_error = str(exc)
+                self.logger.error("TCP goal dropped: %s", exc)
+                goal = None
+        planned = set()
+        if goal is not None:
+            self._goal_error = None
+            for key, ref, g in (("crane", self.crane_reference, goal.crane),
+                                ("suspension", self.suspension_reference, goal.suspension)):
+                if g is not None:
+                    self._plan(ref, state, g)
+                    self._clock[key] = [state.time, 1.0]
+                    planned.add(key)
+        e_g = self.config.reference.governor_error
+        for key, ref in self._references():
+            if key in planned:
+                continue
+            clock = self._clock[key]
+            p, _, _ = ref.sample(clock[0])
+            err = float(np.max(np.abs(p - state.q[ref.axes])))
+            clock[1] = float(np.clip(2.0 * (1.0 - err / e_g), 0.0, 1.0))
+            clock[0] += clock[1] * elapsed
+
+    def reference_at(self, offsets) -> ReferenceSample:
+        """Reference of the nine axes ahead of now: arrays (len(offsets), 9).
+
+        Args:
+            offsets: Times ahead of the current reference time [s]; each reference is
+                sampled at ``tau + sigma * offset`` (its clock and clock rate), with
+                velocities scaled by sigma and accelerations by sigma^2.
+        """
+        offsets = np.atleast_1d(np.asarray(offsets, float))
+        p = np.zeros((offsets.size, N_AXES))
+        v = np.zeros_like(p)
+        a = np.zeros_like(p)
+        for key, ref in self._references():
+            tau, sigma = self._clock[key]
+            rp, rv, ra = ref.sample_many(tau + sigma * offsets)
+            p[:, ref.axes], v[:, ref.axes], a[:, ref.axes] = rp, sigma * rv, sigma**2 * ra
+        return ReferenceSample(p, v, a)
+
+    # ------------------------------------------------------------------ loop
+    def _check_state(self, state) -> None:
+        if not isinstance(state, MachineState):
+            raise WbcInputError(f"state must be a models.MachineState, got {type(state)!r}")
+        for f, shape in _STATE_FIELDS.items():
+            a = np.asarray(getattr(state, f))
+            if a.shape != shape:
+                raise WbcInputError(f"state.{f} must have shape {shape}, got {a.shape}")
+            if not np.all(np.isfinite(a)):
+                raise WbcInputError(f"state.{f} has non-finite entries: {a}")
+        if not np.isfinite(state.time):
+            raise WbcInputError(f"state.time is not finite: {state.time}")
+
+    @abc.abstractmethod
+    def _solve(self, state: MachineState) -> tuple[np.ndarray, float, dict]:
+        """(qdd (9,), wheel-speed scale, info) for this tick; may raise QPSolveError."""
+
+    def step(self, state: MachineState) -> ControlCommand:
+        """One control tick: measured state in, rate commands out.
+
+        Raises:
+            WbcInputError: ``state`` is not a `MachineState` or has non-finite entries.
+        """
+        self._check_state(state)
+        try:
+            self._update_references(state)
+            qdd, scale, info = self._solve(state)
+        except (QPSolveError, ForceModelError, TrajectoryError) as exc:
+            return self.fallback_command(state, exc)
+        return self._command(state, qdd, scale, info, fallback=False)
+
+    def _command(self, state: MachineState, qdd: np.ndarray, scale: float, info: dict,
+                 fallback: bool) -> ControlCommand:
+        qd = state.qd[:N_AXES]
+        rates = np.clip(qd + qdd * self.dt, self.limits.velocity_lower,
+                        self.limits.velocity_upper)
+        scale = float(np.clip(scale, 0.0, 1.0))  # solver tolerance aside, s is in [0, 1]
+        self._last_qdd = qdd.copy()
+        self._speed_scale = scale
+        if self._goal_error is not None:
+            info["goal_error"] = self._goal_error
+        info["controller"] = self.name
+        return ControlCommand(rates, scale, qdd.copy(), fallback, info)
+
+    def fallback_command(self, state: MachineState, reason: Exception | str) -> ControlCommand:
+        """The safe action, always finite.
+
+        Brake the crane at its acceleration limits to rest, hold the suspension (zero stroke
+        rate), lower the wheel-speed scale at its rate limit. Logged as a warning.
+        """
+        self.n_fallbacks += 1
+        self.logger.warning("fallback at t=%.3f s: %s", state.time, reason)
+        qd = state.qd[:N_AXES]
+        qdd = self.limits.brake_acceleration(qd, self.dt)
+        qdd[SUSPENSION_AXES] = -qd[SUSPENSION_AXES] / self.dt
+        fc = self.config.force
+        scale = max(fc.speed_scale_min, self._speed_scale - fc.speed_scale_rate * self.dt)
+        # The plan or workspace that failed must not seed the next solve.
+        self._reset_solver()
+        return self._command(state, qdd, scale, {"fallback_reason": str(reason)}, fallback=True)
+
+    def _reset_solver(self) -> None:
+        """Subclass hook: drop warm starts after a failure."""

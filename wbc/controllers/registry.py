@@ -1,0 +1,46 @@
+"""Controllers by name."""
+
+from __future__ import annotations
+
+from models.description import Machine
+from wbc.controllers.config import ControllerConfig
+from wbc.controllers.controller import Controller
+from wbc.controllers.mpc import MpcController
+from wbc.controllers.tracking import WholeBodyQPController
+from wbc.errors import ConfigurationError, UnknownControllerError
+from wbc.force_models.estimator import load_estimator
+from wbc.force_models.protocol import NormalForceModel
+from wbc.kinematics.tcp_kinematics import TcpKinematics
+
+__all__ = ["CONTROLLER_NAMES", "make_controller"]
+
+CONTROLLER_NAMES = ("tracking", "mpc-quasi-static", "mpc-full")
+
+
+def make_controller(name: str, machine: Machine, config: ControllerConfig | None = None, *,
+                    force_model: NormalForceModel | None = None,
+                    tcp_kinematics: TcpKinematics | None = None) -> Controller:
+    """A controller by name.
+
+    * ``tracking``: the whole-body QP without the force constraint.
+    * ``mpc-quasi-static``, ``mpc-full``: the MPC with
+      ``estimators.NormalForceEstimator(machine, method="quasi-static" | "full")``, or with
+      ``force_model`` when given (e.g. a test double).
+
+    Raises:
+        UnknownControllerError: ``name`` is not in `CONTROLLER_NAMES`.
+        ConfigurationError: A force model given to ``tracking``.
+        ForceModelError: The estimator is not available and no ``force_model`` is given.
+    """
+    if name not in CONTROLLER_NAMES:
+        raise UnknownControllerError(str(name), CONTROLLER_NAMES)
+    if name == "tracking":
+        if force_model is not None:
+            raise ConfigurationError("the 'tracking' controller uses no force model; use "
+                                     "WholeBodyQPController(force_model=...) for a QP with "
+                                     "the force constraint")
+        return WholeBodyQPController(machine, config, tcp_kinematics=tcp_kinematics)
+    method = name.removeprefix("mpc-")
+    model = force_model if force_model is not None else load_estimator(machine, method)
+    return MpcController(machine, config, force_model=model, tcp_kinematics=tcp_kinematics,
+                         name=name)

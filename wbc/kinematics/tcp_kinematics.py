@@ -1,0 +1,81 @@
+"""Tool-point (TCP) kinematics in the floating-base frame, from the Pinocchio model.
+
+The TCP frame is `Machine.tcp_body` at `Machine.tcp_position`; Pinocchio's model names it
+``tcp`` (`models.pinocchio_model`). Positions here are expressed in fb (the chassis frame):
+the crane is mounted on the chassis, so the TCP position in fb depends on the crane
+coordinates only.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pinocchio as pin
+
+from models.coordinates import N_INDEPENDENT
+from models.description import Machine
+from models.pinocchio_model import PinocchioMachine, build_pinocchio
+from models.state import MachineState
+from wbc.axes import N_AXES
+from wbc.errors import WbcInputError
+
+__all__ = ["TcpKinematics"]
+
+_LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
+
+
+class TcpKinematics:
+    """Position, Jacobian and bias acceleration of the TCP in fb.
+
+    Args:
+        machine: The machine description.
+        pinocchio_machine: An existing `PinocchioMachine` of ``machine`` (its model is
+            shared; this object keeps its own `pin.Data`).
+    """
+
+    def __init__(self, machine: Machine, pinocchio_machine: PinocchioMachine | None = None):
+        self.pm = pinocchio_machine if pinocchio_machine is not None else build_pinocchio(
+            machine)
+        self.model = self.pm.model
+        self.data = self.model.createData()
+        self.frame_id = self.pm.frame_id["tcp"]
+        names = self.pm.coordinates.joint_names
+        self._tree_v = np.array([self.pm.joint_v_index[n] for n in names])
+        self._eye = np.eye(3)
+
+    def _configuration(self, q, qd=None):
+        q = np.asarray(q, dtype=float)
+        if q.shape != (N_INDEPENDENT,) or not np.all(np.isfinite(q)):
+            raise WbcInputError(f"q must be finite with shape ({N_INDEPENDENT},), got "
+                                f"shape {q.shape}")
+        qd = np.zeros(N_INDEPENDENT) if qd is None else np.asarray(qd, dtype=float)
+        st = MachineState(np.zeros(3), self._eye, np.zeros(6), np.zeros(6), q, qd,
+                          np.zeros(N_INDEPENDENT))
+        return self.pm.configuration(st)
+
+    def position(self, q) -> np.ndarray:
+        """TCP position in fb [m], shape (3,), for independent coordinates q (13,)."""
+        qp, _, _ = self._configuration(q)
+        pin.framesForwardKinematics(self.model, self.data, qp)
+        return self.data.oMf[self.frame_id].translation.copy()
+
+    def jacobian(self, q) -> np.ndarray:
+        """``d p_tcp / d q_axes`` [m/m, m/rad], shape (3, 9), columns the nine axes."""
+        qp, _, _ = self._configuration(q)
+        j6 = pin.computeFrameJacobian(self.model, self.data, qp, self.frame_id, _LWA)
+        jac_ind, _ = self.pm.coordinates.jacobian(q)
+        return j6[:3, self._tree_v] @ jac_ind[:, :N_AXES]
+
+    def bias_acceleration(self, q, qd) -> np.ndarray:
+        """TCP acceleration at zero independent accelerations [m/s^2], shape (3,).
+
+        This is ``Jdot qd`` of the independent-coordinate Jacobian (the chains' ``k_dot``
+        terms included through `TreeCoordinates`).
+        """
+        qp, vp, ap = self._configuration(q, qd)
+        pin.forwardKinematics(self.model, self.data, qp, vp, ap)
+        return pin.getFrameClassicalAcceleration(self.model, self.data, self.frame_id,
+                                                 _LWA).linear.copy()
+
+    def velocity(self, q, qd) -> np.ndarray:
+        """TCP velocity in fb [m/s], shape (3,)."""
+        return self.jacobian(q) @ np.asarray(qd, float)[:N_AXES]

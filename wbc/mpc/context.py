@@ -1,0 +1,63 @@
+"""What the MPC's tasks and constraints see at one control tick."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from models.state import MachineState
+from wbc.axes import AxisLimits
+from wbc.context import ReferenceSample
+from wbc.layout import VariableLayout
+from wbc.mpc.prediction import CondensedPrediction
+
+__all__ = ["HorizonContext"]
+
+
+@dataclass(frozen=True)
+class HorizonContext:
+    """Inputs of one MPC QP (decision variables: ``layout`` with ``n_steps = N``).
+
+    Attributes:
+        state: The measured state.
+        q, qd: Axis positions and velocities now, shapes (9,).
+        dt: Control period [s] (how long the first input is applied before the next solve).
+        layout: Decision layout.
+        limits: Axis limits.
+        prediction: Condensed double-integrator prediction.
+        reference: Reference at the node times ``0, t_1, ..., t_N``: arrays (N + 1, 9).
+        nominal_inputs: The previous plan shifted to now, (N, 9): where the force model is
+            linearized (real-time iteration).
+        previous_acceleration: The acceleration commanded at the previous tick, (9,).
+        speed_scale: The wheel-speed scale commanded at the previous tick.
+        free_positions, free_velocities: Zero-input prediction, (N, 9).
+        brake_inputs, brake_positions, brake_velocities: Brake-and-hold prediction, (N, 9).
+    """
+
+    state: MachineState
+    q: np.ndarray
+    qd: np.ndarray
+    dt: float
+    layout: VariableLayout
+    limits: AxisLimits
+    prediction: CondensedPrediction
+    reference: ReferenceSample
+    nominal_inputs: np.ndarray
+    previous_acceleration: np.ndarray
+    speed_scale: float
+    free_positions: np.ndarray
+    free_velocities: np.ndarray
+    brake_inputs: np.ndarray
+    brake_positions: np.ndarray
+    brake_velocities: np.ndarray
+
+    @property
+    def structure_key(self) -> tuple:
+        """What constant Jacobians depend on: layout, step lengths and period."""
+        return (self.prediction.structure_key, self.dt)
+
+    @property
+    def n_steps(self) -> int:
+        """Number of steps N."""
+        return self.layout.n_steps

@@ -1,0 +1,139 @@
+"""The MPC of one control tick: build the condensed QP, solve it warm-started, keep the plan."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import qpsolvers
+
+from models.state import MachineState
+from wbc.axes import N_AXES, AxisLimits
+from wbc.constraints.constraint import Constraint
+from wbc.context import ReferenceSample
+from wbc.errors import ConfigurationError
+from wbc.layout import VariableLayout
+from wbc.mpc.context import HorizonContext
+from wbc.mpc.prediction import CondensedPrediction
+from wbc.qp import build_qp
+from wbc.solvers import ProxQPWorkspace, QPSolution, QpsolversBackend
+from wbc.tasks.task import Task
+
+__all__ = ["MpcPlan", "MpcPlanner"]
+
+
+@dataclass(frozen=True)
+class MpcPlan:
+    """A solved MPC problem.
+
+    Attributes:
+        inputs: Accelerations of the steps, (N, 9); ``inputs[0]`` is applied now.
+        positions, velocities: Predicted node states, (N, 9), nodes 1..N.
+        speed_scale: Wheel-speed scale (1.0 without the variable).
+        slack: Force slacks (4,) [scaled], zeros without them.
+        solution: The solver's result.
+    """
+
+    inputs: np.ndarray
+    positions: np.ndarray
+    velocities: np.ndarray
+    speed_scale: float
+    slack: np.ndarray
+    solution: QPSolution
+
+
+class MpcPlanner:
+    """Receding-horizon QP over a condensed double-integrator prediction.
+
+    Args:
+        limits: Axis limits.
+        layout: Decision layout (``n_axes = 9``, ``n_steps = N``).
+        steps: Step lengths [s], scalar or (N,); their sum is the horizon.
+        dt: Control period [s].
+        tasks: Cost terms (horizon tasks, `SpeedScaleTask`, `SlackPenaltyTask`).
+        constraints: Constraints (horizon limits, `AccelerationLimit`, force constraint).
+        solver: `ProxQPWorkspace` (warm-started) or `QpsolversBackend`.
+        regularization: Tikhonov term of the Hessian.
+    """
+
+    def __init__(self, limits: AxisLimits, layout: VariableLayout, steps, dt: float,
+                 tasks: Sequence[Task], constraints: Sequence[Constraint],
+                 solver: ProxQPWorkspace | QpsolversBackend, regularization: float = 1e-9):
+        if layout.n_axes != N_AXES:
+            raise ConfigurationError(f"MPC layout must have {N_AXES} axes, got {layout.n_axes}")
+        if not (np.all(np.asarray(steps, float) > 0) and dt > 0):
+            raise ConfigurationError(f"steps and dt must be > 0, got {steps}, {dt}")
+        self.limits = limits
+        self.layout = layout
+        self.prediction = CondensedPrediction(layout, steps)
+        self.dt = float(dt)
+        self.tasks = list(tasks)
+        self.constraints = list(constraints)
+        self.solver = solver
+        self.regularization = float(regularization)
+        self._plan: np.ndarray | None = None  # (N, 9) inputs of the last plan
+        self._plan_time = 0.0
+
+    @property
+    def horizon(self) -> float:
+        """Sum of the step lengths [s]."""
+        return self.prediction.horizon
+
+    @property
+    def node_times(self) -> np.ndarray:
+        """Times of the reference samples relative to now: 0, t_1, ..., t_N [s]."""
+        return np.concatenate([[0.0], self.prediction.times])
+
+    def reset(self) -> None:
+        """Forget the previous plan and the solver workspace."""
+        self._plan = None
+        self.solver.reset()
+
+    def nominal_inputs(self, time: float) -> np.ndarray:
+        """The previous plan shifted to ``time`` [s] (zeros without a plan), (N, 9).
+
+        The plan is piecewise constant in time; step k of the new plan takes the input that
+        the old plan had at its start time, the last input held past the old horizon.
+        """
+        N = self.layout.n_steps
+        if self._plan is None:
+            return np.zeros((N, N_AXES))
+        starts = self.prediction.start_times
+        elapsed = max(time - self._plan_time, 0.0)
+        idx = np.searchsorted(starts, starts + elapsed + 1e-9, side="right") - 1
+        return self._plan[np.clip(idx, 0, N - 1)]
+
+    def context(self, state: MachineState, reference: ReferenceSample,
+                previous_acceleration: np.ndarray, speed_scale: float) -> HorizonContext:
+        """The horizon context at ``state`` (reference sampled at `node_times`)."""
+        q, qd = state.q[:N_AXES].copy(), state.qd[:N_AXES].copy()
+        qf, vf = self.prediction.free_response(q, qd)
+        ub, qb, vb = self.prediction.brake_trajectory(q, qd, self.limits.acceleration)
+        return HorizonContext(state, q, qd, self.dt, self.layout, self.limits, self.prediction,
+                              reference, self.nominal_inputs(state.time),
+                              np.asarray(previous_acceleration, float), float(speed_scale),
+                              qf, vf, ub, qb, vb)
+
+    def build(self, ctx: HorizonContext) -> qpsolvers.Problem:
+        """The condensed QP of this tick."""
+        return build_qp(ctx, self.tasks, self.constraints, self.regularization)
+
+    def solve(self, ctx: HorizonContext, problem: qpsolvers.Problem) -> MpcPlan:
+        """Solve and remember the plan (for the next tick's linearization).
+
+        Raises:
+            QPSolveError: The solver failed; the previous plan is dropped.
+        """
+        try:
+            sol = self.solver.solve(problem)
+        except Exception:
+            self._plan = None
+            raise
+        lay = self.layout
+        u = sol.x[lay.accelerations].reshape(lay.n_steps, lay.n_axes)
+        qs, vs = self.prediction.trajectory(ctx.q, ctx.qd, u)
+        s = 1.0 if lay.scale is None else float(sol.x[lay.scale])
+        slack = np.zeros(4) if lay.slack is None else sol.x[lay.slack].copy()
+        self._plan, self._plan_time = u.copy(), ctx.state.time
+        return MpcPlan(u, qs, vs, s, slack, sol)

@@ -1,0 +1,111 @@
+r"""Prediction model of the MPC: every axis a double integrator, condensed.
+
+State ``(q, \dot q)`` of the nine axes, input ``u_j = \ddot q`` held over step j of length
+``h_j``; ``t_k = h_0 + ... + h_{k-1}``. After ``k`` steps (``k = 1..N``)::
+
+    qd_k = qd_0 + sum_{j<k} h_j u_j
+    q_k  = q_0 + t_k qd_0 + sum_{j<k} (h_j (t_k - t_{j+1}) + h_j^2 / 2) u_j
+
+The first step is normally one control period long and the others longer: the input that
+is applied (u_0, for one period) then sees the constraints exactly one period ahead, which
+avoids limit cycles at an active constraint, while the long steps reach over >= 1 s.
+
+The base is not controlled: its pose is predicted at the measured, constant twist
+(`predict_base_pose`), the wheels at constant speed. The hydraulic servos track rate
+commands well below their bandwidth, which is what makes the double integrator adequate.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pinocchio as pin
+
+from models.state import MachineState
+from wbc.layout import VariableLayout
+
+__all__ = ["CondensedPrediction", "predict_base_pose"]
+
+
+class CondensedPrediction:
+    """Node positions and velocities as affine functions of the decision vector.
+
+    ``Q = Pq x + q_free`` and ``V = Pv x + v_free`` with Q, V stacked node-major
+    (node k = 1..N, then axis), shapes (N * n_axes,).
+
+    Args:
+        layout: Decision layout (``n_steps = N``).
+        steps: Step lengths h_j [s], scalar (uniform) or shape (N,).
+
+    Attributes:
+        Pq, Pv: (N * n_axes, layout.n).
+        Lq, Lv: The scalar (N, N) lower-triangular factors: ``Pq = kron(Lq, I)`` on the
+            accelerations.
+        step_lengths: h_j [s], shape (N,).
+        times: Node times t_k, k = 1..N [s], shape (N,).
+        start_times: Step start times t_j, j = 0..N-1 [s], shape (N,).
+    """
+
+    def __init__(self, layout: VariableLayout, steps):
+        N, na = layout.n_steps, layout.n_axes
+        h = np.broadcast_to(np.asarray(steps, dtype=float), (N,)).copy()
+        t = np.cumsum(h)
+        k = np.arange(N)[:, None]  # row: node k + 1
+        j = np.arange(N)[None, :]
+        before = j <= k
+        self.Lv = np.where(before, h[None, :], 0.0)
+        self.Lq = np.where(before, h[None, :] * (t[:, None] - t[None, :]) + 0.5 * h[None, :]**2,
+                           0.0)
+        self.Pq = np.zeros((N * na, layout.n))
+        self.Pv = np.zeros((N * na, layout.n))
+        eye = np.eye(na)
+        self.Pq[:, layout.accelerations] = np.kron(self.Lq, eye)
+        self.Pv[:, layout.accelerations] = np.kron(self.Lv, eye)
+        self.layout = layout
+        self.step_lengths = h
+        self.times = t
+        self.start_times = t - h
+
+    @property
+    def horizon(self) -> float:
+        """t_N [s]."""
+        return float(self.times[-1])
+
+    @property
+    def structure_key(self) -> tuple:
+        """Layout and step lengths."""
+        return (self.layout, self.step_lengths.tobytes())
+
+    def free_response(self, q0: np.ndarray, qd0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Node positions and velocities at zero input, shapes (N, n_axes)."""
+        q = q0[None, :] + self.times[:, None] * qd0[None, :]
+        return q, np.broadcast_to(qd0, q.shape).copy()
+
+    def trajectory(self, q0, qd0, inputs) -> tuple[np.ndarray, np.ndarray]:
+        """Node positions and velocities for inputs (N, n_axes): shapes (N, n_axes)."""
+        qf, vf = self.free_response(q0, qd0)
+        return qf + self.Lq @ inputs, vf + self.Lv @ inputs
+
+    def brake_trajectory(self, q0, qd0, acceleration) -> tuple[np.ndarray, ...]:
+        """Brake every axis to rest at the acceleration limit, then hold.
+
+        Returns:
+            (inputs, positions, velocities), shapes (N, n_axes); the inputs respect
+            ``|u| <= acceleration`` and reach zero velocity exactly.
+        """
+        u = np.zeros((self.layout.n_steps, q0.size))
+        v = qd0.astype(float).copy()
+        for k, h in enumerate(self.step_lengths):
+            u[k] = -np.clip(v / h, -acceleration, acceleration)
+            v = v + h * u[k]
+        q, vel = self.trajectory(q0, qd0, u)
+        return u, q, vel
+
+
+def predict_base_pose(state: MachineState, t: float) -> tuple[np.ndarray, np.ndarray]:
+    """Pose of fb after ``t`` [s] at the state's constant twist: (position (3,), R (3, 3)).
+
+    ``T(t) = T_0 exp(t [v; w])`` (right-multiplied: the twist is in fb).
+    """
+    m0 = pin.SE3(state.base_rotation, state.base_position)
+    mt = m0 * pin.exp6(pin.Motion(state.base_twist * t))
+    return mt.translation.copy(), mt.rotation.copy()

@@ -1,0 +1,169 @@
+"""Jerk-limited references from Ruckig (community version: no intermediate waypoints)."""
+
+from __future__ import annotations
+
+import numpy as np
+import ruckig
+
+from wbc.axes import N_AXES, AxisLimits
+from wbc.errors import ConfigurationError, TrajectoryError, WbcInputError
+
+__all__ = ["RuckigReference"]
+
+_OK = (ruckig.Result.Working, ruckig.Result.Finished)
+# ruckig 0.19 raises on exact boundary cases between profile types (measured: 0.1 m at
+# a = 0.8 m/s^2, j = 3.2 m/s^3, where a just reaches its limit); a slightly lower jerk
+# limit moves the input off the boundary.
+_JERK_RETRY = (1.0, 1.0 - 1e-6, 1.0 - 1e-4)
+
+
+class RuckigReference:
+    """Time-synchronized, jerk-limited trajectory of some axes from a measured state to a goal.
+
+    Per-axis limits come from `AxisLimits` (the machine description), scaled down so that
+    the feedback keeps some authority: velocity ``velocity_fraction * [v_lo, v_hi]``
+    (asymmetric for cylinders), acceleration ``acceleration_fraction * a_max``, and jerk
+    ``a / jerk_time``. The trajectory is computed once per goal (`plan`) and sampled at any
+    time (`sample`, `sample_many`); before a plan, or with `hold`, it is a constant position.
+
+    Args:
+        limits: Axis limits.
+        axes: Indices of the axes of this reference (crane or suspension).
+        jerk_time: Time to build up full acceleration [s].
+        velocity_fraction: In (0, 1].
+        acceleration_fraction: In (0, 1].
+    """
+
+    def __init__(self, limits: AxisLimits, axes, jerk_time: float = 0.25,
+                 velocity_fraction: float = 0.8, acceleration_fraction: float = 0.8):
+        self.axes = np.asarray(axes, dtype=int).reshape(-1)
+        if self.axes.size == 0 or np.any((self.axes < 0) | (self.axes >= N_AXES)):
+            raise ConfigurationError(f"axes must be indices in [0, {N_AXES}), got {axes}")
+        if not (jerk_time > 0 and 0 < velocity_fraction <= 1 and 0 < acceleration_fraction <= 1):
+            raise ConfigurationError(
+                f"need jerk_time > 0 and fractions in (0, 1]; got {jerk_time}, "
+                f"{velocity_fraction}, {acceleration_fraction}")
+        i = self.axes
+        self.limits = limits
+        self.names = tuple(limits.names[k] for k in i)
+        self.position_lower = limits.position_lower[i].copy()
+        self.position_upper = limits.position_upper[i].copy()
+        self.max_velocity = velocity_fraction * limits.velocity_upper[i]
+        self.min_velocity = velocity_fraction * limits.velocity_lower[i]
+        self.max_acceleration = acceleration_fraction * limits.acceleration[i]
+        self.max_jerk = self.max_acceleration / jerk_time
+        n = i.size
+        self._otg = ruckig.Ruckig(n)
+        self._traj = ruckig.Trajectory(n)
+        self._inp = ruckig.InputParameter(n)
+        self._inp.max_velocity = self.max_velocity.tolist()
+        self._inp.min_velocity = self.min_velocity.tolist()
+        self._inp.max_acceleration = self.max_acceleration.tolist()
+        self._inp.min_acceleration = (-self.max_acceleration).tolist()
+        self._inp.max_jerk = self.max_jerk.tolist()
+        self.start_time = 0.0
+        self.goal: np.ndarray | None = None
+        self._hold: np.ndarray | None = None
+        self._planned = False
+
+    @property
+    def n(self) -> int:
+        """Number of axes."""
+        return self.axes.size
+
+    @property
+    def is_set(self) -> bool:
+        """Whether a trajectory or a hold position is set."""
+        return self._planned or self._hold is not None
+
+    @property
+    def duration(self) -> float:
+        """Duration of the planned trajectory [s] (0 when holding)."""
+        return float(self._traj.duration) if self._planned else 0.0
+
+    def check_goal(self, goal) -> np.ndarray:
+        """Goal as an array of shape (n,) inside the position limits.
+
+        Raises:
+            WbcInputError: Wrong shape, non-finite, or outside a limit (the message names
+                the axis and its range).
+        """
+        g = np.asarray(goal, dtype=float)
+        if g.shape != (self.n,) or not np.all(np.isfinite(g)):
+            raise WbcInputError(f"goal must be finite with shape ({self.n},) for axes "
+                                f"{self.names}, got {goal}")
+        bad = (g < self.position_lower - 1e-12) | (g > self.position_upper + 1e-12)
+        if np.any(bad):
+            k = int(np.argmax(bad))
+            raise WbcInputError(f"goal {g[k]:.6g} outside [{self.position_lower[k]:.6g}, "
+                                f"{self.position_upper[k]:.6g}] for axis '{self.names[k]}'")
+        return g
+
+    def hold(self, position) -> None:
+        """Reference = constant ``position`` (n,) (clipped into the limits)."""
+        self._hold = np.clip(np.asarray(position, float), self.position_lower,
+                             self.position_upper)
+        self.goal = self._hold.copy()
+        self._planned = False
+
+    def plan(self, t0: float, position, velocity, acceleration, goal) -> float:
+        """Plan from the measured state at time ``t0`` [s] to rest at ``goal``.
+
+        The measured acceleration is clipped to the reference's acceleration limits (Ruckig
+        brings velocities above the limits back by itself).
+
+        Returns:
+            The trajectory duration [s].
+
+        Raises:
+            WbcInputError: Bad goal. TrajectoryError: Ruckig failed.
+        """
+        g = self.check_goal(goal)
+        inp = self._inp
+        inp.current_position = np.asarray(position, float).tolist()
+        inp.current_velocity = np.asarray(velocity, float).tolist()
+        inp.current_acceleration = np.clip(np.asarray(acceleration, float),
+                                           -self.max_acceleration,
+                                           self.max_acceleration).tolist()
+        inp.target_position = g.tolist()
+        inp.target_velocity = [0.0] * self.n
+        inp.target_acceleration = [0.0] * self.n
+        result = None
+        for factor in _JERK_RETRY:
+            inp.max_jerk = (factor * self.max_jerk).tolist()
+            try:
+                result = self._otg.calculate(inp, self._traj)
+            except ruckig.RuckigError as exc:
+                result = exc
+                continue
+            if result in _OK:
+                break
+        inp.max_jerk = self.max_jerk.tolist()
+        if result not in _OK:
+            what = result.name if isinstance(result, ruckig.Result) else str(result).strip()
+            raise TrajectoryError(f"Ruckig failed ({what}) from {inp.current_position} to "
+                                  f"{g.tolist()} for axes {self.names}")
+        self.start_time = float(t0)
+        self.goal = g
+        self._hold = None
+        self._planned = True
+        return self.duration
+
+    def sample(self, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(position, velocity, acceleration) at time ``t`` [s], shapes (n,).
+
+        Positions are clipped into the limits (a profile that starts fast may overshoot).
+        """
+        if not self._planned:
+            if self._hold is None:
+                raise TrajectoryError("reference sampled before plan() or hold()")
+            z = np.zeros(self.n)
+            return self._hold.copy(), z, z.copy()
+        p, v, a = self._traj.at_time(max(t - self.start_time, 0.0))[:3]
+        return (np.clip(p, self.position_lower, self.position_upper), np.asarray(v),
+                np.asarray(a))
+
+    def sample_many(self, times) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Samples at several times [s]: three arrays of shape (len(times), n)."""
+        out = [self.sample(t) for t in times]
+        return tuple(np.array([o[k] for o in out]) for k in range(3))

@@ -1,0 +1,29 @@
+"""QP solvers: a warm-started ProxQP workspace and any qpsolvers backend by name."""
+
+from __future__ import annotations
+
+import qpsolvers
+
+from wbc.errors import UnknownSolverError
+from wbc.solvers.proxqp_workspace import ProxQPWorkspace
+from wbc.solvers.qpsolvers_backend import QpsolversBackend
+from wbc.solvers.solution import QPSolution
+
+__all__ = ["ProxQPWorkspace", "QPSolution", "QpsolversBackend", "make_solver"]
+
+
+def make_solver(name: str = "proxqp", eps_abs: float = 1e-7, eps_rel: float = 0.0,
+                max_iter: int = 1000) -> ProxQPWorkspace | QpsolversBackend:
+    """A QP solver by name.
+
+    ``proxqp``: a warm-started `ProxQPWorkspace`; any other qpsolvers name: a cold
+    `QpsolversBackend` with the same absolute/relative tolerances.
+
+    Raises:
+        UnknownSolverError: The name is not an available qpsolvers backend.
+    """
+    if name == "proxqp":
+        return ProxQPWorkspace(eps_abs=eps_abs, eps_rel=eps_rel, max_iter=max_iter)
+    if name not in qpsolvers.available_solvers:
+        raise UnknownSolverError(name, tuple(qpsolvers.available_solvers))
+    return QpsolversBackend(name, eps_abs=eps_abs, eps_rel=eps_rel)

@@ -1,0 +1,33 @@
+"""MPC: inputs close to the reference acceleration."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from wbc.tasks.task import ConstantJacobianTask
+
+__all__ = ["HorizonInputTask"]
+
+
+class HorizonInputTask(ConstantJacobianTask):
+    r"""``\sum_{k=0}^{N-1} \|u_k - \ddot q^{ref}(t_k)\|^2_W``: regularizes the inputs.
+
+    Args:
+        weight: Scalar or per axis (9,).
+    """
+
+    def compute_weight(self, ctx) -> np.ndarray:
+        """Per-axis weight repeated over the steps."""
+        w = np.broadcast_to(self.weight, (ctx.layout.n_axes,))
+        return np.tile(w, ctx.layout.n_steps)
+
+    def compute_error(self, ctx) -> np.ndarray:
+        """``-a_ref`` at the step start times."""
+        return -ctx.reference.acceleration[:-1].ravel()
+
+    def compute_jacobian(self, ctx) -> np.ndarray:
+        """Identity on all accelerations."""
+        lay = ctx.layout
+        jac = np.zeros((lay.n_axes * lay.n_steps, lay.n))
+        jac[:, lay.accelerations] = np.eye(lay.n_axes * lay.n_steps)
+        return jac

@@ -1,0 +1,39 @@
+"""MPC: small input steps (a discrete jerk penalty)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from wbc.tasks.task import ConstantJacobianTask
+
+__all__ = ["HorizonSmoothnessTask"]
+
+
+class HorizonSmoothnessTask(ConstantJacobianTask):
+    r"""``\|u_0 - u_{prev}\|^2_W + \sum_{k=1}^{N-1} \|u_k - u_{k-1}\|^2_W``.
+
+    ``u_prev`` is the acceleration commanded at the previous tick.
+
+    Args:
+        weight: Scalar or per axis (9,).
+    """
+
+    def compute_weight(self, ctx) -> np.ndarray:
+        """Per-axis weight repeated over the steps."""
+        w = np.broadcast_to(self.weight, (ctx.layout.n_axes,))
+        return np.tile(w, ctx.layout.n_steps)
+
+    def compute_error(self, ctx) -> np.ndarray:
+        """``[-u_prev, 0, ..., 0]``."""
+        e = np.zeros(ctx.layout.n_axes * ctx.layout.n_steps)
+        e[:ctx.layout.n_axes] = -ctx.previous_acceleration
+        return e
+
+    def compute_jacobian(self, ctx) -> np.ndarray:
+        """First differences of the inputs."""
+        lay = ctx.layout
+        m = lay.n_axes * lay.n_steps
+        d = np.eye(m) - np.eye(m, k=-lay.n_axes)
+        jac = np.zeros((m, lay.n))
+        jac[:, lay.accelerations] = d
+        return jac

@@ -1,0 +1,64 @@
+"""MPC: follow the axis reference at every node of the horizon."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from wbc.errors import ConfigurationError
+from wbc.tasks.joint_task import _axes, _gain
+from wbc.tasks.task import ConstantJacobianTask
+
+__all__ = ["HorizonTrackingTask"]
+
+
+class HorizonTrackingTask(ConstantJacobianTask):
+    r"""Position and velocity tracking over the horizon, for some axes.
+
+    .. math:: \sum_{k=1}^{N} c_k \big(\|q_k - q^{ref}_k\|^2_{W_q}
+              + \|\dot q_k - \dot q^{ref}_k\|^2_{W_v}\big),
+
+    ``c_k = 1`` and ``c_N = terminal_factor``; ``q_k = Pq x + q_free`` (condensed
+    prediction). The reference is the Ruckig trajectory sampled at the node times, so the
+    MPC sees where the reference goes over the whole horizon.
+
+    Args:
+        axes: Axis indices.
+        position_weight: W_q, scalar or per axis.
+        velocity_weight: W_v, scalar or per axis.
+        terminal_factor: c_N >= 1.
+    """
+
+    def __init__(self, axes, position_weight, velocity_weight, terminal_factor: float = 10.0):
+        self.axes = _axes(axes)
+        n = self.axes.size
+        self.position_weight = _gain("position_weight", position_weight, n)
+        self.velocity_weight = _gain("velocity_weight", velocity_weight, n)
+        if not terminal_factor >= 1:
+            raise ConfigurationError(f"terminal_factor must be >= 1, got {terminal_factor}")
+        self.terminal_factor = float(terminal_factor)
+        super().__init__(1.0)
+
+    def _rows(self, ctx) -> np.ndarray:
+        """Rows of the task's axes in the node-major stacked prediction."""
+        return (np.arange(ctx.layout.n_steps)[:, None] * ctx.layout.n_axes
+                + self.axes[None, :]).ravel()
+
+    def compute_weight(self, ctx) -> np.ndarray:
+        """Per-row weights: positions then velocities, node-major, terminal node scaled."""
+        N = ctx.layout.n_steps
+        c = np.ones(N)
+        c[-1] = self.terminal_factor
+        return np.concatenate([(c[:, None] * self.position_weight).ravel(),
+                               (c[:, None] * self.velocity_weight).ravel()])
+
+    def compute_error(self, ctx) -> np.ndarray:
+        """Zero-input prediction minus reference, positions then velocities."""
+        i = self.axes
+        ref = ctx.reference
+        return np.concatenate([(ctx.free_positions[:, i] - ref.position[1:, i]).ravel(),
+                               (ctx.free_velocities[:, i] - ref.velocity[1:, i]).ravel()])
+
+    def compute_jacobian(self, ctx) -> np.ndarray:
+        """Rows of Pq and Pv of the task's axes."""
+        rows = self._rows(ctx)
+        return np.vstack([ctx.prediction.Pq[rows], ctx.prediction.Pv[rows]])

@@ -1,0 +1,82 @@
+"""Abstract task: a weighted least-squares residual that is affine in the decision vector."""
+
+from __future__ import annotations
+
+import abc
+
+import numpy as np
+
+from wbc.errors import ConfigurationError
+
+__all__ = ["Objective", "Task"]
+
+Objective = tuple[np.ndarray, np.ndarray]
+
+
+class Task(abc.ABC):
+    r"""A task says its error ``e`` and its Jacobian ``J``; the base class makes the cost.
+
+    The task residual at decision vector ``x`` is ``r(x) = J x + e`` (so ``e`` is the residual
+    at ``x = 0``), and its cost, in qpsolvers' form, is
+
+    .. math:: \tfrac12 \|J x + e\|^2_W = \tfrac12 x^T (J^T W J) x + (J^T W e)^T x + const,
+
+    with ``W = diag(weight)``.
+
+    Args:
+        weight: Scalar or per-row weight (>= 0) of the residual.
+    """
+
+    def __init__(self, weight=1.0):
+        w = np.asarray(weight, dtype=float)
+        if not np.all(np.isfinite(w)) or np.any(w < 0):
+            raise ConfigurationError(f"{type(self).__name__}: weight must be finite and >= 0, "
+                                     f"got {weight}")
+        self.weight = w
+
+    def compute_weight(self, ctx) -> np.ndarray:
+        """Row weights, scalar or shape (m,); the constructor's ``weight`` by default."""
+        return self.weight
+
+    def is_active(self, ctx) -> bool:
+        """Whether the task contributes to the cost at this context."""
+        return True
+
+    @abc.abstractmethod
+    def compute_error(self, ctx) -> np.ndarray:
+        """Residual at ``x = 0``, shape (m,)."""
+
+    @abc.abstractmethod
+    def compute_jacobian(self, ctx) -> np.ndarray:
+        """Derivative of the residual with respect to x, shape (m, layout.n)."""
+
+    def compute_qp_objective(self, ctx) -> Objective:
+        """(H, c): ``J^T W J`` (n, n) and ``J^T W e`` (n,)."""
+        jac = self.compute_jacobian(ctx)
+        err = self.compute_error(ctx)
+        jw = jac.T * self.compute_weight(ctx)
+        return jw @ jac, jw @ err
+
+
+class ConstantJacobianTask(Task):
+    """A task whose Jacobian depends only on the context's structure: ``J^T W`` is cached.
+
+    The cache is keyed by ``ctx.structure_key`` (layout and time steps) and the weights.
+    """
+
+    def __init__(self, weight=1.0):
+        super().__init__(weight)
+        self._cache_key = None
+        self._jw = None
+        self._H = None
+
+    def compute_qp_objective(self, ctx) -> Objective:
+        """(H, c) with ``H`` and ``J^T W`` cached per structure."""
+        weight = self.compute_weight(ctx)
+        key = (ctx.structure_key, weight.tobytes())
+        if self._cache_key != key:
+            jac = self.compute_jacobian(ctx)
+            self._jw = jac.T * weight
+            self._H = self._jw @ jac
+            self._cache_key = key
+        return self._H, self._jw @ self.compute_error(ctx)

@@ -1,0 +1,70 @@
+"""Helpers for tests, examples and benchmarks without the MuJoCo simulator.
+
+`KinematicPlant` stands in for the velocity-servoed machine: each axis follows its rate
+command with a first-order lag (time constant 0 = ideal servo); the base holds its pose
+and twist. It is enough to check the controllers' logic in closed loop; the physics are
+MuJoCo's job (`scenarios.simulator`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from models.coordinates import N_INDEPENDENT, TreeCoordinates
+from models.description import Machine
+from models.state import MachineState
+from wbc.axes import N_AXES
+from wbc.controllers.command import ControlCommand
+
+__all__ = ["KinematicPlant", "make_state"]
+
+
+def make_state(machine: Machine, q=None, qd=None, qdd=None, time: float = 0.0,
+               base_twist=None, contacts=None) -> MachineState:
+    """A state at the origin, level, with the given independent coordinates (home if None)."""
+    q = TreeCoordinates(machine).home() if q is None else np.asarray(q, float)
+    z = np.zeros(N_INDEPENDENT)
+    return MachineState(
+        base_position=np.array([0.0, 0.0, 0.45]), base_rotation=np.eye(3),
+        base_twist=np.zeros(6) if base_twist is None else np.asarray(base_twist, float),
+        base_acceleration=np.zeros(6), q=q, qd=z.copy() if qd is None else qd,
+        qdd=z.copy() if qdd is None else qdd, time=time, contacts=contacts)
+
+
+class KinematicPlant:
+    """Axes that follow rate commands (first-order servo), integrated at ``dt``.
+
+    Args:
+        state: Initial state.
+        dt: Integration step [s].
+        servo_time_constant: Lag of the rate servos [s] (0: ideal).
+    """
+
+    def __init__(self, state: MachineState, dt: float, servo_time_constant: float = 0.0):
+        self.state = state
+        self.dt = float(dt)
+        self.tau = float(servo_time_constant)
+
+    def measure(self) -> MachineState:
+        """The current state."""
+        return self.state
+
+    def apply(self, command: ControlCommand) -> MachineState:
+        """Advance one step with ``command``; returns the new state."""
+        st, dt = self.state, self.dt
+        qd = st.qd.copy()
+        v0 = qd[:N_AXES]
+        if self.tau > 0:
+            v1 = v0 + (command.rates - v0) * (1.0 - np.exp(-dt / self.tau))
+        else:
+            v1 = command.rates.copy()
+        q = st.q.copy()
+        q[:N_AXES] += 0.5 * (v0 + v1) * dt
+        q[N_AXES:] += qd[N_AXES:] * dt
+        qdd = np.zeros(N_INDEPENDENT)
+        qdd[:N_AXES] = (v1 - v0) / dt
+        qd[:N_AXES] = v1
+        self.state = MachineState(st.base_position, st.base_rotation, st.base_twist,
+                                  st.base_acceleration, q, qd, qdd, st.time + dt, st.contacts,
+                                  st.suspension_force, st.payload_mass)
+        return self.state
