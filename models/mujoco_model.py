@@ -43,7 +43,10 @@ The model, and why (figures measured for the reference machine, see the tests an
   from `Machine.direct_drives`.
 * **Wheels**: ``velocity`` actuators ``tau = kv (u - omega)``, ``kv`` = `WHEEL_VELOCITY_GAIN`,
   speed and torque limits from `Machine.wheel_drive`; the simulator drives each side's pair
-  with one command.
+  with one command. ``kv`` = 5 kN m s/rad is a hydrostatic drive's speed droop (0.8 rad/s at
+  full torque): with a near-rigid 20 kN m s/rad the skid-steering machine's rear wheels hop
+  at the torque limit (stick-slip of the lateral scrub; 5 % contact loss on the flat run),
+  which no real tyre's compliance would allow.
 * **Contacts**: only the wheel spheres (class ``collision``) and the terrain collide (visual
   geoms have ``contype = conaffinity = 0``): one contact point per wheel on a plane, the
   paper's assumption. The terrain geom has ``priority = 1`` so its friction
@@ -87,7 +90,7 @@ SERVO_POSITION_ERROR = {"slide": 2e-3, "hinge": 1e-2}  # [m], [rad] deflection a
 SERVO_DAMPING_RATIO = 0.5  # [-] target at the locked reflected inertia (see servo_specs)
 SERVO_EXPLICIT_DAMPING = 0.3  # [-] cap of h kv / m_free (one explicit damper: stable < 2)
 SERVO_STABILITY_MARGIN = 1.25  # explicit damping must stay stable at this times the timestep
-WHEEL_VELOCITY_GAIN = 2e4  # [N m s/rad]
+WHEEL_VELOCITY_GAIN = 5e3  # [N m s/rad]
 SOLVER_TOLERANCE = 1e-10  # Newton converges in the same 2-4 iterations; forces repeatable
 TERRAIN_BASE_DEPTH = 1.0  # [m] thickness of the height field below its lowest point
 MACHINE_FILE = "machine.xml"
