@@ -116,7 +116,7 @@ def test_measure_belongs_to_one_instant(flat_sim):
     probe.qpos[:], probe.qvel[:], probe.time = qpos, qvel, t
     mujoco.mj_forward(flat_sim.model, probe)
     ix = flat_sim.index
-    tol = 1e-6 * np.abs(probe.qacc).max()  # the solver's accuracy (warm starts differ)
+    tol = 1e-5 * np.abs(probe.qacc).max()  # the solver's accuracy (warm starts differ)
     chains = flat_sim.machine.chains
     direct = [i for i, n in enumerate(ix.independent_names) if n not in chains]
     np.testing.assert_allclose(probe.qacc[ix.independent_dof[direct]], state.qdd[direct],
@@ -138,7 +138,7 @@ def test_measure_belongs_to_one_instant(flat_sim):
     for i in range(probe.ncon):
         mujoco.mj_contactForce(flat_sim.model, probe, i, f6)
         forces.append(f6[0])
-    assert sum(forces) == pytest.approx(contacts.normal_force.sum(), rel=1e-6)
+    assert sum(forces) == pytest.approx(contacts.normal_force.sum(), rel=1e-5)
     np.testing.assert_allclose(state.q, qpos[ix.independent_qpos])
     np.testing.assert_allclose(state.base_position, qpos[:3])
 
