@@ -182,6 +182,19 @@ class CylinderChain:
         """Sign of eq. (5) for the driven joint: +1 or -1, from the triangle's orientation."""
         return -self._consts["orient"]
 
+    def driven_rate_coefficients(self, x: float) -> tuple[float, float]:
+        """(k1, dk1/dx) at stroke ``x`` without the rest of `state` (a hot path) [rad/m]."""
+        k = self._consts
+        la, lb = k["la"], k["lb"]
+        lx = k["lx0"] + x
+        c = (la * la + lb * lb - lx * lx) / (2 * la * lb)
+        q = -math.acos(min(max(c, -1.0), 1.0))
+        s = math.sin(q)
+        dq = lx / (la * lb * s)
+        ddq = -(-1 / (la * lb) + math.cos(q) * dq * dq) / s
+        sigma = self.sigma
+        return sigma * dq, sigma * ddq
+
     def joint_angle(self, x: float) -> float:
         """Driven joint angle theta(x) [rad], eq. (5)."""
         return self.state(x, check=False).theta

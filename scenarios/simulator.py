@@ -484,9 +484,9 @@ class Simulator:
         # soft loop closures let the light piston's acceleration differ from the heavy driven
         # link's by their stabilisation term, and the driven link carries the dynamics.
         for i, chain, dof in self._chain_rates:
-            s = chain.state(q[i], check=False)
-            qd[i] = qvel[dof] / s.k[0]
-            qdd[i] = (d.qacc[dof] - s.dk_dx[0] * qd[i] * qd[i]) / s.k[0]
+            k1, dk1 = chain.driven_rate_coefficients(q[i])
+            qd[i] = qvel[dof] / k1
+            qdd[i] = (d.qacc[dof] - dk1 * qd[i] * qd[i]) / k1
         suspension = d.actuator_force[ix.suspension_actuators]
         measured = truth
         if self.noise is not None:

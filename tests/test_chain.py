@@ -96,3 +96,11 @@ def test_mirrored_chain_flips_sigma():
     assert a.sigma == -b.sigma
     for x in (0.05, 0.15):
         assert math.isclose(a.joint_angle(x), -b.joint_angle(x), abs_tol=1e-12)
+
+
+def test_driven_rate_coefficients_match_state(machine):
+    for chain in _chains(machine):
+        for x in np.linspace(*chain.stroke_range, 5)[1:-1]:
+            s = chain.state(x)
+            np.testing.assert_allclose(chain.driven_rate_coefficients(x),
+                                       (s.k[0], s.dk_dx[0]), rtol=1e-12)
