@@ -96,8 +96,11 @@ def _impossible(machine, st, soft=False):
     G = np.zeros((4, 19))
     G[1, 6 + 5] = -100.0
     model = AffineForceModel(np.full(4, 1000.0), st.q, None, G)
+    # A small iteration cap: every solve is infeasible, and ProxQP otherwise spends its whole
+    # default budget proving it on each of the test's ticks.
     return model, ControllerConfig(force=ForceConfig(thresholds=(0.0, 5e4, 0.0, 0.0),
-                                                     soft=soft, speed_scale=True))
+                                                     soft=soft, speed_scale=True),
+                                   max_iter=100)
 
 
 @pytest.mark.parametrize("kind", ["qp", "mpc"])
@@ -194,7 +197,7 @@ def test_wheel_contacts_measured(machine):
     st = make_state(machine, contacts=contacts)
     ctrl = make_controller("mpc-full", machine, force_model=model)
     prob = ctrl.prepare(st)
-    n_force_rows = 3 * ctrl.layout.n_steps
+    n_force_rows = 3 * (ctrl.layout.n_steps + 1)  # the steps and the terminal brake node
     n_limit_rows = 4 * 9 * ctrl.layout.n_steps
     assert prob.G.shape[0] == n_limit_rows + n_force_rows
 

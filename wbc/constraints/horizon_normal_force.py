@@ -6,11 +6,12 @@ import numpy as np
 
 from models.coordinates import N_INDEPENDENT, WHEELS
 from models.state import MachineState
-from wbc.axes import N_AXES
+from wbc.axes import N_AXES, SUSPENSION_AXES
 from wbc.constraints.constraint import Constraint, Inequality
 from wbc.constraints.normal_force import check_thresholds
 from wbc.drive_model import speed_scale_direction
 from wbc.errors import ConfigurationError
+from wbc.force_models.feedback import DIAGONAL
 from wbc.force_models.protocol import (
     ForceLinearization,
     NormalForceModel,
@@ -22,6 +23,21 @@ from wbc.mpc.prediction import predict_base_pose
 __all__ = ["HorizonNormalForceConstraint"]
 
 _AXES_IN_A = slice(6, 6 + N_AXES)
+_MIN_SCALE = 0.05  # below this the drift is not attributed to the driving speed
+
+
+def _without_suspension(lin: ForceLinearization) -> ForceLinearization:
+    """The linearization with the suspension axes' columns zeroed.
+
+    The model holds the base acceleration and the contact points fixed, so its columns for
+    the bogie strokes describe wheels pushed into the ground, not the machine: there the
+    chassis moves instead (common mode) or warps (difference, `ctx.warp`).
+    """
+    G, dq, dqd = lin.G.copy(), lin.dq.copy(), lin.dqd.copy()
+    G[:, 6 + SUSPENSION_AXES] = 0.0
+    dq[:, SUSPENSION_AXES] = 0.0
+    dqd[:, SUSPENSION_AXES] = 0.0
+    return ForceLinearization(G, lin.g0, dq, dqd)
 
 
 class HorizonNormalForceConstraint(Constraint):
@@ -37,11 +53,23 @@ class HorizonNormalForceConstraint(Constraint):
 
     ``a_k = [a_base(s, t_k), u_k, qdd_wheels(s, t_k)]`` at the step's start time ``t_k``
     (`wbc.drive_model`, decaying as ``exp(-t_k/tau)``), ``q_k, \dot q_k`` the condensed
-    prediction (``q_0`` measured).
+    prediction from ``ctx.q`` (step 0 is the measured state itself).
     G and g_0 are exact at the linearization points (the model's affine form); the
-    configuration enters to first order. Rows are scaled by ``1 / force_scale``, and with
-    slacks in the layout (one per wheel, shared by all steps) they read
-    ``f_k >= f_min - force_scale * eps``.
+    configuration enters to first order.
+
+    With ``ctx.feedback`` (`wbc.force_models.feedback`) its bias, the measured load split
+    minus the model's, is added at every step (exact at step 0), and with ``ctx.warp`` the
+    chassis warp ``W (q_k - q_0)`` of the suspension setpoints is added at steps k >= 1
+    (the model's own suspension columns are then dropped, `_without_suspension`);
+    ``ctx.warp_drift`` adds the terrain's predicted twist along the diagonal, proportional
+    to the wheel-speed scale (``drift * s / s_prev``). A terminal node (``T_b``) constrains
+    the forces while every axis brakes to rest after the horizon (`forces_map`).
+
+    Rows are scaled by ``1 / force_scale``, and with slacks in the layout they read
+    ``f_k >= f_min - force_scale * eps``: one slack per wheel shared by all steps, or, with
+    eight slacks, one per wheel for step 0 and another for the later steps and the
+    terminal node. Step 0 is the measured state (only the accelerations act on it), and a
+    wheel below its threshold *now* must not relax the plan for the rest of the horizon.
 
     Args:
         model: Normal-force model.
@@ -50,20 +78,33 @@ class HorizonNormalForceConstraint(Constraint):
             the steps, the first at step 0 (the measured state).
         force_scale: Row scaling [N].
         drive_time_constant: tau [s] of the base drive.
+        terminal_brake_time: T_b [s] of the terminal rows (see `forces_map`); None: none.
+        start_time: Steps starting before this time [s] get no rows (their forces are
+            still predicted): what happens within it follows from the state now, and
+            constraining it only makes the QP push the wheels with crane accelerations.
 
     Attributes:
         last_forces_map: ``(A, b)``, the predicted forces ``A x + b`` [N] of all wheels,
-            step-major (N * 4,); for logging and tests.
+            step-major (4 N,), then the terminal rows if any; for logging and tests.
         last_in_contact: Contact flags used, shape (4,).
         linearization_steps: Steps at which the model was evaluated at the last call.
     """
 
     def __init__(self, model: NormalForceModel, thresholds, n_linearizations: int = 3,
-                 force_scale: float = 1e4, drive_time_constant: float = 0.5):
+                 force_scale: float = 1e4, drive_time_constant: float = 0.5,
+                 terminal_brake_time: float | None = None, start_time: float = 0.0):
         if not (n_linearizations >= 1 and force_scale > 0 and drive_time_constant > 0):
             raise ConfigurationError(f"need n_linearizations >= 1, force_scale > 0, "
                                      f"drive_time_constant > 0; got {n_linearizations}, "
                                      f"{force_scale}, {drive_time_constant}")
+        if terminal_brake_time is not None and not terminal_brake_time > 0:
+            raise ConfigurationError(f"terminal_brake_time must be > 0 s or None, got "
+                                     f"{terminal_brake_time}")
+        self.terminal_brake_time = (None if terminal_brake_time is None
+                                    else float(terminal_brake_time))
+        if not start_time >= 0:
+            raise ConfigurationError(f"start_time must be >= 0 s, got {start_time}")
+        self.start_time = float(start_time)
         self.model = model
         self.thresholds = check_thresholds(thresholds)
         self.n_linearizations = int(n_linearizations)
@@ -90,13 +131,14 @@ class HorizonNormalForceConstraint(Constraint):
 
         Returns:
             (steps j, linearizations, nominal positions (N + 1, 9), nominal velocities
-            (N + 1, 9)) with node 0 the measured state.
+            (N + 1, 9)) with node 0 the measured state (its measured axes, which may differ
+            from the prediction's start ``ctx.q`` by the servo deflection's vibration).
         """
         N = ctx.layout.n_steps
         start = ctx.prediction.start_times
         qn, vn = ctx.prediction.trajectory(ctx.q, ctx.qd, ctx.nominal_inputs)
-        qn = np.vstack([ctx.q, qn])
-        vn = np.vstack([ctx.qd, vn])
+        qn = np.vstack([ctx.state.q[:N_AXES], qn])
+        vn = np.vstack([ctx.state.qd[:N_AXES], vn])
         steps = np.unique(np.round(np.linspace(0, N - 1, self.n_linearizations)).astype(int))
         lins = []
         for j in steps:
@@ -105,37 +147,66 @@ class HorizonNormalForceConstraint(Constraint):
         return steps, lins, qn, vn
 
     def forces_map(self, ctx) -> tuple[np.ndarray, np.ndarray]:
-        """``(A, b)``: predicted forces ``A x + b`` [N], A (4N, n), b (4N,), step-major."""
+        """``(A, b)``: predicted forces ``A x + b`` [N], step-major.
+
+        Rows ``4k..4k+3`` are step k = 0..N-1; with a terminal brake time ``T_b`` four more
+        rows give the forces at node N while every axis brakes to rest at ``-qd_N / T_b``:
+        the plan must end in a state the machine can stop from, so it cannot borrow load
+        from an acceleration it would have to undo just past the horizon. Shapes: A
+        (4 (N + t), n), b (4 (N + t),), t = 1 with the terminal rows, else 0.
+        """
         lay, pred = ctx.layout, ctx.prediction
         N, na = lay.n_steps, lay.n_axes
-        start = pred.start_times
+        times = np.append(pred.start_times, pred.horizon)  # evaluation times, N + 1
         steps, lins, qn, vn = self.linearize(ctx)
         self.linearization_steps = steps
-        which = np.searchsorted(steps, np.arange(N), side="right") - 1
+        n_eval = N + (self.terminal_brake_time is not None)
+        which = np.searchsorted(steps, np.arange(n_eval), side="right") - 1
+        which = np.minimum(which, len(steps) - 1)
         st = ctx.state
         direction = (speed_scale_direction(st, ctx.speed_scale, self.drive_time_constant)
                      if lay.scale is not None else None)
-        A = np.zeros((4 * N, lay.n))
-        b = np.zeros(4 * N)
+        A = np.zeros((4 * n_eval, lay.n))
+        b = np.zeros(4 * n_eval)
         omega = st.qd[N_AXES:N_INDEPENDENT]
-        for k in range(N):
+        if ctx.warp is not None:  # the suspension acts through the warp model only
+            lins = [_without_suspension(lin) for lin in lins]
+        for k in range(n_eval):
             j = steps[which[k]]
             lin = lins[which[k]]
             r = slice(4 * k, 4 * k + 4)
             dq, dqd = lin.dq[:, :N_AXES], lin.dqd[:, :N_AXES]
-            A[r, lay.step(k)] = lin.G[:, _AXES_IN_A]
-            b[r] = lin.g0 + lin.dq[:, N_AXES:] @ (omega * (start[k] - start[j]))
-            if k == 0:
-                b[r] += dq @ (ctx.q - qn[j]) + dqd @ (ctx.qd - vn[j])
+            G_axes = lin.G[:, _AXES_IN_A]
+            b[r] = lin.g0 + lin.dq[:, N_AXES:] @ (omega * (times[k] - times[j]))
+            if k == 0:  # now: the measured state's forces, at the new accelerations
+                A[r, lay.step(0)] = G_axes
             else:
                 rows = slice((k - 1) * na, k * na)
                 A[r] += dq @ pred.Pq[rows] + dqd @ pred.Pv[rows]
                 b[r] += (dq @ (ctx.free_positions[k - 1] - qn[j])
                          + dqd @ (ctx.free_velocities[k - 1] - vn[j]))
+                if k < N:
+                    A[r, lay.step(k)] = G_axes
+                else:  # terminal: brake to rest, a = -qd_N / T_b
+                    Tb = self.terminal_brake_time
+                    A[r] -= G_axes @ pred.Pv[rows] / Tb
+                    b[r] -= G_axes @ ctx.free_velocities[k - 1] / Tb
+                if ctx.warp is not None:  # the suspension twists the chassis
+                    A[r] += ctx.warp @ pred.Pq[rows]
+                    b[r] += ctx.warp @ (ctx.free_positions[k - 1] - ctx.q)
             if direction is not None:
-                col = (lin.G @ direction) * np.exp(-start[k] / self.drive_time_constant)
+                col = (lin.G @ direction) * np.exp(-times[k] / self.drive_time_constant)
                 A[r, lay.scale] += col
                 b[r] -= col * ctx.speed_scale
+        if ctx.feedback is not None:  # the load split measured now, held over the horizon
+            b += np.tile(ctx.feedback.bias, n_eval)
+        if ctx.warp_drift is not None:  # the terrain keeps twisting, at the driving speed
+            drift = np.kron(ctx.warp_drift[:n_eval], DIAGONAL)
+            b += drift
+            if lay.scale is not None:
+                s_prev = max(ctx.speed_scale, _MIN_SCALE)
+                A[:, lay.scale] += drift / s_prev
+                b -= drift * ctx.speed_scale / s_prev
         return A, b
 
     def compute(self, ctx) -> Inequality | None:
@@ -146,10 +217,15 @@ class HorizonNormalForceConstraint(Constraint):
         wheels = np.flatnonzero(flags)
         if wheels.size == 0:
             return None
-        N = ctx.layout.n_steps
-        rows = (4 * np.arange(N)[:, None] + wheels[None, :]).ravel()
+        n_eval = A.shape[0] // 4
+        times = np.append(ctx.prediction.start_times, ctx.prediction.horizon)[:n_eval]
+        evals = np.flatnonzero(times >= self.start_time - 1e-12)
+        rows = (4 * evals[:, None] + wheels[None, :]).ravel()
         G = -A[rows] / self.force_scale
-        h = (b[rows] - np.tile(self.thresholds[wheels], N)) / self.force_scale
+        h = (b[rows] - np.tile(self.thresholds[wheels], evals.size)) / self.force_scale
         if ctx.layout.slack is not None:
-            G[np.arange(rows.size), ctx.layout.slack.start + np.tile(wheels, N)] = -1.0
+            col = ctx.layout.slack.start + np.tile(wheels, evals.size)
+            if ctx.layout.n_slack == 8:  # the future's own slacks: see the class docstring
+                col = col + 4 * np.repeat(times[evals] > ctx.dt / 2, wheels.size)
+            G[np.arange(rows.size), col] = -1.0
         return Inequality(G, h)

@@ -7,6 +7,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from wbc.errors import ConfigurationError
+from wbc.force_models.feedback import WARP_STIFFNESS
 
 __all__ = ["ControllerConfig", "ForceConfig", "MpcConfig", "QPConfig", "ReferenceConfig"]
 
@@ -89,12 +90,31 @@ class MpcConfig:
         n_steps: N, the number of steps.
         first_step: Length of the first step [s]; None: the control period (the applied
             input then sees the constraints exactly one period ahead).
-        crane_position_weight, crane_velocity_weight: Tracking weights of the crane axes.
+        crane_position_weight, crane_velocity_weight: Tracking weights of the crane axes,
+            scalar or per axis (7,), order slew, lift, tilt, telescope, wrist pitch, roll,
+            rotator.
+        crane_axis_factors: Per-axis factors (7,) on both crane weights. They say which
+            axis the MPC gives up first when the force constraint binds: the telescope
+            (factor < 1) takes reach back at the least cost in cylinder force, where
+            lowering the boom would load the lift cylinder towards its force limit.
         suspension_position_weight, suspension_velocity_weight: Suspension posture weights.
         input_weight: Inputs towards the reference acceleration.
         smoothness_weight: Input steps (discrete jerk).
         terminal_factor: Weight factor of the last node.
         n_linearizations: Force-model evaluations per tick along the horizon.
+        terminal_brake_time: The force constraint also holds at the end of the horizon
+            while every axis brakes to rest in this time [s]; None: no terminal rows.
+        force_constraint_start: The force constraint applies to the steps starting at or
+            after this time [s] (and the terminal node); 0: from step 0. Within the first
+            period the forces follow from the state now: only crane accelerations could
+            move them, a lever the plan must repay (see `HorizonNormalForceConstraint`).
+        setpoint_state: Predict every axis from its servo setpoint and the rate commanded
+            last tick, plus the low-pass filtered deflection of the stroke from the
+            setpoint (none for the suspension), instead of from the measured stroke and
+            velocity (`wbc.controllers.servo_state`): the measured ones carry the boom's
+            bounce, and against the stiff chassis warp a suspension setpoint loads the
+            wheels while its stroke hardly moves.
+        deflection_time_constant: Filter of that deflection [s].
 
     The horizon ``first_step + (n_steps - 1) step`` must be >= 1 s.
     """
@@ -104,18 +124,28 @@ class MpcConfig:
     first_step: float | None = None
     crane_position_weight: float = 400.0
     crane_velocity_weight: float = 20.0
+    crane_axis_factors: tuple = (1.0, 4.0, 4.0, 0.01, 1.0, 1.0, 1.0)
     suspension_position_weight: float = 4.0
     suspension_velocity_weight: float = 1.0
     input_weight: float = 0.05
     smoothness_weight: float = 0.5
     terminal_factor: float = 5.0
     n_linearizations: int = 3
+    terminal_brake_time: float | None = 0.5
+    force_constraint_start: float = 0.0
+    setpoint_state: bool = True
+    deflection_time_constant: float = 0.5
 
     def __post_init__(self):
         _positive(self, "step", "n_steps", "crane_position_weight", "crane_velocity_weight",
                   "suspension_position_weight", "suspension_velocity_weight", "input_weight",
                   "n_linearizations")
         _positive(self, "smoothness_weight", allow_zero=True)
+        f = np.asarray(self.crane_axis_factors, float)
+        if f.shape != (7,) or not np.all(np.isfinite(f)) or np.any(f <= 0):
+            raise ConfigurationError(f"crane_axis_factors must be 7 positive numbers, got "
+                                     f"{self.crane_axis_factors}")
+        object.__setattr__(self, "crane_axis_factors", tuple(float(x) for x in f))
         if self.first_step is not None:
             _positive(self, "first_step")
         if self.terminal_factor < 1:
@@ -150,22 +180,44 @@ class ForceConfig:
         speed_scale_min: Its lower bound. speed_scale_rate: Its rate limit [1/s].
         speed_scale_weight: Cost of slowing down (`SpeedScaleTask`).
         drive_time_constant: tau of the base drive [s] (`wbc.drive_model`).
+        margin: Added to the thresholds inside the MPC [N]: what the prediction may miss
+            (terrain ahead, servo lag); the thresholds stay the figure of merit.
+        feedback: MPC only: correct the horizon model by the load split measured now, the
+            estimator's cylinder-force closure (`wbc.force_models.feedback`).
+        warp_stiffness: MPC only: k_w of the chassis warp by the suspension setpoints
+            [N/m per wheel]; 0: the suspension does not act on the load split in the model.
+        leveling_weight: MPC only: weight of `HorizonLevelingTask` (0: off).
+        leveling_limit: MPC only: largest warp change the leveling asks for at once [N].
+        drift_horizon: MPC only: how far ahead the measured rate of the terrain's twist is
+            extrapolated [s] (`WarpDrift`); 0: not at all.
+        drift_time_constant: MPC only: low-pass filter of that rate [s].
     """
 
     thresholds: tuple[float, float, float, float] | None = None
     threshold_fraction: float = 0.1
     soft: bool = True
-    slack_linear: float = 1e6
+    slack_linear: float = 1e4
     slack_quadratic: float = 1e4
     speed_scale: bool = True
     speed_scale_min: float = 0.0
     speed_scale_rate: float = 0.5
     speed_scale_weight: float = 10.0
     drive_time_constant: float = 0.5
+    margin: float = 0.0
+    feedback: bool = True
+    warp_stiffness: float = WARP_STIFFNESS
+    leveling_weight: float = 1.0
+    leveling_limit: float = 5000.0
+    drift_horizon: float = 0.3
+    drift_time_constant: float = 0.05
 
     def __post_init__(self):
-        _positive(self, "threshold_fraction", "slack_linear", "slack_quadratic",
-                  "speed_scale_rate", "speed_scale_weight", "drive_time_constant")
+        _positive(self, "slack_linear", "slack_quadratic",
+                  "speed_scale_rate", "speed_scale_weight", "drive_time_constant",
+                  "leveling_limit")
+        _positive(self, "margin", "warp_stiffness", "leveling_weight", "drift_horizon",
+                  allow_zero=True)
+        _positive(self, "drift_time_constant")
         if self.thresholds is not None:
             t = np.asarray(self.thresholds, float)
             if t.shape != (4,) or not np.all(np.isfinite(t)):

@@ -246,11 +246,19 @@ class Controller(abc.ABC):
             return self.fallback_command(state, exc)
         return self._command(state, qdd, scale, info, fallback=False)
 
+    def _rate_basis(self, state: MachineState) -> np.ndarray:
+        """Axis velocities the accelerations are added to, (9,): the measured ones."""
+        return state.qd[:N_AXES]
+
+    def _commanded(self, rates: np.ndarray) -> None:
+        """Subclass hook: the rates just commanded."""
+
     def _command(self, state: MachineState, qdd: np.ndarray, scale: float, info: dict,
                  fallback: bool) -> ControlCommand:
-        qd = state.qd[:N_AXES]
+        qd = self._rate_basis(state)
         rates = np.clip(qd + qdd * self.dt, self.limits.velocity_lower,
                         self.limits.velocity_upper)
+        self._commanded(rates)
         scale = float(np.clip(scale, 0.0, 1.0))  # solver tolerance aside, s is in [0, 1]
         self._last_qdd = qdd.copy()
         self._speed_scale = scale
@@ -267,7 +275,7 @@ class Controller(abc.ABC):
         """
         self.n_fallbacks += 1
         self.logger.warning("fallback at t=%.3f s: %s", state.time, reason)
-        qd = state.qd[:N_AXES]
+        qd = self._rate_basis(state)
         qdd = self.limits.brake_acceleration(qd, self.dt)
         qdd[SUSPENSION_AXES] = -qd[SUSPENSION_AXES] / self.dt
         fc = self.config.force

@@ -7,7 +7,7 @@ import qpsolvers
 
 from models.description import Machine
 from models.state import MachineState
-from wbc.axes import CRANE_AXES, SUSPENSION_AXES
+from wbc.axes import CRANE_AXES, N_AXES, SUSPENSION_AXES, AxisLimits
 from wbc.constraints import (
     AccelerationLimit,
     HorizonNormalForceConstraint,
@@ -17,7 +17,15 @@ from wbc.constraints import (
 )
 from wbc.controllers.config import ControllerConfig
 from wbc.controllers.controller import Controller
+from wbc.controllers.servo_state import ServoState
 from wbc.errors import ConfigurationError
+from wbc.force_models.feedback import (
+    ClosureFeedback,
+    ForceFeedback,
+    WarpDrift,
+    leveling_offset,
+    warp_matrix,
+)
 from wbc.force_models.protocol import NormalForceModel
 from wbc.kinematics.tcp_kinematics import TcpKinematics
 from wbc.layout import VariableLayout
@@ -26,6 +34,7 @@ from wbc.mpc.planner import MpcPlan, MpcPlanner
 from wbc.solvers import make_solver
 from wbc.tasks import (
     HorizonInputTask,
+    HorizonLevelingTask,
     HorizonSmoothnessTask,
     HorizonTrackingTask,
     SlackPenaltyTask,
@@ -49,28 +58,43 @@ class MpcController(Controller):
 
     Registered as ``mpc-full`` and ``mpc-quasi-static`` (the estimator's method).
 
+    Load split (`wbc.force_models.feedback`): with a ``feedback`` (`ClosureFeedback`, the
+    estimator's cylinder-force closure) and ``config.force.feedback``, the forces the model
+    predicts are corrected at every step by the split measured now; with
+    ``config.force.warp_stiffness > 0`` the suspension setpoints act on that split through
+    the chassis warp, in the force constraint and in `HorizonLevelingTask`. With
+    ``config.mpc.setpoint_state`` the axes are predicted from their servo setpoints and
+    commanded rates (`wbc.controllers.servo_state`).
+
     Args:
         machine: The machine description.
         config: Settings.
         force_model: The normal-force model (required).
         tcp_kinematics: For `TcpGoal`.
+        feedback: The measured load split; None: the model alone.
     """
 
     name = "mpc"
 
     def __init__(self, machine: Machine, config: ControllerConfig | None = None, *,
                  force_model: NormalForceModel, tcp_kinematics: TcpKinematics | None = None,
-                 name: str | None = None):
+                 name: str | None = None, feedback: ClosureFeedback | None = None):
         if name is not None:
             self.name = name
         super().__init__(machine, config, tcp_kinematics=tcp_kinematics)
         if force_model is None:
             raise ConfigurationError("MpcController needs a force_model")
         cfg, mc, fc = self.config, self.config.mpc, self.config.force
+        self.force_model = force_model
+        self.feedback: ClosureFeedback | None = None
+        self.warp: np.ndarray | None = None
+        self._set_feedback(feedback)
         layout = VariableLayout(9, mc.n_steps, speed_scale=fc.speed_scale,
-                                n_slack=4 if fc.soft else 0)
+                                n_slack=8 if fc.soft else 0)
+        factors = np.asarray(mc.crane_axis_factors, float)
         tasks = [
-            HorizonTrackingTask(CRANE_AXES, mc.crane_position_weight, mc.crane_velocity_weight,
+            HorizonTrackingTask(CRANE_AXES, mc.crane_position_weight * factors,
+                                mc.crane_velocity_weight * factors,
                                 mc.terminal_factor),
             HorizonTrackingTask(SUSPENSION_AXES, mc.suspension_position_weight,
                                 mc.suspension_velocity_weight, mc.terminal_factor),
@@ -78,10 +102,12 @@ class MpcController(Controller):
             HorizonSmoothnessTask(mc.smoothness_weight),
             SpeedScaleTask(fc.speed_scale_weight),
             SlackPenaltyTask(fc.slack_linear, fc.slack_quadratic),
+            HorizonLevelingTask(fc.leveling_weight, self.static_wheel_load),
         ]
         self.force_constraint = HorizonNormalForceConstraint(
-            force_model, self.force_thresholds, mc.n_linearizations, self.static_wheel_load,
-            fc.drive_time_constant)
+            force_model, self.force_thresholds + fc.margin, mc.n_linearizations,
+            self.static_wheel_load, fc.drive_time_constant, mc.terminal_brake_time,
+            mc.force_constraint_start)
         constraints = [AccelerationLimit(), HorizonVelocityLimit(), HorizonPositionLimit(),
                        self.force_constraint, SpeedScaleLimit(fc.speed_scale_min,
                                                               fc.speed_scale_rate)]
@@ -89,6 +115,9 @@ class MpcController(Controller):
         self.planner = MpcPlanner(self.limits, layout, mc.step_lengths(cfg.dt), cfg.dt, tasks,
                                   constraints, solver)
         self.last_plan: MpcPlan | None = None
+        ranges = AxisLimits.from_machine(machine, 0.0)
+        self.servo = (ServoState(cfg.dt, mc.deflection_time_constant, ranges.position_lower,
+                                 ranges.position_upper) if mc.setpoint_state else None)
 
     @property
     def layout(self) -> VariableLayout:
@@ -100,10 +129,72 @@ class MpcController(Controller):
         """Prediction horizon [s]."""
         return self.planner.horizon
 
+    def set_force_model(self, force_model: NormalForceModel,
+                        feedback: ClosureFeedback | None = None) -> None:
+        """Replace the force model (and the feedback), e.g. when the payload changes.
+
+        The estimator is built from the machine description, payload included; a new
+        payload mass needs estimators of the machine with that payload
+        (`wbc.force_models.estimator.load_estimator` of
+        ``build_reference_machine(payload_mass=...)``). The plan is kept as warm start.
+        """
+        if force_model is None:
+            raise ConfigurationError("set_force_model needs a force model")
+        self.force_model = force_model
+        self.force_constraint.model = force_model
+        self._set_feedback(feedback)
+
+    def _set_feedback(self, feedback: ClosureFeedback | None) -> None:
+        """The warp is modelled only where the split is measured (it acts on that split)."""
+        fc = self.config.force
+        self.feedback = feedback if fc.feedback else None
+        self.warp = (warp_matrix(fc.warp_stiffness)
+                     if self.feedback is not None and fc.warp_stiffness > 0 else None)
+        self.warp_drift = (WarpDrift(fc.warp_stiffness, fc.drift_time_constant,
+                                     fc.drift_horizon)
+                           if self.warp is not None and fc.drift_horizon > 0 else None)
+
+    def _init_loop_state(self) -> None:
+        super()._init_loop_state()
+        self.last_feedback: ForceFeedback | None = None
+        for part in ("servo", "warp_drift"):
+            if getattr(self, part, None) is not None:
+                getattr(self, part).reset()
+
+    def _rate_basis(self, state: MachineState) -> np.ndarray:
+        """The rates commanded last tick (with `MpcConfig.setpoint_state`), else measured."""
+        if self.servo is not None and self.servo.setpoint is not None:
+            return self.servo.rates.copy()
+        return state.qd[:N_AXES].copy()
+
+    def _commanded(self, rates: np.ndarray) -> None:
+        if self.servo is not None:
+            self.servo.commanded(rates)
+
     def context(self, state: MachineState) -> HorizonContext:
-        """The horizon context of ``state``."""
+        """The horizon context of ``state`` (measures the load split, see the class)."""
         ref = self.reference_at(self.planner.node_times)
-        return self.planner.context(state, ref, self._last_qdd, self._speed_scale)
+        if self.servo is not None:
+            q, qd = self.servo.observe(state)
+        else:
+            q, qd = state.q[:N_AXES].copy(), state.qd[:N_AXES].copy()
+        fb = None
+        offset = 0.0
+        drift = None
+        if self.feedback is not None:
+            fb = self.feedback.measure(state, self.force_model)
+            self.last_feedback = fb
+            if self.warp is not None:
+                offset = leveling_offset(fb.forces, self.force_constraint.thresholds,
+                                         fb.in_contact, self.config.force.leveling_limit)
+                if self.warp_drift is not None:
+                    self.warp_drift.update(fb, float(q[SUSPENSION_AXES[0]]
+                                                     - q[SUSPENSION_AXES[1]]))
+                    pred = self.planner.prediction
+                    drift = self.warp_drift.drift(np.append(pred.start_times, pred.horizon))
+        return self.planner.context(state, ref, self._last_qdd, self._speed_scale, q=q,
+                                    qd=qd, feedback=fb, warp=self.warp,
+                                    leveling_offset=offset, warp_drift=drift)
 
     def build_qp(self, state: MachineState) -> qpsolvers.Problem:
         """The condensed QP of this tick (references must be set)."""
@@ -133,9 +224,17 @@ class MpcController(Controller):
                 "solve_time": sol.solve_time, "warm_started": sol.warm_started,
                 "slack": plan.slack, "horizon": self.horizon,
                 "linearization_steps": self.force_constraint.linearization_steps.copy()}
+        if ctx.feedback is not None:
+            info["measured_forces"] = ctx.feedback.forces.copy()
+            info["leveling_offset"] = ctx.leveling_offset
+            if self.warp_drift is not None:
+                info["warp_drift_rate"] = self.warp_drift.rate
         fcon = self.force_constraint
         if fcon.last_forces_map is not None:
             A, b = fcon.last_forces_map
-            info["predicted_forces"] = (A @ sol.x + b).reshape(N, 4)
+            f = (A @ sol.x + b).reshape(-1, 4)
+            info["predicted_forces"] = f[:N]
+            if f.shape[0] > N:
+                info["terminal_forces"] = f[N]
             info["in_contact"] = fcon.last_in_contact.copy()
         return plan.inputs[0].copy(), plan.speed_scale, info

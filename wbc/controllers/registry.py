@@ -9,10 +9,12 @@ from wbc.controllers.mpc import MpcController
 from wbc.controllers.tracking import WholeBodyQPController
 from wbc.errors import ConfigurationError, UnknownControllerError
 from wbc.force_models.estimator import load_estimator
+from wbc.force_models.feedback import ClosureFeedback, load_closure
+from wbc.force_models.guarded import GuardedModel
 from wbc.force_models.protocol import NormalForceModel
 from wbc.kinematics.tcp_kinematics import TcpKinematics
 
-__all__ = ["CONTROLLER_NAMES", "make_controller"]
+__all__ = ["CONTROLLER_NAMES", "estimator_models", "make_controller"]
 
 CONTROLLER_NAMES = ("tracking", "mpc-quasi-static", "mpc-full")
 
@@ -24,8 +26,10 @@ def make_controller(name: str, machine: Machine, config: ControllerConfig | None
 
     * ``tracking``: the whole-body QP without the force constraint.
     * ``mpc-quasi-static``, ``mpc-full``: the MPC with
-      ``estimators.NormalForceEstimator(machine, method="quasi-static" | "full")``, or with
-      ``force_model`` when given (e.g. a test double).
+      ``estimators.NormalForceEstimator(machine, method="quasi-static" | "full")`` (d-beta
+      fourth row, `GuardedModel`) along the horizon, corrected by the same method's
+      cylinder-force closure at the measured state (`ClosureFeedback`); or with
+      ``force_model`` when given (e.g. a test double), then without the feedback.
 
     Raises:
         UnknownControllerError: ``name`` is not in `CONTROLLER_NAMES`.
@@ -41,6 +45,21 @@ def make_controller(name: str, machine: Machine, config: ControllerConfig | None
                                      "the force constraint")
         return WholeBodyQPController(machine, config, tcp_kinematics=tcp_kinematics)
     method = name.removeprefix("mpc-")
-    model = force_model if force_model is not None else load_estimator(machine, method)
+    feedback = None
+    if force_model is not None:
+        model = force_model
+    else:
+        model = GuardedModel(load_estimator(machine, method), machine)
+        feedback = ClosureFeedback(GuardedModel(load_closure(machine, method), machine))
     return MpcController(machine, config, force_model=model, tcp_kinematics=tcp_kinematics,
-                         name=name)
+                         name=name, feedback=feedback)
+
+
+def estimator_models(machine: Machine, method: str) -> tuple[NormalForceModel,
+                                                              ClosureFeedback]:
+    """The MPC's force model and load-split feedback for ``machine`` (see `make_controller`).
+
+    For `MpcController.set_force_model` when the machine changes (a new payload mass).
+    """
+    model = GuardedModel(load_estimator(machine, method), machine)
+    return model, ClosureFeedback(GuardedModel(load_closure(machine, method), machine))

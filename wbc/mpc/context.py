@@ -9,6 +9,7 @@ import numpy as np
 from models.state import MachineState
 from wbc.axes import AxisLimits
 from wbc.context import ReferenceSample
+from wbc.force_models.feedback import ForceFeedback
 from wbc.layout import VariableLayout
 from wbc.mpc.prediction import CondensedPrediction
 
@@ -33,6 +34,15 @@ class HorizonContext:
         speed_scale: The wheel-speed scale commanded at the previous tick.
         free_positions, free_velocities: Zero-input prediction, (N, 9).
         brake_inputs, brake_positions, brake_velocities: Brake-and-hold prediction, (N, 9).
+        feedback: The load split measured now (`wbc.force_models.feedback.ForceFeedback`);
+            None: the force model alone.
+        warp: ``df/dq`` of the chassis warp over the nine axes [N/m or N/rad], (4, 9); None:
+            not modelled.
+        leveling_offset: Warp change wanted along the diagonal [N]
+            (`wbc.force_models.feedback.leveling_offset`).
+        warp_drift: Terrain warp predicted along the diagonal at the step start times and
+            at the horizon [N], (N + 1,), at the previous speed scale
+            (`wbc.force_models.feedback.WarpDrift`); None: none.
     """
 
     state: MachineState
@@ -51,6 +61,10 @@ class HorizonContext:
     brake_inputs: np.ndarray
     brake_positions: np.ndarray
     brake_velocities: np.ndarray
+    feedback: ForceFeedback | None = None
+    warp: np.ndarray | None = None
+    leveling_offset: float = 0.0
+    warp_drift: np.ndarray | None = None
 
     @property
     def structure_key(self) -> tuple:

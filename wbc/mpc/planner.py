@@ -105,15 +105,29 @@ class MpcPlanner:
         return self._plan[np.clip(idx, 0, N - 1)]
 
     def context(self, state: MachineState, reference: ReferenceSample,
-                previous_acceleration: np.ndarray, speed_scale: float) -> HorizonContext:
-        """The horizon context at ``state`` (reference sampled at `node_times`)."""
-        q, qd = state.q[:N_AXES].copy(), state.qd[:N_AXES].copy()
+                previous_acceleration: np.ndarray, speed_scale: float, *,
+                q: np.ndarray | None = None, qd: np.ndarray | None = None,
+                **extra) -> HorizonContext:
+        """The horizon context at ``state`` (reference sampled at `node_times`).
+
+        Args:
+            state: The measured state.
+            reference: The reference at the node times.
+            previous_acceleration: Acceleration commanded at the previous tick, (9,).
+            speed_scale: Wheel-speed scale commanded at the previous tick.
+            q: Initial axis positions of the prediction, (9,); the measured ones if None
+                (the MPC passes its servo state, `wbc.controllers.servo_state`).
+            qd: Initial axis velocities, (9,); the measured ones if None.
+            extra: Further `HorizonContext` fields (feedback, warp, leveling_offset).
+        """
+        q = state.q[:N_AXES].copy() if q is None else np.array(q, float)
+        qd = state.qd[:N_AXES].copy() if qd is None else np.array(qd, float)
         qf, vf = self.prediction.free_response(q, qd)
         ub, qb, vb = self.prediction.brake_trajectory(q, qd, self.limits.acceleration)
         return HorizonContext(state, q, qd, self.dt, self.layout, self.limits, self.prediction,
                               reference, self.nominal_inputs(state.time),
                               np.asarray(previous_acceleration, float), float(speed_scale),
-                              qf, vf, ub, qb, vb)
+                              qf, vf, ub, qb, vb, **extra)
 
     def build(self, ctx: HorizonContext) -> qpsolvers.Problem:
         """The condensed QP of this tick."""

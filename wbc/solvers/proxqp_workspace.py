@@ -14,6 +14,7 @@ from wbc.solvers.solution import QPSolution
 __all__ = ["ProxQPWorkspace"]
 
 _SOLVED = proxqp.QPSolverOutput.PROXQP_SOLVED
+_TIGHTER = 1e-3  # eps_primal_inf factor of the last retry
 
 
 class ProxQPWorkspace:
@@ -78,9 +79,12 @@ class ProxQPWorkspace:
         s.initial_guess = (proxqp.InitialGuess.WARM_START_WITH_PREVIOUS_RESULT
                            if self.warm_start else proxqp.InitialGuess.NO_INITIAL_GUESS)
 
-    def _init(self, dims, P, q, C, lo, h, lb, ub) -> None:
+    def _init(self, dims, P, q, C, lo, h, lb, ub, eps_primal_inf: float | None = None) -> None:
         qp = proxqp.dense.QP(dims[0], 0, dims[1], True)
         self._settings(qp)
+        if eps_primal_inf is not None:  # the last retry: also cold in the solver's sense
+            qp.settings.eps_primal_inf = eps_primal_inf
+            qp.settings.initial_guess = proxqp.InitialGuess.EQUALITY_CONSTRAINED_INITIAL_GUESS
         qp.init(P, q, None, None, C, lo, h, lb, ub)
         self._qp, self._dims, self._P = qp, dims, P.copy()
         self.n_init += 1
@@ -125,6 +129,14 @@ class ProxQPWorkspace:
             self._init(dims, P, q, C, lo, h, lb, ub)  # one cold retry
             self._qp.solve()
             warm = False
+        if self._primal_infeasible():
+            # proxsuite 0.8 also reports feasible soft-constrained MPC problems primal
+            # infeasible, cold, at eps_primal_inf = 1e-9 (an active slack with its 1e6
+            # exact penalty; checked feasible by an LP); 1e-12 solves them in ~60
+            # iterations. A truly infeasible problem then costs up to max_iter.
+            self._init(dims, P, q, C, lo, h, lb, ub, self.eps_primal_inf * _TIGHTER)
+            self._qp.solve()
+            warm = False
         elapsed = time.perf_counter() - t0
         info = self._qp.results.info
         x = self._qp.results.x.copy()
@@ -134,6 +146,9 @@ class ProxQPWorkspace:
             raise QPSolveError(f"ProxQP did not solve the QP: status {status} after "
                                f"{info.iter} iterations (n={n}, inequalities={n_in})", status)
         return QPSolution(x, info.status.name, int(info.iter), elapsed, warm)
+
+    def _primal_infeasible(self) -> bool:
+        return self._qp.results.info.status == proxqp.QPSolverOutput.PROXQP_PRIMAL_INFEASIBLE
 
     def _solved(self) -> bool:
         r = self._qp.results

@@ -2,6 +2,7 @@
 
 from wbc.tasks.damping_task import DampingTask
 from wbc.tasks.horizon_input_task import HorizonInputTask
+from wbc.tasks.horizon_leveling_task import HorizonLevelingTask
 from wbc.tasks.horizon_smoothness_task import HorizonSmoothnessTask
 from wbc.tasks.horizon_tracking_task import HorizonTrackingTask
 from wbc.tasks.joint_task import JointTask
@@ -12,7 +13,7 @@ from wbc.tasks.task import ConstantJacobianTask, Objective, Task
 from wbc.tasks.tcp_position_task import TcpPositionTask
 
 __all__ = [
-    "ConstantJacobianTask", "DampingTask", "HorizonInputTask", "HorizonSmoothnessTask",
-    "HorizonTrackingTask", "JointTask", "Objective", "SlackPenaltyTask", "SpeedScaleTask",
-    "SuspensionPostureTask", "Task", "TcpPositionTask",
+    "ConstantJacobianTask", "DampingTask", "HorizonInputTask", "HorizonLevelingTask",
+    "HorizonSmoothnessTask", "HorizonTrackingTask", "JointTask", "Objective",
+    "SlackPenaltyTask", "SpeedScaleTask", "SuspensionPostureTask", "Task", "TcpPositionTask",
 ]

@@ -1,0 +1,200 @@
+r"""Measured load split for the MPC: the cylinder-force closure now, a warp model ahead.
+
+The normal-force model the MPC linearizes along its horizon (the estimator with the d-beta
+fourth row, eq. 29) is exact in the three equilibrium rows (eqs. 25-28) but fixes the fourth
+direction, the *diagonal* load split ``n = (+1, -1, -1, +1)`` (FL, RL, FR, RR), at a
+constant. On the machine that split is set by the chassis warp: terrain twist, drive-torque
+reactions, and the two suspension servos, whose setpoint difference twists the chassis
+against the wheels. Measured on the MuJoCo machine (flat, crane at home and at long reach,
+`wbc.force_models.feedback.WARP_STIFFNESS`): ``df = k_w n d(s_L - s_R)`` with ``k_w = 6.88
+kN`` per wheel and millimetre of setpoint difference, linear up to the lift-off of a wheel;
+the measured strokes barely move (the servos are the soft part, about 10x softer than the
+tyre contacts), so the *setpoints* are the controlled quantity.
+
+`ClosureFeedback` gives, once per control tick at the measured state:
+
+* ``forces``: the estimator's cylinder-force closure (the fourth row from the measured
+  suspension cylinder forces; exact to 0.01 % of the static wheel load on our logs),
+* ``bias = forces - model_forces``: what the horizon model misses now (along ``n`` only,
+  since both satisfy the equilibrium rows). The MPC adds it to every node of the horizon:
+  the split is held at its measured value, as the d-beta row assumes, but at the right value.
+
+`warp_matrix` is ``df/dq_axes`` of the warp (4, 9): nonzero on the two suspension columns,
+``+k_w n`` and ``-k_w n``. The MPC adds it to the model's sensitivity, which makes the
+suspension a lever on the load split that the force constraint can use.
+
+`WarpDrift` estimates how fast the ground twists the chassis while the machine drives: the
+measured warp ``w = n^T f / 4`` minus what the suspension setpoints explain, ``k_w (s_L -
+s_R)``, differentiated and low-pass filtered. The MPC extrapolates it a short time ahead
+(it is proportional to the driving speed), so the suspension leads the terrain instead of
+lagging it by the loop's time constant (~0.1 s here, against twist rates of 20-40 kN/s at
+0.4 m/s on the 10 deg rough terrain).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from models.description import Machine
+from models.state import MachineState
+from wbc.axes import N_AXES, SUSPENSION_AXES
+from wbc.errors import ForceModelError
+from wbc.force_models.protocol import NormalForceModel, contact_flags
+
+__all__ = ["DIAGONAL", "WARP_STIFFNESS", "ClosureFeedback", "ForceFeedback", "WarpDrift",
+           "leveling_offset", "load_closure", "warp_matrix"]
+
+DIAGONAL = np.array([1.0, -1.0, -1.0, 1.0])  # FL, RL, FR, RR: the free (warp) direction
+# [N/m] per wheel along DIAGONAL per metre of (setpoint_L - setpoint_R): measured on the
+# reference machine in MuJoCo (0.02..0.2 mm steps at home and at long reach, linear to 0.1 %).
+WARP_STIFFNESS = 6.88e6
+
+
+@dataclass(frozen=True)
+class ForceFeedback:
+    """The load split measured at one control tick.
+
+    Attributes:
+        forces: Normal forces by the cylinder-force closure [N], shape (4,).
+        model_forces: The horizon model's forces at the same state [N], shape (4,).
+        in_contact: Contact flags, shape (4,).
+        time: State time [s].
+    """
+
+    forces: np.ndarray
+    model_forces: np.ndarray
+    in_contact: np.ndarray
+    time: float
+
+    @property
+    def bias(self) -> np.ndarray:
+        """``forces - model_forces`` [N], shape (4,): the correction held over the horizon."""
+        return self.forces - self.model_forces
+
+
+def warp_matrix(stiffness: float) -> np.ndarray:
+    """``df/dq`` of the chassis warp over the nine axes [N/m], shape (4, 9).
+
+    Columns: ``+k_w n`` for the left suspension setpoint, ``-k_w n`` for the right one.
+    """
+    w = np.zeros((4, N_AXES))
+    w[:, SUSPENSION_AXES[0]] = stiffness * DIAGONAL
+    w[:, SUSPENSION_AXES[1]] = -stiffness * DIAGONAL
+    return w
+
+
+def leveling_offset(forces, thresholds, in_contact=None, limit: float = np.inf) -> float:
+    r"""Warp change ``delta`` [N] along `DIAGONAL` that maximizes the smallest margin.
+
+    With margins ``m = f - f_min`` (a wheel out of contact counts as ``-f_min``), adding
+    ``delta n`` gives ``min(m_FL + delta, m_RR + delta, m_RL - delta, m_FR - delta)``,
+    largest at ``delta = (min(m_RL, m_FR) - min(m_FL, m_RR)) / 2``.
+
+    Args:
+        forces: Normal forces [N], shape (4,).
+        thresholds: f_min [N], shape (4,).
+        in_contact: Contact flags (4,); None: all in contact.
+        limit: Clip |delta| to this [N].
+    """
+    f = np.asarray(forces, float).copy()
+    if in_contact is not None:
+        f[~np.asarray(in_contact, bool)] = 0.0
+    m = f - np.asarray(thresholds, float)
+    delta = 0.5 * (min(m[1], m[2]) - min(m[0], m[3]))
+    return float(np.clip(delta, -limit, limit))
+
+
+def load_closure(machine: Machine, method: str) -> NormalForceModel:
+    """The estimator with the cylinder-force fourth row (``method``: full or quasi-static).
+
+    Raises:
+        ForceModelError: The estimator is not available.
+    """
+    try:
+        from estimators import NormalForceEstimator
+    except ImportError as exc:
+        raise ForceModelError(f"estimators.NormalForceEstimator is not available ({exc})") \
+            from exc
+    return NormalForceEstimator(machine, method=method, fourth="cylinder-force")
+
+
+class ClosureFeedback:
+    """The measured load split (`ForceFeedback`) from a cylinder-force closure model.
+
+    Args:
+        closure: A model whose ``estimate`` uses ``state.suspension_force`` (the estimator
+            with ``fourth="cylinder-force"``); without measured cylinder forces it falls
+            back to its own fourth row, and the bias is then zero.
+    """
+
+    def __init__(self, closure: NormalForceModel):
+        self.closure = closure
+
+    def measure(self, state: MachineState, model: NormalForceModel) -> ForceFeedback:
+        """Closure and model forces at ``state``.
+
+        Raises:
+            ForceModelError: A model raised or returned non-finite forces.
+        """
+        try:
+            f = np.asarray(self.closure.estimate(state).normal_forces, float)
+            g = np.asarray(model.estimate(state).normal_forces, float)
+        except ForceModelError:
+            raise
+        except Exception as exc:
+            raise ForceModelError(f"force feedback failed at t={state.time:.3f} s: "
+                                  f"{type(exc).__name__}: {exc}") from exc
+        if f.shape != (4,) or g.shape != (4,) or not (np.isfinite(f).all()
+                                                      and np.isfinite(g).all()):
+            raise ForceModelError(f"force feedback returned {f} and {g}")
+        if state.suspension_force is None:
+            f = g.copy()
+        return ForceFeedback(f, g, contact_flags(model, state), float(state.time))
+
+
+class WarpDrift:
+    """Rate of the terrain-imposed chassis warp [N/s along `DIAGONAL`], filtered.
+
+    Args:
+        stiffness: k_w [N/m] (the warp explained by the suspension setpoints).
+        time_constant: Low-pass filter of the rate [s].
+        horizon: How long the rate is extrapolated [s] (`drift`).
+        limit: Clip of the rate [N/s].
+    """
+
+    def __init__(self, stiffness: float, time_constant: float = 0.05, horizon: float = 0.3,
+                 limit: float = 1e5):
+        self.stiffness = float(stiffness)
+        self.time_constant = float(time_constant)
+        self.horizon = float(horizon)
+        self.limit = float(limit)
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the history (rate zero)."""
+        self.rate = 0.0
+        self._last: tuple[float, float] | None = None  # (time, disturbance)
+
+    def update(self, feedback: ForceFeedback, setpoint_difference: float) -> float:
+        """Take the split measured now; returns the filtered rate [N/s].
+
+        With a wheel out of contact the warp is not defined (the chassis rests on three
+        wheels): the history is dropped and the rate is zero.
+        """
+        if not np.all(feedback.in_contact):
+            self.reset()
+            return 0.0
+        d = float(DIAGONAL @ feedback.forces) / 4.0 - self.stiffness * setpoint_difference
+        if self._last is not None and feedback.time > self._last[0]:
+            dt = feedback.time - self._last[0]
+            raw = (d - self._last[1]) / dt
+            self.rate += dt / (self.time_constant + dt) * (raw - self.rate)
+            self.rate = float(np.clip(self.rate, -self.limit, self.limit))
+        self._last = (feedback.time, d)
+        return self.rate
+
+    def drift(self, times) -> np.ndarray:
+        """Predicted warp change at ``times`` ahead [N]: ``rate * min(t, horizon)``."""
+        return self.rate * np.minimum(np.asarray(times, float), self.horizon)

@@ -1,0 +1,56 @@
+"""MPC: twist the chassis with the suspension towards the largest smallest-wheel margin."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from wbc.errors import ConfigurationError
+from wbc.force_models.feedback import DIAGONAL
+from wbc.tasks.task import Task
+
+__all__ = ["HorizonLevelingTask"]
+
+
+class HorizonLevelingTask(Task):
+    r"""Warp of the chassis towards the load split with the largest smallest margin.
+
+    .. math:: \sum_{k=1}^{N} \Big(\frac{w_k - \delta^*}{F_s}\Big)^2, \qquad
+              w_k = \tfrac14\, n^T W (q_k - q_0),
+
+    with ``W = ctx.warp`` (`wbc.force_models.feedback.warp_matrix`), ``n`` the diagonal
+    direction, ``q_k`` the predicted axes (suspension servo setpoints) and ``delta* =
+    ctx.leveling_offset`` the warp change that equalizes the smallest margins of the two
+    diagonals, from the load split measured now (`leveling_offset`). This is feedback on the
+    measured split through the suspension, active whatever the force constraint does; the
+    constraint keeps its own, predictive, use of the same lever.
+
+    Args:
+        weight: Weight of each node's residual.
+        force_scale: F_s [N].
+    """
+
+    def __init__(self, weight: float = 1.0, force_scale: float = 1e4):
+        if not force_scale > 0:
+            raise ConfigurationError(f"force_scale must be > 0, got {force_scale}")
+        super().__init__(weight)
+        self.force_scale = float(force_scale)
+
+    def is_active(self, ctx) -> bool:
+        """Active when the context has a warp model."""
+        return ctx.warp is not None and float(self.weight) > 0
+
+    def _row(self, ctx) -> np.ndarray:
+        return DIAGONAL @ ctx.warp / (4.0 * self.force_scale)  # (9,)
+
+    def compute_error(self, ctx) -> np.ndarray:
+        """Zero-input warp change (with the terrain's drift) minus the wanted one, (N,)."""
+        w = (ctx.free_positions - ctx.q[None, :]) @ self._row(ctx)
+        if ctx.warp_drift is not None:
+            w = w + ctx.warp_drift[1:] / self.force_scale
+        return w - ctx.leveling_offset / self.force_scale
+
+    def compute_jacobian(self, ctx) -> np.ndarray:
+        """``row @ Pq`` of each node, (N, n)."""
+        lay = ctx.layout
+        Pq = ctx.prediction.Pq.reshape(lay.n_steps, lay.n_axes, lay.n)
+        return np.einsum("a,kan->kn", self._row(ctx), Pq)
