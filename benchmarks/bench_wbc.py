@@ -98,7 +98,29 @@ def run(out_dir: Path | None = None) -> dict:
                   f"max {v['max_ms']:.2f} ms, solver {v['solver_median_ms']:.3f} ms, "
                   f"fallbacks {v['fallbacks']}{extra}")
     print(f"   goals met: {result['meets_goals']}")
+    result["closed_loop"] = closed_loop_real_time_factor(out_dir)
     return result
+
+
+CLOSED_LOOP_SECONDS = 8.0  # [s] of the default scenario with mpc-full
+
+
+def closed_loop_real_time_factor(out_dir: Path | None = None) -> dict:
+    """Real-time factor of the default closed-loop scenario with ``mpc-full`` (one core)."""
+    import tempfile
+
+    from scenarios.closed_loop import DEFAULT_SCENARIO, run_closed_loop
+
+    out = Path(out_dir) / "closed_loop_run" if out_dir else Path(tempfile.mkdtemp())
+    m = run_closed_loop(DEFAULT_SCENARIO, out, "mpc-full", duration=CLOSED_LOOP_SECONDS,
+                        progress=False)
+    figures = {"scenario": DEFAULT_SCENARIO, "controller": "mpc-full",
+               "sim_seconds": m["sim_seconds"], "wall_seconds": m["wall_seconds"],
+               "real_time_factor": m["real_time_factor"],
+               "control_step_ms": m["control_step_ms"]}
+    print(f"   closed loop {DEFAULT_SCENARIO} mpc-full: {m['real_time_factor']:.2f}x real time "
+          f"({m['sim_seconds']:.1f} s in {m['wall_seconds']:.1f} s)")
+    return figures
 
 
 if __name__ == "__main__":
