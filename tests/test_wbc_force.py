@@ -42,11 +42,8 @@ def limits(machine):
 
 @pytest.fixture(scope="module")
 def estimator_full(machine):
-    """The project's full-dynamics estimator (skips where it has not landed yet)."""
-    try:
-        return load_estimator(machine, "full")
-    except ForceModelError as exc:
-        pytest.skip(f"estimator not available: {exc}")
+    """The project's full-dynamics estimator."""
+    return load_estimator(machine, "full")
 
 
 def _model(q_ref, g_tel=0.0, k_tel=0.0, f0=3000.0, **kw):

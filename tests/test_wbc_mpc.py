@@ -8,7 +8,6 @@ from wbc.control import (
     ConfigurationError,
     ControllerConfig,
     ForceConfig,
-    ForceModelError,
     JointGoal,
     MpcConfig,
     VariableLayout,
@@ -166,10 +165,7 @@ def test_mpc_wheel_speed_scale_and_warm_start(machine):
 @pytest.mark.parametrize("name", ["mpc-full", "mpc-quasi-static"])
 def test_mpc_with_the_estimator(machine, name):
     method = name.removeprefix("mpc-")
-    try:
-        model = load_estimator(machine, method)
-    except ForceModelError as exc:
-        pytest.skip(f"estimator not available: {exc}")
+    model = load_estimator(machine, method)
     c = make_controller(name, machine, force_model=model)
     st = make_state(machine)
     goal = st.q[2:9].copy()
