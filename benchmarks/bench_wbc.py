@@ -117,7 +117,7 @@ def closed_loop_real_time_factor(out_dir: Path | None = None) -> dict:
     figures = {"scenario": DEFAULT_SCENARIO, "controller": "mpc-full",
                "sim_seconds": m["sim_seconds"], "wall_seconds": m["wall_seconds"],
                "real_time_factor": m["real_time_factor"],
-               "control_step_ms": m["control_step_ms"]}
+               "control_step_ms": m["control_step_ms"], "fallbacks": m["fallbacks"]}
     print(f"   closed loop {DEFAULT_SCENARIO} mpc-full: {m['real_time_factor']:.2f}x real time "
           f"({m['sim_seconds']:.1f} s in {m['wall_seconds']:.1f} s)")
     return figures

@@ -13,20 +13,25 @@ given largest slope, added to the side slope of `models.terrain.side_slope`, lef
   rough terrain at 0.4 m/s while the crane swings the payload (150 kg) from its transport
   pose out to full reach (slew 45 deg, lift 20 deg, tilt -40 deg, telescope 1.08 m) on the
   downhill side.
-* ``pick-place-slope``: standing on a 5 deg side slope with 5 deg rough terrain, the crane
-  reaches out to full reach on the downhill side (pick), waits 1 s, and swings the payload
-  over to full reach on the uphill side (place).
+* ``pick-place-slope``: standing 8 m out (where the rough terrain is fully developed) on a
+  5 deg side slope with 5 deg rough terrain, the crane reaches out to full reach on the
+  downhill side (pick), waits 1 s, and swings the payload over to full reach on the uphill
+  side (place).
 * ``pick-in-motion``: driving 5 m at 0.3 m/s across the 5 deg side slope with 10 deg rough
   terrain, with the crane out on the downhill side (slew 45, lift 30, tilt -60 deg,
   telescope 0.6 m) and an empty grapple (10 kg); at 3 s it grabs a 220 kg log (the payload
   body's mass is changed in MuJoCo) and brings it to the transport pose.
 
+The crane motions follow the operator's profile ``crane_speed`` = (60 %, 20 %) of the axis
+velocity and acceleration limits, the same reference for the three controllers.
+
 Why a controller that only tracks gets into trouble here (measured, `wbc.force_models.
 feedback`): the suspension servos are stiff, so with the strokes held the chassis cannot
 follow the terrain's twist and the crane's moment at long reach takes the load off one
-wheel of the diagonal; the rough ground twists the chassis by several kN per 0.1 s; fast
-crane swings at long reach load the wheels by up to ~10 kN per m/s^2 of slew stroke
-acceleration.
+wheel of a diagonal (statically: full reach at 45 deg on flat ground leaves RR at 0 kN held,
+5.1 kN with the chassis leveled); the rough ground twists the chassis by 20-40 kN/s at
+0.4 m/s; crane swings at long reach load the wheels by up to ~10 kN per m/s^2 of slew
+stroke acceleration.
 
 The payload event: the estimators are built from the machine description (payload
 included), so the MPC is told the new mass by swapping in estimators of
@@ -54,7 +59,7 @@ import json
 import math
 import time
 from collections import deque
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -144,6 +149,11 @@ class ClosedLoopScenario:
         drive_distance: Distance the base must cover for the task [m].
         payload_mass: Payload at the start [kg].
         payload_event: (time [s], new payload mass [kg]) or None.
+        start: Base (x [m], y [m], heading [rad]) at the start. The rough terrain is level
+            within 3 m of the origin (`models.terrain.rough`), so a machine that does not
+            drive starts farther out.
+        crane_speed: (velocity, acceleration) fractions of the axis limits the operator's
+            motions (the controllers' references) use.
     """
 
     name: str
@@ -159,7 +169,8 @@ class ClosedLoopScenario:
     drive_distance: float = 0.0
     payload_mass: float = 150.0
     payload_event: tuple[float, float] | None = None
-    extra: dict = field(default_factory=dict)
+    start: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    crane_speed: tuple[float, float] = (0.6, 0.2)
 
     def wheel_speed(self, t: float, radius: float) -> float:
         """The operator's wheel speed at time ``t`` [rad/s] (both sides)."""
@@ -178,11 +189,11 @@ SCENARIOS = {
         drive_speed=0.4, drive_distance=6.0),
     "pick-place-slope": ClosedLoopScenario(
         "pick-place-slope",
-        "standing on a 5 deg side slope with 5 deg rough terrain: pick at full reach "
-        "downhill, place at full reach uphill (150 kg)",
+        "standing 8 m out on a 5 deg side slope with 5 deg rough terrain: pick at full "
+        "reach downhill, place at full reach uphill (150 kg)",
         16.0, -5.0, 5.0, TRANSPORT,
         (FULL_REACH_LEFT, CranePose(-45.0, 20.0, -40.0, 1.08)), first_goal_time=1.0,
-        dwell=1.0),
+        dwell=1.0, start=(8.0, 0.0, 0.0)),
     "pick-in-motion": ClosedLoopScenario(
         "pick-in-motion",
         "drive 5 m at 0.3 m/s across a 5 deg side slope with 10 deg rough terrain; at 3 s "
@@ -199,18 +210,21 @@ def threshold() -> float:
     return THRESHOLD_FRACTION * m.total_mass * m.gravity / 4
 
 
-def controller_config(threshold_n: float | None = None) -> ControllerConfig:
+def controller_config(threshold_n: float | None = None,
+                      crane_speed: tuple[float, float] = (0.6, 0.2)) -> ControllerConfig:
     """The settings every closed-loop scenario runs its controllers with.
 
     The reference (the operator's motion profile, the same for all three controllers) uses
-    40 % of the axis acceleration limits: a heavy crane at long reach, whose lift cylinder
-    is at 75-85 % of its force statically. The MPC keeps ``margin = 1.5 kN`` above the
-    threshold for what it cannot predict (terrain ahead), and levels the chassis through the
-    suspension with weight 10.
+    ``crane_speed`` = (60 %, 20 %) of the axis velocity and acceleration limits by default:
+    a heavy crane at long reach, whose lift cylinder is at 75-85 % of its force statically
+    (the description's limits allow 3 rad/s^2 of slew). The MPC keeps ``margin = 1.5 kN``
+    above the threshold for what it cannot predict (terrain ahead), and levels the chassis
+    through the suspension with weight 10.
     """
     thr = threshold() if threshold_n is None else float(threshold_n)
     return ControllerConfig(
-        reference=ReferenceConfig(acceleration_fraction=0.2, velocity_fraction=0.6),
+        reference=ReferenceConfig(velocity_fraction=crane_speed[0],
+                                  acceleration_fraction=crane_speed[1]),
         force=ForceConfig(thresholds=(thr, thr, thr, thr), margin=1500.0,
                           leveling_weight=10.0))
 
@@ -330,11 +344,11 @@ def run_closed_loop(scenario: ClosedLoopScenario | str, out_dir: Path | None = N
             or delay_periods < 0:
         raise ValueError(f"delay_periods must be an integer >= 0, got {delay_periods!r}")
     thr = threshold()
-    config = controller_config(thr) if config is None else config
+    config = controller_config(thr, scenario.crane_speed) if config is None else config
     machine = build_reference_machine(payload_mass=scenario.payload_mass)
     terrain = scenario_terrain(scenario, seed)
     sim = Simulator(machine, terrain, noise=noise)
-    sim.reset(scenario.start_pose.q(machine))
+    sim.reset(scenario.start_pose.q(machine), scenario.start)
     n_sub = int(round(CONTROL_PERIOD / sim.timestep))
     ctrl = make_controller(controller, machine, config)
     new_models = None

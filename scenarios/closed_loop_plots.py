@@ -74,7 +74,7 @@ def plot_comparison(out_dirs_by_controller: Mapping[str, Path], png_path: Path) 
         ax.set_ylim(-0.03 * top, 1.1 * top)
         ax.yaxis.set_major_formatter(plt.FuncFormatter(lambda v, _: f"{v / 1e3:g}"))
         ax.grid(alpha=0.3)
-        ax.legend(fontsize=8, loc="upper right", framealpha=0.9)
+        ax.legend(fontsize=8, loc="best", framealpha=0.9)
         if r == 1:
             ax.set_xlabel("time [s]")
         if c == 0:

@@ -111,7 +111,8 @@ class MpcController(Controller):
         constraints = [AccelerationLimit(), HorizonVelocityLimit(), HorizonPositionLimit(),
                        self.force_constraint, SpeedScaleLimit(fc.speed_scale_min,
                                                               fc.speed_scale_rate)]
-        solver = make_solver(cfg.solver, cfg.eps_abs, cfg.eps_rel, cfg.max_iter)
+        solver = make_solver(cfg.solver, cfg.eps_abs, cfg.eps_rel, cfg.max_iter,
+                             feasible_by_construction=fc.soft)
         self.planner = MpcPlanner(self.limits, layout, mc.step_lengths(cfg.dt), cfg.dt, tasks,
                                   constraints, solver)
         self.last_plan: MpcPlan | None = None
@@ -171,6 +172,22 @@ class MpcController(Controller):
         if self.servo is not None:
             self.servo.commanded(rates)
 
+    def _compensated(self, fb: ForceFeedback, state: MachineState) -> ForceFeedback:
+        """The split measured in ``state``, carried to the setpoints commanded since.
+
+        The state is the servos' at its time (``state.extra['servo_setpoint']``); the
+        controller has commanded more since (one period, or more with a measurement
+        delay). Through the warp model those commands have already moved the split:
+        ``f += W (s_now - s_state)``, a Smith predictor on the suspension. Only with all
+        four wheels on the ground (otherwise the warp is free).
+        """
+        measured = state.extra.get("servo_setpoint") if state.extra else None
+        if (self.warp is None or self.servo is None or self.servo.setpoint is None
+                or measured is None or not np.all(fb.in_contact)):
+            return fb
+        shift = self.warp @ (self.servo.setpoint - np.asarray(measured, float)[:N_AXES])
+        return ForceFeedback(fb.forces + shift, fb.model_forces, fb.in_contact, fb.time)
+
     def context(self, state: MachineState) -> HorizonContext:
         """The horizon context of ``state`` (measures the load split, see the class)."""
         ref = self.reference_at(self.planner.node_times)
@@ -182,7 +199,7 @@ class MpcController(Controller):
         offset = 0.0
         drift = None
         if self.feedback is not None:
-            fb = self.feedback.measure(state, self.force_model)
+            fb = self._compensated(self.feedback.measure(state, self.force_model), state)
             self.last_feedback = fb
             if self.warp is not None:
                 offset = leveling_offset(fb.forces, self.force_constraint.thresholds,

@@ -13,17 +13,21 @@ __all__ = ["ProxQPWorkspace", "QPSolution", "QpsolversBackend", "make_solver"]
 
 
 def make_solver(name: str = "proxqp", eps_abs: float = 1e-7, eps_rel: float = 0.0,
-                max_iter: int = 1000) -> ProxQPWorkspace | QpsolversBackend:
+                max_iter: int = 1000, feasible_by_construction: bool = False
+                ) -> ProxQPWorkspace | QpsolversBackend:
     """A QP solver by name.
 
     ``proxqp``: a warm-started `ProxQPWorkspace`; any other qpsolvers name: a cold
     `QpsolversBackend` with the same absolute/relative tolerances.
+    ``feasible_by_construction`` (soft constraints, limits relaxed to the brake
+    trajectory): a ProxQP "primal infeasible" is then retried (`ProxQPWorkspace`).
 
     Raises:
         UnknownSolverError: The name is not an available qpsolvers backend.
     """
     if name == "proxqp":
-        return ProxQPWorkspace(eps_abs=eps_abs, eps_rel=eps_rel, max_iter=max_iter)
+        return ProxQPWorkspace(eps_abs=eps_abs, eps_rel=eps_rel, max_iter=max_iter,
+                               retry_infeasible=feasible_by_construction)
     if name not in qpsolvers.available_solvers:
         raise UnknownSolverError(name, tuple(qpsolvers.available_solvers))
     return QpsolversBackend(name, eps_abs=eps_abs, eps_rel=eps_rel)
