@@ -71,17 +71,6 @@ class Inertia:
             return i.inertia + i.mass * (d @ d * np.eye(3) - np.outer(d, d))
         return Inertia(m, c, shift(self) + shift(other))
 
-    def spatial_matrix(self) -> np.ndarray:
-        """6x6 spatial inertia about the body origin, twist order [v; w]."""
-        m, c = self.mass, self.com
-        cx = skew(c)
-        out = np.zeros((6, 6))
-        out[:3, :3] = m * np.eye(3)
-        out[:3, 3:] = -m * cx
-        out[3:, :3] = m * cx
-        out[3:, 3:] = self.inertia - m * cx @ cx
-        return out
-
 
 def skew(v) -> np.ndarray:
     """Skew-symmetric matrix [v] with [v] w = v x w."""
