@@ -5,7 +5,7 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
-from models import TreeCoordinates, build_reference_machine
+from models import build_reference_machine
 from scenarios.openloop import SCENARIOS, run_open_loop
 from scenarios.simulator import Simulator
 
@@ -19,7 +19,7 @@ def run(out_dir: Path) -> dict:
                       progress=False)
     machine = build_reference_machine()
     sim = Simulator(machine, scenario.terrain(0))
-    sim.reset(TreeCoordinates(machine).home())
+    sim.reset(machine.coordinates.home())
     n = int(10.0 / sim.timestep)
     sim.set_command(wheel_speeds=(0.3, 0.3))
     t0 = time.perf_counter()

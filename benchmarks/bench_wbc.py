@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from models import build_reference_machine
-from wbc.control import (
+from wbc import (
     AffineForceModel,
     ForceModelError,
     JointGoal,

@@ -16,18 +16,20 @@ and agree to round-off; the tests check them against Pinocchio's RNEA.
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from estimators import full_dynamics as fd
 from estimators._symbolic import LAYOUT, Kernels
 from estimators.errors import EstimatorInputError, SingularSystemError
+from estimators.linearization import ForceLinearization
 from estimators.quasi_static import QuasiStaticMask
 from estimators.tree import TreeModel
-from models.coordinates import N_INDEPENDENT
 from models.description import Machine
+from models.errors import StateError
 from models.state import MachineState
+from models.state_batch import StateBatch
 
 __all__ = [
     "BatchEstimate",
@@ -36,6 +38,9 @@ __all__ = [
     "NormalForceEstimator",
     "StateBatch",
 ]
+
+STROKE_POLICIES = ("raise", "clip")
+_FD_STEP = 1e-6  # [m, rad], [m/s, rad/s]: central-difference step where no exact column exists
 
 METHODS = ("full", "quasi-static")
 FOURTH = ("d-beta", "cylinder-force")
@@ -155,95 +160,6 @@ class ConstraintDerivatives:
     d_qd: np.ndarray
 
 
-@dataclass
-class StateBatch:
-    """A log of N states as arrays (the batch counterpart of `MachineState`).
-
-    Attributes:
-        base_rotation: (N, 3, 3), world <- fb.
-        base_twist: (N, 6). base_acceleration: (N, 6).
-        q, qd, qdd: (N, 13), order of `models.coordinates`.
-        in_contact: (N, 4) bool, or None (all wheels in contact).
-        force_in_fb: (N, 4, 3) measured ground forces in fb [N], or None (no friction).
-        point_in_fb: (N, 4, 3) measured contact points [m], or None (wheel bottoms).
-        normal_in_fb: (N, 4, 3) terrain normals, or None.
-        suspension_force: (N, 2) suspension cylinder forces (L, R) [N], or None.
-        time: (N,) [s], or None.
-    """
-
-    base_rotation: np.ndarray
-    base_twist: np.ndarray
-    base_acceleration: np.ndarray
-    q: np.ndarray
-    qd: np.ndarray
-    qdd: np.ndarray
-    in_contact: np.ndarray | None = None
-    force_in_fb: np.ndarray | None = None
-    point_in_fb: np.ndarray | None = None
-    normal_in_fb: np.ndarray | None = None
-    suspension_force: np.ndarray | None = None
-    time: np.ndarray | None = None
-    extra: dict = field(default_factory=dict)
-
-    def __post_init__(self):
-        n = np.asarray(self.q).shape[0] if np.ndim(self.q) == 2 else -1
-        if n < 0:
-            raise EstimatorInputError(
-                f"'q' must have shape (N, {N_INDEPENDENT}), got {np.shape(self.q)}")
-        shapes = dict(base_rotation=(n, 3, 3), base_twist=(n, 6), base_acceleration=(n, 6),
-                      q=(n, N_INDEPENDENT), qd=(n, N_INDEPENDENT), qdd=(n, N_INDEPENDENT),
-                      force_in_fb=(n, 4, 3), point_in_fb=(n, 4, 3), normal_in_fb=(n, 4, 3),
-                      suspension_force=(n, 2), time=(n,))
-        for name, shape in shapes.items():
-            v = getattr(self, name)
-            if v is None:
-                continue
-            a = np.asarray(v, dtype=float)
-            if a.shape != shape:
-                raise EstimatorInputError(f"'{name}' must have shape {shape}, got {a.shape}")
-            bad = ~np.isfinite(a.reshape(n, -1)).all(axis=1) if n else np.zeros(0, bool)
-            if bad.any():
-                raise EstimatorInputError(
-                    f"'{name}' has non-finite entries (NaN or inf) at rows "
-                    f"{np.flatnonzero(bad)[:10].tolist()}")
-            setattr(self, name, a)
-        if self.in_contact is not None:
-            ic = np.asarray(self.in_contact)
-            if ic.shape != (n, 4):
-                raise EstimatorInputError(f"'in_contact' must have shape {(n, 4)}, "
-                                          f"got {ic.shape}")
-            self.in_contact = ic.astype(bool)
-
-    def __len__(self) -> int:
-        return self.q.shape[0]
-
-    @classmethod
-    def from_states(cls, states: Sequence[MachineState]) -> StateBatch:
-        """Stack a sequence of `MachineState` (contacts and cylinder forces if all have them)."""
-        states = list(states)
-        for i, s in enumerate(states):
-            if not isinstance(s, MachineState):
-                raise EstimatorInputError(f"states[{i}] is a {type(s).__name__}, "
-                                          "expected MachineState")
-        if not states:
-            z = np.zeros((0, N_INDEPENDENT))
-            return cls(np.zeros((0, 3, 3)), np.zeros((0, 6)), np.zeros((0, 6)), z, z, z)
-        get = lambda name: np.array([getattr(s, name) for s in states], float)  # noqa: E731
-        kw = {}
-        if all(s.contacts is not None for s in states):
-            kw = dict(
-                in_contact=np.array([s.contacts.in_contact for s in states]),
-                force_in_fb=np.array([s.contacts.force_in_fb for s in states]),
-                point_in_fb=np.array([s.contacts.point_in_fb for s in states]),
-                normal_in_fb=np.array([s.contacts.normal_in_fb for s in states]))
-        elif any(s.contacts is not None for s in states):
-            raise EstimatorInputError("either every state or none must carry 'contacts'")
-        if all(s.suspension_force is not None for s in states):
-            kw["suspension_force"] = np.array([s.suspension_force for s in states])
-        return cls(get("base_rotation"), get("base_twist"), get("base_acceleration"),
-                   get("q"), get("qd"), get("qdd"), time=get("time"), **kw)
-
-
 def _range_message(name: str, index: int, value: float, rng: tuple[float, float]) -> str:
     return (f"q[{index}] (stroke of cylinder chain '{name}') = {value:.6g} m outside "
             f"[{rng[0]:.6g}, {rng[1]:.6g}] m")
@@ -263,17 +179,25 @@ class NormalForceEstimator:
         beta: Parameter beta of eq. (29) [N].
         backend: ``auto`` (compiled if a C compiler works, else ``casadi``), ``compiled``,
             ``casadi`` or ``reference``.
+        strokes: What a state whose stroke (or joint) lies outside its valid range gets:
+            ``raise`` (`EstimatorInputError` naming the chain and the range) or ``clip``
+            (evaluated at the nearest valid value; the clipped coordinates are reported in
+            `ForceLinearization.clipped` and counted in `n_clipped`). Closed loops use
+            ``clip``: MuJoCo's soft joint limits let a measured stroke pass its end by
+            millimetres, and MPC nominal states ahead can lie a little outside.
 
     Raises:
         EstimatorInputError: Unknown option or non-finite D or beta.
     """
 
     def __init__(self, machine: Machine, method: str = "full", fourth: str = "d-beta",
-                 D: float = 0.5, beta: float = 0.0, backend: str = "auto"):  # noqa: N803
+                 D: float = 0.5, beta: float = 0.0, backend: str = "auto",  # noqa: N803
+                 strokes: str = "raise"):
         if not isinstance(machine, Machine):
             raise EstimatorInputError(f"machine must be a Machine, got {type(machine).__name__}")
         for name, value, valid in (("method", method, METHODS), ("fourth", fourth, FOURTH),
-                                   ("backend", backend, BACKENDS)):
+                                   ("backend", backend, BACKENDS),
+                                   ("strokes", strokes, STROKE_POLICIES)):
             if value not in valid:
                 raise EstimatorInputError(f"{name}={value!r} is not one of {valid}")
         for name, value in (("D", D), ("beta", beta)):
@@ -284,6 +208,8 @@ class NormalForceEstimator:
         self.fourth = fourth
         self.D = float(D)
         self.beta = float(beta)
+        self.strokes = strokes
+        self.n_clipped = 0
         self.tree = _tree_for(machine)
         self._qs = QuasiStaticMask(machine) if method == "quasi-static" else None
         self._kernels: Kernels | None = None
@@ -319,39 +245,28 @@ class NormalForceEstimator:
             self._selector_cache[key] = hit
         return hit
 
-    def _diagnose(self, state) -> None:
-        """Raise the typed error for a state whose fields failed the fast checks."""
+    def _checked(self, state) -> tuple[MachineState, tuple[str, ...]]:
+        """The state to evaluate, after the stroke policy; and the coordinates clipped.
+
+        Shapes, finiteness and the rotation were checked when the state was built
+        (`MachineState` is validated once, at construction); the ranges depend on the
+        machine and are checked here.
+        """
         if not isinstance(state, MachineState):
             raise EstimatorInputError(f"state must be a MachineState, got {type(state).__name__}")
-        shapes = dict(base_rotation=(3, 3), base_twist=(6,), base_acceleration=(6,),
-                      q=(N_INDEPENDENT,), qd=(N_INDEPENDENT,), qdd=(N_INDEPENDENT,))
-        for name, shape in shapes.items():
-            a = np.asarray(getattr(state, name), dtype=float)
-            if a.shape != shape:
-                raise EstimatorInputError(f"'{name}' must have shape {shape}, got {a.shape}")
-            if not np.all(np.isfinite(a)):
-                raise EstimatorInputError(f"'{name}' has non-finite entries (NaN or inf): {a}")
-        if state.suspension_force is not None:
-            a = np.asarray(state.suspension_force, float)
-            if a.shape != (2,) or not np.all(np.isfinite(a)):
-                raise EstimatorInputError("'suspension_force' must be finite with shape (2,), "
-                                          f"got {a}")
-        c = state.contacts
-        if c is not None:
-            for name, shape in (("point_in_fb", (4, 3)), ("force_in_fb", (4, 3)),
-                                ("normal_in_fb", (4, 3)), ("in_contact", (4,))):
-                a = np.asarray(getattr(c, name), dtype=float)
-                if a.shape != shape or not np.all(np.isfinite(a)):
-                    raise EstimatorInputError(f"'contacts.{name}' must be finite with shape "
-                                              f"{shape}, got {a}")
-        r = np.asarray(state.base_rotation, float)
-        if np.abs(r @ r.T - np.eye(3)).max() > 1e-6 or np.linalg.det(r) < 0:
-            raise EstimatorInputError(f"'base_rotation' is not a rotation matrix: {r}")
-        for name, i, lo, hi in self._ranges:
-            x = float(state.q[i])
-            if not lo - 1e-12 <= x <= hi + 1e-12:
-                raise EstimatorInputError(_range_message(name, i, x, (lo, hi)))
-        raise EstimatorInputError("invalid state")  # pragma: no cover - defensive
+        q = state.q
+        bad = [(name, i, lo, hi) for name, i, lo, hi in self._ranges
+               if not lo - 1e-12 <= q[i] <= hi + 1e-12]
+        if not bad:
+            return state, ()
+        if self.strokes == "raise":
+            name, i, lo, hi = bad[0]
+            raise EstimatorInputError(_range_message(name, i, float(q[i]), (lo, hi)))
+        q = q.copy()
+        for name, i, lo, hi in bad:
+            q[i] = min(max(q[i], lo), hi)
+        self.n_clipped += 1
+        return replace(state, q=q), tuple(name for name, *_ in bad)
 
     def _fill(self, inp: np.ndarray, state: MachineState):
         """Pack ``state`` into a kernel input row; returns the `Selectors` used."""
@@ -378,18 +293,8 @@ class NormalForceEstimator:
                 inp[lay.suspension_force] = 0.0
             else:
                 inp[lay.suspension_force] = f
-        except (ValueError, AttributeError, TypeError):
-            self._diagnose(state)
-        if not np.isfinite(inp).all():
-            self._diagnose(state)
-        q = state.q
-        for name, i, lo, hi in self._ranges:
-            if not lo - 1e-12 <= q[i] <= hi + 1e-12:
-                raise EstimatorInputError(_range_message(name, i, float(q[i]), (lo, hi)))
-        rr = r @ r.T
-        if abs(rr[0, 0] - 1) + abs(rr[1, 1] - 1) + abs(rr[2, 2] - 1) + abs(rr[0, 1]) \
-                + abs(rr[0, 2]) + abs(rr[1, 2]) > 1e-6:
-            self._diagnose(state)
+        except (ValueError, AttributeError, TypeError) as exc:
+            raise EstimatorInputError(f"cannot read the state: {exc}") from exc
         if self._qs is not None:
             inp[self._qs_zero] = 0.0
         return sel
@@ -432,6 +337,7 @@ class NormalForceEstimator:
                 stroke outside its chain's range (the message names the field and range).
             SingularSystemError: The system is singular (condition number above 1e12).
         """
+        state, _ = self._checked(state)
         lay = LAYOUT
         if self._kernels is not None:
             inp, out, call = self._kernels.single("nf_estimate")
@@ -470,6 +376,7 @@ class NormalForceEstimator:
         Returns:
             ``(G, g0)``: shapes (4, 19) and (4,) [N per unit acceleration, N].
         """
+        state, _ = self._checked(state)
         lay = LAYOUT
         if self._kernels is None:
             return self._constraint_reference(state)
@@ -498,7 +405,7 @@ class NormalForceEstimator:
         for j in range(19):
             a = acc.copy()
             a[j] += 1.0  # exact: the map is affine
-            s = _with_acceleration(state, a)
+            s = replace(state, base_acceleration=a[:6], qdd=a[6:])
             g[:, j] = self.estimate(s).normal_forces - base
         return g, base - g @ acc
 
@@ -513,6 +420,7 @@ class NormalForceEstimator:
             `ConstraintDerivatives` with d f_z / d a (4, 19), d f_z / d q (4, 13) and
             d f_z / d qd (4, 13).
         """
+        state, _ = self._checked(state)
         lay = LAYOUT
         if self._kernels is None or self.estimate(state).tipping:
             return self._derivatives_fd(state)
@@ -541,10 +449,53 @@ class NormalForceEstimator:
                         hi = min(h, rhi - state.q[i])
                 vals = []
                 for step in (lo, hi):
-                    s = _with_field(state, field_name, j, step)
+                    v = getattr(state, field_name).copy()
+                    v[j] += step
+                    s = replace(state, **{field_name: v})
                     vals.append(self.estimate(s).normal_forces)
                 target[:, j] = (vals[1] - vals[0]) / (hi - lo)
         return ConstraintDerivatives(base, g, gq, gqd)
+
+    def linearize(self, state: MachineState) -> ForceLinearization:
+        """Everything a controller needs at ``state``, in one immutable object.
+
+        The forces, ``G = df_z/da``, ``g0``, ``df_z/dq``, ``df_z/dqd``, the contact flags and
+        the mode, finite in every contact mode. Strokes outside their ranges follow the
+        estimator's ``strokes`` policy (raise, or clip and report in
+        `ForceLinearization.clipped`).
+
+        Raises:
+            EstimatorInputError: Not a state, or (``strokes="raise"``) a stroke out of range.
+            SingularSystemError: The system is singular.
+        """
+        state, clipped = self._checked(state)
+        d = self.constraint_derivatives(state)
+        d_q, d_qd = d.d_q, d.d_qd
+        if not (np.isfinite(d_q).all() and np.isfinite(d_qd).all()):
+            d_q, d_qd = d_q.copy(), d_qd.copy()
+            for name, arr in (("q", d_q), ("qd", d_qd)):
+                for j in np.flatnonzero(~np.isfinite(arr).all(axis=0)):
+                    arr[:, j] = self._central_difference(state, name, j)
+        est = self.estimate(state)
+        g0 = d.normal_forces - d.d_acceleration @ state.acceleration
+        return ForceLinearization(d.normal_forces, d.d_acceleration, g0, d_q, d_qd,
+                                  est.in_contact, est.mode, clipped, state.time)
+
+    def _central_difference(self, state: MachineState, name: str, j: int) -> np.ndarray:
+        """``df_z/d(name)[j]`` by central differences, staying inside the stroke range."""
+        x = getattr(state, name)
+        lo, hi = -_FD_STEP, _FD_STEP
+        if name == "q":
+            lo = max(lo, self.tree.coordinates.lower[j] - x[j])
+            hi = min(hi, self.tree.coordinates.upper[j] - x[j])
+        if hi - lo <= 0:
+            return np.zeros(4)
+        vals = []
+        for step in (lo, hi):
+            v = x.copy()
+            v[j] += step
+            vals.append(self.estimate(replace(state, **{name: v})).normal_forces)
+        return (vals[1] - vals[0]) / (hi - lo)
 
     def estimate_batch(self, states, *, strict: bool = True, chunk: int = 4096,
                        threads: int = 2) -> BatchEstimate:
@@ -730,15 +681,18 @@ def _tree_for(machine: Machine) -> TreeModel:
 
 
 def _as_batch(states) -> StateBatch:
+    """``states`` as a validated `StateBatch`; a bad field is an `EstimatorInputError`."""
     if isinstance(states, StateBatch):
         return states
-    if isinstance(states, Mapping):
-        try:
+    try:
+        if isinstance(states, Mapping):
             return StateBatch(**states)
-        except TypeError as exc:
-            raise EstimatorInputError(f"bad state log fields: {exc}") from exc
-    if isinstance(states, Sequence) or hasattr(states, "__iter__"):
-        return StateBatch.from_states(list(states))
+        if isinstance(states, Sequence) or hasattr(states, "__iter__"):
+            return StateBatch.from_states(list(states))
+    except TypeError as exc:
+        raise EstimatorInputError(f"bad state log fields: {exc}") from exc
+    except StateError as exc:
+        raise EstimatorInputError(str(exc)) from exc
     raise EstimatorInputError(f"cannot read states from a {type(states).__name__}")
 
 
@@ -765,21 +719,3 @@ def _least_squares(a: np.ndarray, b: np.ndarray, mask) -> tuple[np.ndarray, floa
     sub = a[:, cols]
     x[cols] = np.linalg.lstsq(sub, b, rcond=None)[0]
     return x, float(np.linalg.cond(sub))
-
-
-def _with_acceleration(state: MachineState, a: np.ndarray) -> MachineState:
-    return MachineState(state.base_position, state.base_rotation, state.base_twist, a[:6],
-                        state.q, state.qd, a[6:], state.time, state.contacts,
-                        state.suspension_force, state.payload_mass)
-
-
-def _with_field(state: MachineState, name: str, j: int, step: float) -> MachineState:
-    v = np.array(getattr(state, name), float)
-    v[j] += step
-    kw = dict(base_position=state.base_position, base_rotation=state.base_rotation,
-              base_twist=state.base_twist, base_acceleration=state.base_acceleration,
-              q=state.q, qd=state.qd, qdd=state.qdd, time=state.time,
-              contacts=state.contacts, suspension_force=state.suspension_force,
-              payload_mass=state.payload_mass)
-    kw[name] = v
-    return MachineState(**kw)

@@ -1,6 +1,6 @@
 """Accuracy of every normal-force method on a scenario log (``wbc estimate LOG``).
 
-`evaluate_log` runs, on one log written by `scenarios.log.ScenarioLog`:
+`evaluate_log` runs, on one log written by `models.log.ScenarioLog`:
 
 * ``full/d-beta``: the paper's full dynamics closed by eq. (29) at the default D, beta;
 * ``full/cylinder-force``: full dynamics closed by the bogie balances with the logged
@@ -54,7 +54,6 @@ from estimators import calibration
 from estimators.errors import EstimatorInputError
 from estimators.estimator import BatchEstimate, NormalForceEstimator, StateBatch
 from estimators.full_dynamics import D_BETA_COEFFICIENTS
-from models.coordinates import TreeCoordinates
 from models.description import WHEEL_ORDER, Machine
 
 __all__ = ["GOALS", "PAPER", "SETTLE_SECONDS", "SLIDING_WINDOW_SECONDS", "error_percent",
@@ -92,7 +91,7 @@ def log_to_batch(log: dict, machine: Machine, clip_strokes: bool = True
     sample has them.
 
     Args:
-        log: Arrays of a log (`scenarios.log.load_log`).
+        log: Arrays of a log (`models.log.load_log`).
         machine: The machine the log was simulated with.
         clip_strokes: Clip out-of-range strokes (else leave them and let the estimator raise).
 
@@ -114,7 +113,7 @@ def log_to_batch(log: dict, machine: Machine, clip_strokes: bool = True
         bad_rows = np.zeros(len(q), bool)
         worst = 0.0
         chains = []
-        names = TreeCoordinates(machine).independent_names
+        names = machine.coordinates.independent_names
         for name, binding in machine.chains.items():
             if name not in names:
                 continue
@@ -267,7 +266,7 @@ def evaluate_log(log_path, out_dir=None, plots: bool = True, *, machine: Machine
         EstimatorInputError: The log lacks fields or its strokes leave their ranges.
     """
     from models import build_reference_machine
-    from scenarios.log import load_log
+    from models.log import load_log
 
     log_path = Path(log_path)
     log = load_log(log_path)
@@ -386,7 +385,7 @@ def evaluate_log(log_path, out_dir=None, plots: bool = True, *, machine: Machine
 
     eq_full = _equilibrium_rows(base, gt, rows, static_load)
     eq_qs = _equilibrium_rows(results["quasi-static/d-beta"], gt, rows, static_load)
-    names = TreeCoordinates(machine).independent_names
+    names = machine.coordinates.independent_names
     contact_loss = {
         "samples_three_contact": int((nc[rows] == 3).sum()),
         "samples_tipping": int((nc[rows] < 3).sum()),

@@ -40,9 +40,8 @@ class QuasiStaticMask:
     """
 
     def __init__(self, machine: Machine):
-        from models.coordinates import TreeCoordinates
 
-        names = TreeCoordinates(machine).independent_names
+        names = machine.coordinates.independent_names
         dropped = set(machine.suspension_coordinates) | set(machine.wheels)
         self.coordinates = np.array([0.0 if n in dropped else 1.0 for n in names])
         self.accelerations = np.concatenate([np.zeros(6), self.coordinates])

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from models.coordinates import TreeCoordinates
 from models.description import Machine
 from models.state import MachineState, WheelContacts
 
@@ -36,7 +35,7 @@ def random_state(machine: Machine, rng: np.random.Generator, *, max_tilt: float 
         speed: Scale of velocities and accelerations.
         margin: Distance kept from the stroke limits [m].
     """
-    tc = TreeCoordinates(machine)
+    tc = machine.coordinates
     q = tc.home()
     for i, name in enumerate(tc.independent_names):
         if name in machine.chains:
@@ -120,5 +119,4 @@ def consistent_contact_state(machine: Machine, state: MachineState, points_in_fb
     normals = np.tile(rot[2], (4, 1))
     return MachineState(state.base_position, state.base_rotation, state.base_twist, base_acc,
                         state.q, state.qd, state.qdd, state.time,
-                        WheelContacts(flags, forces, points, normals), np.array(susp),
-                        state.payload_mass)
+                        WheelContacts(flags, forces, points, normals), np.array(susp))

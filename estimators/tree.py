@@ -18,7 +18,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from estimators import spatial
-from models.coordinates import TreeCoordinates
 from models.description import Inertia, Machine
 
 __all__ = ["ChainSpec", "NumpyOps", "TreeBody", "TreeDynamics", "TreeModel"]
@@ -235,7 +234,7 @@ class TreeModel:
     def __init__(self, machine: Machine):
         self.machine = machine
         self.gravity = float(machine.gravity)
-        coords = TreeCoordinates(machine)
+        coords = machine.coordinates
         self.independent_names = coords.independent_names
         host: dict[str, tuple[str, np.ndarray]] = {}  # fixed body -> (moving host, T_host_body)
         merged: dict[str, Inertia] = {}

@@ -19,6 +19,8 @@ with ``J`` holding the chains' k1, k2 and 1, and ``Jdot`` their time derivatives
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from models.description import Machine
@@ -30,11 +32,42 @@ CRANE = slice(2, 9)
 WHEELS = slice(9, 13)
 
 
+KINDS = ("stroke", "joint", "wheel")
+
+
+@dataclass(frozen=True)
+class Coordinate:
+    """One independent coordinate, derived from the machine description.
+
+    Attributes:
+        index: Position in the independent vector (order above).
+        name: Chain role (``bogie_L``, ``slew``...), direct-drive joint or wheel body name.
+        kind: ``stroke`` (cylinder chain, [m]), ``joint`` (directly driven joint, [m] or
+            [rad]) or ``wheel`` (spin angle [rad], unbounded).
+        lower, upper: Valid position range (stroke range of the chain, joint range, or
+            -inf/inf for a wheel) [m or rad].
+    """
+
+    index: int
+    name: str
+    kind: str
+    lower: float
+    upper: float
+
+
 class TreeCoordinates:
-    """Maps independent coordinates (order above) to tree joint coordinates.
+    """The coordinate table of a machine, and the map independent -> tree coordinates.
+
+    Build it once per machine: `Machine.coordinates` holds one.
 
     Args:
         machine: The machine description.
+
+    Attributes:
+        independent_names: Names of the 13 independent coordinates, order above.
+        table: One `Coordinate` per independent coordinate (names, kinds, ranges).
+        lower, upper: Valid ranges of all 13, shapes (13,) (wheels: -inf, inf).
+        chain_indices: Indices of the chain-driven (stroke) coordinates.
     """
 
     def __init__(self, machine: Machine):
@@ -46,11 +79,46 @@ class TreeCoordinates:
         # (independent index, chain binding) for chain-driven coordinates, else direct joint.
         self._chains = []
         self._direct = []
+        table = []
         for i, name in enumerate(self.independent_names):
             if name in machine.chains:
                 self._chains.append((i, machine.chains[name]))
+                lo, hi = machine.chains[name].chain.stroke_range
+                kind = "stroke"
             else:
                 self._direct.append((i, self.index[name]))
+                if name in machine.wheels:
+                    lo, hi, kind = -np.inf, np.inf, "wheel"
+                else:
+                    rng = machine.body(name).joint.range
+                    lo, hi = rng if rng is not None else (-np.inf, np.inf)
+                    kind = "joint"
+            table.append(Coordinate(i, name, kind, float(lo), float(hi)))
+        self.table = tuple(table)
+        self.lower = np.array([c.lower for c in table])
+        self.upper = np.array([c.upper for c in table])
+        self.lower.flags.writeable = False
+        self.upper.flags.writeable = False
+        self.chain_indices = tuple(i for i, _ in self._chains)
+
+    def binding(self, i: int):
+        """The `ChainBinding` of independent coordinate ``i``, or None if not chain-driven."""
+        name = self.independent_names[i]
+        return self.machine.chains.get(name)
+
+    def chains(self) -> tuple:
+        """``(index, ChainBinding)`` of every chain-driven coordinate."""
+        return tuple(self._chains)
+
+    def out_of_range(self, q) -> list[tuple[Coordinate, float]]:
+        """The coordinates of ``q`` (13,) outside their ranges, with their values."""
+        q = np.asarray(q, float)
+        bad = np.flatnonzero((q < self.lower) | (q > self.upper))
+        return [(self.table[i], float(q[i])) for i in bad]
+
+    def clip(self, q) -> np.ndarray:
+        """``q`` (13,) clipped into the valid ranges."""
+        return np.clip(np.asarray(q, float), self.lower, self.upper)
 
     @property
     def n_tree(self) -> int:

@@ -13,6 +13,7 @@ Units: SI throughout ([m], [kg], [kg m^2], [N], [rad]).
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, field
 from typing import Literal
 
@@ -311,6 +312,13 @@ class Machine:
     def total_mass(self) -> float:
         """[kg]."""
         return float(sum(b.inertia.mass for b in self.bodies))
+
+    @functools.cached_property
+    def coordinates(self):
+        """The machine's `models.coordinates.TreeCoordinates` (coordinate table), built once."""
+        from models.coordinates import TreeCoordinates  # coordinates imports this module
+
+        return TreeCoordinates(self)
 
     @property
     def moving_joints(self) -> tuple[str, ...]:

@@ -68,7 +68,7 @@ import mujoco
 import numpy as np
 from scipy.optimize import least_squares
 
-from models.coordinates import N_INDEPENDENT, TreeCoordinates
+from models.coordinates import N_INDEPENDENT
 from models.description import Loop, Machine
 from models.errors import ModelError, PlacementError, StateError
 from models.terrain import Terrain, flat, ramp, rough, side_slope
@@ -209,7 +209,7 @@ def place_on_terrain(machine: Machine, terrain: Terrain, q_ind=None,
     Raises:
         PlacementError: The wheels are off the terrain or the fit fails.
     """
-    coords = TreeCoordinates(machine)
+    coords = machine.coordinates
     q_ind = coords.home() if q_ind is None else q_ind
     try:
         x, y, yaw = (float(v) for v in base_xy_yaw)
@@ -263,7 +263,7 @@ def home_keyframe(machine: Machine, terrain: Terrain, q_ind=None,
         depth-first body order), and ctrl, shape (13,): the nine servo setpoints (the
         strokes plus the static servo deflection under gravity), then zero wheel speeds.
     """
-    coords = TreeCoordinates(machine)
+    coords = machine.coordinates
     q_ind = coords.home() if q_ind is None else np.asarray(q_ind, float)
     q_tree = coords.joint_positions(q_ind)  # checks shape, finiteness and chain strokes
     servos = _servo_limits(machine)
@@ -304,7 +304,7 @@ def _tree_model(machine: Machine, q_ind, base_rotation=None) -> tuple[mujoco.MjM
     data = mujoco.MjData(model)
     joints = [mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, n)
               for n in machine.moving_joints]
-    data.qpos[model.jnt_qposadr[joints]] = TreeCoordinates(machine).joint_positions(q_ind)
+    data.qpos[model.jnt_qposadr[joints]] = machine.coordinates.joint_positions(q_ind)
     if base_rotation is not None:  # the free joint is the first: qpos[0:7], dofs 0-5
         data.qpos[3:7] = _quat(base_rotation)
     mujoco.mj_forward(model, data)
@@ -313,7 +313,7 @@ def _tree_model(machine: Machine, q_ind, base_rotation=None) -> tuple[mujoco.MjM
 
 def _reduced_inertia(machine: Machine, q_ind=None) -> np.ndarray:
     """``J^T M J`` over (base twist, independent velocities), shape (19, 19)."""
-    coords = TreeCoordinates(machine)
+    coords = machine.coordinates
     q_ind = coords.home() if q_ind is None else q_ind
     model, data, joints = _tree_model(machine, q_ind)
     full = np.zeros((model.nv, model.nv))
@@ -362,7 +362,7 @@ def gravity_loads(machine: Machine, q_ind=None, base_rotation=None) -> np.ndarra
     Returns:
         [N] for strokes (positive extends), [N m] for angles, shape (13,), independent order.
     """
-    coords = TreeCoordinates(machine)
+    coords = machine.coordinates
     q_ind = coords.home() if q_ind is None else q_ind
     model, data, joints = _tree_model(machine, q_ind, base_rotation)
     jac, _ = coords.jacobian(q_ind)
@@ -405,7 +405,7 @@ class ServoSpec:
 def _servo_limits(machine: Machine) -> list[dict]:
     """Transmission, limits and position gain of the nine servos, independent order."""
     out = []
-    for name in TreeCoordinates(machine).independent_names:
+    for name in machine.coordinates.independent_names:
         tendon, offset = None, 0.0
         if name in machine.chains:
             binding = machine.chains[name]
@@ -848,7 +848,7 @@ class MujocoIndex:
         self.dof_adr = {n: int(model.jnt_dofadr[i]) for n, i in ids.items()}
         self.tree_qpos = np.array([self.qpos_adr[n] for n in machine.moving_joints])
         self.tree_dof = np.array([self.dof_adr[n] for n in machine.moving_joints])
-        coords = TreeCoordinates(machine)
+        coords = machine.coordinates
         self.independent_names = coords.independent_names
         carrier = [machine.chains[n].piston if n in machine.chains else n
                    for n in self.independent_names]

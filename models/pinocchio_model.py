@@ -18,7 +18,6 @@ from __future__ import annotations
 import numpy as np
 import pinocchio as pin
 
-from models.coordinates import TreeCoordinates
 from models.description import Machine
 from models.state import MachineState
 
@@ -56,7 +55,7 @@ class PinocchioMachine:
 
     def __init__(self, machine: Machine):
         self.machine = machine
-        self.coordinates = TreeCoordinates(machine)
+        self.coordinates = machine.coordinates
         model = pin.Model()
         model.name = "machine"
         model.gravity = pin.Motion(np.array([0, 0, -machine.gravity, 0, 0, 0]))

@@ -1,12 +1,17 @@
-"""Typed machine state, in the paper's terms, and per-wheel contact quantities.
+"""Typed, immutable machine state in the paper's terms, and per-wheel contact quantities.
 
 Every per-wheel array is ordered FL, RL, FR, RR (paper eq. 1, `WHEEL_ORDER`). Twists are
 [v; w] (linear first, as in the paper), expressed in the floating-base frame fb.
+
+Both types are frozen and validated once, at construction: every array is converted to a
+read-only float (or bool) array of the documented shape with finite entries, and the base
+rotation must be a proper rotation. Change a field with `dataclasses.replace`, which
+validates the new value.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -14,19 +19,44 @@ from models.coordinates import N_INDEPENDENT
 from models.description import WHEEL_ORDER
 from models.errors import StateError
 
-__all__ = ["MachineState", "WheelContacts", "WHEEL_ORDER"]
+__all__ = ["MachineState", "WheelContacts", "WHEEL_ORDER", "N_SERVO_AXES",
+           "ROTATION_TOLERANCE", "frozen_array"]
+
+N_SERVO_AXES = 9  # the servo-driven axes: 2 suspension strokes, 7 crane coordinates
+ROTATION_TOLERANCE = 1e-6  # max |R R^T - I| entry of a valid rotation matrix
 
 
-def _arr(name: str, value, shape) -> np.ndarray:
-    a = np.asarray(value, dtype=float)
+def frozen_array(name: str, value, shape: tuple[int, ...], dtype=float) -> np.ndarray:
+    """``value`` as a read-only array of ``shape`` with finite entries.
+
+    Raises:
+        StateError: Not numeric, wrong shape, or a NaN/inf entry (the message names the field).
+    """
+    try:
+        a = np.array(value, dtype=dtype)
+    except (TypeError, ValueError) as exc:
+        raise StateError(f"'{name}' must be numeric with shape {shape}: {exc}") from None
     if a.shape != shape:
         raise StateError(f"'{name}' must have shape {shape}, got {a.shape}")
-    if not np.all(np.isfinite(a)):
+    if dtype is float and not np.all(np.isfinite(a)):
         raise StateError(f"'{name}' has non-finite entries (NaN or inf): {a}")
+    a.flags.writeable = False
     return a
 
 
-@dataclass
+def check_rotation(name: str, r: np.ndarray) -> None:
+    """Raise `StateError` unless ``r`` (3, 3) is a proper rotation (orthonormal, det +1)."""
+    err = np.abs(r @ r.T - np.eye(3)).max()
+    if err > ROTATION_TOLERANCE or np.linalg.det(r) < 0:
+        raise StateError(f"'{name}' is not a rotation matrix (|R R^T - I| = {err:.3g}, "
+                         f"det {np.linalg.det(r):.3g}; valid: orthonormal with det +1): {r}")
+
+
+def _set(obj, name: str, value) -> None:
+    object.__setattr__(obj, name, value)
+
+
+@dataclass(frozen=True, eq=False)
 class WheelContacts:
     """Per-wheel contact quantities, measured (simulator, sensors) or estimated.
 
@@ -44,10 +74,14 @@ class WheelContacts:
     normal_in_fb: np.ndarray
 
     def __post_init__(self):
-        self.in_contact = np.asarray(self.in_contact, dtype=bool).reshape(4)
-        self.force_in_fb = _arr("force_in_fb", self.force_in_fb, (4, 3))
-        self.point_in_fb = _arr("point_in_fb", self.point_in_fb, (4, 3))
-        self.normal_in_fb = _arr("normal_in_fb", self.normal_in_fb, (4, 3))
+        flags = np.asarray(self.in_contact)
+        if flags.shape != (4,):
+            raise StateError(f"'in_contact' must have shape (4,), got {flags.shape}")
+        if flags.dtype != bool and not np.all(np.isin(flags, (0, 1))):
+            raise StateError(f"'in_contact' must hold booleans (or 0/1), got {flags}")
+        _set(self, "in_contact", frozen_array("in_contact", flags, (4,), bool))
+        for name in ("force_in_fb", "point_in_fb", "normal_in_fb"):
+            _set(self, name, frozen_array(name, getattr(self, name), (4, 3)))
 
     @property
     def normal_force(self) -> np.ndarray:
@@ -67,24 +101,25 @@ class WheelContacts:
         return f
 
 
-@dataclass
+@dataclass(frozen=True, eq=False)
 class MachineState:
     """State of the machine in the paper's independent coordinates.
 
     Attributes:
         base_position: fb origin in the world [m], shape (3,).
-        base_rotation: Rotation world <- fb, shape (3, 3).
+        base_rotation: Rotation world <- fb, shape (3, 3), proper (det +1).
         base_twist: Body twist [v; w] of fb in fb [m/s, rad/s], shape (6,).
         base_acceleration: Time derivative of `base_twist` [m/s^2, rad/s^2], shape (6,)
             (the body-frame spatial acceleration, Pinocchio's free-flyer ``a``).
         q: Independent coordinates, shape (13,), order in `models.coordinates`.
         qd: Their velocities, shape (13,).
         qdd: Their accelerations, shape (13,).
-        time: Simulation time [s].
+        time: Time of the instant [s], finite.
         contacts: Measured wheel contacts (friction and flags), if known.
         suspension_force: Measured suspension cylinder forces [N], shape (2,), if known
             (order L, R; positive pushes the rod out).
-        payload_mass: Mass of the payload currently held [kg], if known.
+        servo_setpoint: The nine axis servos' own setpoints at this instant [m, rad],
+            shape (9,) (order of `q[:9]`), if the servos report them.
     """
 
     base_position: np.ndarray
@@ -97,16 +132,33 @@ class MachineState:
     time: float = 0.0
     contacts: WheelContacts | None = None
     suspension_force: np.ndarray | None = None
-    payload_mass: float | None = None
-    extra: dict = field(default_factory=dict)
+    servo_setpoint: np.ndarray | None = None
 
     def __post_init__(self):
-        self.base_position = _arr("base_position", self.base_position, (3,))
-        self.base_rotation = _arr("base_rotation", self.base_rotation, (3, 3))
-        self.base_twist = _arr("base_twist", self.base_twist, (6,))
-        self.base_acceleration = _arr("base_acceleration", self.base_acceleration, (6,))
-        self.q = _arr("q", self.q, (N_INDEPENDENT,))
-        self.qd = _arr("qd", self.qd, (N_INDEPENDENT,))
-        self.qdd = _arr("qdd", self.qdd, (N_INDEPENDENT,))
+        for name, shape in (("base_position", (3,)), ("base_rotation", (3, 3)),
+                            ("base_twist", (6,)), ("base_acceleration", (6,)),
+                            ("q", (N_INDEPENDENT,)), ("qd", (N_INDEPENDENT,)),
+                            ("qdd", (N_INDEPENDENT,))):
+            _set(self, name, frozen_array(name, getattr(self, name), shape))
+        check_rotation("base_rotation", self.base_rotation)
+        try:
+            t = float(self.time)
+        except (TypeError, ValueError):
+            raise StateError(f"'time' must be a finite number [s], got {self.time!r}") from None
+        if not np.isfinite(t):
+            raise StateError(f"'time' must be a finite number [s], got {t}")
+        _set(self, "time", t)
+        if self.contacts is not None and not isinstance(self.contacts, WheelContacts):
+            raise StateError(f"'contacts' must be a WheelContacts or None, got "
+                             f"{type(self.contacts).__name__}")
         if self.suspension_force is not None:
-            self.suspension_force = _arr("suspension_force", self.suspension_force, (2,))
+            _set(self, "suspension_force",
+                 frozen_array("suspension_force", self.suspension_force, (2,)))
+        if self.servo_setpoint is not None:
+            _set(self, "servo_setpoint",
+                 frozen_array("servo_setpoint", self.servo_setpoint, (N_SERVO_AXES,)))
+
+    @property
+    def acceleration(self) -> np.ndarray:
+        """The generalised accelerations ``a = [base_acceleration (6), qdd (13)]``, (19,)."""
+        return np.concatenate([self.base_acceleration, self.qdd])

@@ -64,13 +64,13 @@ from pathlib import Path
 
 import numpy as np
 
-from models import TreeCoordinates, build_reference_machine
+from models import build_reference_machine
 from models.description import WHEEL_ORDER, Machine
+from models.log import ScenarioLog
 from models.terrain import Terrain, rough, side_slope
-from scenarios.log import ScenarioLog
 from scenarios.progress import Progress
 from scenarios.simulator import MeasurementNoise, Simulator
-from wbc.control import (
+from wbc import (
     CONTROLLER_NAMES,
     ControllerConfig,
     ForceConfig,
@@ -122,7 +122,7 @@ class CranePose:
 
     def q(self, machine: Machine) -> np.ndarray:
         """Independent coordinates at home with this crane pose, shape (13,)."""
-        q = TreeCoordinates(machine).home()
+        q = machine.coordinates.home()
         q[2:9] = self.coordinates(machine)
         return q
 
@@ -206,8 +206,8 @@ SCENARIOS = {
 
 def threshold() -> float:
     """The normal-force threshold of the metrics [N]: 10 % of the static wheel load."""
-    m = build_reference_machine()
-    return THRESHOLD_FRACTION * m.total_mass * m.gravity / 4
+    return float(ForceConfig(threshold_fraction=THRESHOLD_FRACTION)
+                 .thresholds_for(build_reference_machine())[0])
 
 
 def controller_config(threshold_n: float | None = None,

@@ -7,8 +7,8 @@ from pathlib import Path
 
 import numpy as np
 
+from models.log import load_log
 from scenarios.closed_loop import SETTLE_SECONDS as _SETTLE
-from scenarios.log import load_log
 
 __all__ = ["plot_comparison"]
 

@@ -22,10 +22,10 @@ from pathlib import Path
 
 import numpy as np
 
-from models import TreeCoordinates, build_reference_machine
+from models import build_reference_machine
 from models.description import WHEEL_ORDER
+from models.log import ScenarioLog
 from models.terrain import Terrain, flat, rough
-from scenarios.log import ScenarioLog
 from scenarios.progress import Progress
 from scenarios.simulator import Simulator
 
@@ -127,7 +127,7 @@ def run_open_loop(scenario: OpenLoopScenario, out_dir: Path, seed: int = 0,
     machine = build_reference_machine()
     terrain = scenario.terrain(seed)
     sim = Simulator(machine, terrain)
-    q0 = TreeCoordinates(machine).home()
+    q0 = machine.coordinates.home()
     sim.reset(q0)
     every = max(1, int(round(1.0 / (scenario.log_rate * sim.timestep))))
     n_samples = int(duration / (every * sim.timestep))

@@ -31,7 +31,7 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from models.coordinates import N_INDEPENDENT, TreeCoordinates
+from models.coordinates import N_INDEPENDENT
 from models.description import Machine
 from models.errors import TerrainError
 from models.mujoco_model import (
@@ -236,7 +236,7 @@ class Simulator:
         self.model = build_model(machine, terrain, timestep)
         self.data = mujoco.MjData(self.model)
         self.index = MujocoIndex(self.model, machine)
-        self.coordinates = TreeCoordinates(machine)
+        self.coordinates = machine.coordinates
         self._rng = np.random.default_rng(noise.seed if noise else 0)
         self._cylinders = self.index.independent_names[:6]
         self._wrist = self.index.independent_names[6:9]
@@ -262,7 +262,6 @@ class Simulator:
             [max(map(abs, sp.force_range)) / sp.kp for sp in servos])
         self._setpoint = np.zeros(len(servos))
         self._rates = np.zeros(len(servos))
-        self._payload_mass = float(self.model.body(machine.payload).mass[0])
         self._chain_rates = [
             (i, machine.chains[n].chain, self.index.dof_adr[machine.chains[n].driven_joint])
             for i, n in enumerate(self.index.independent_names) if n in machine.chains]
@@ -465,9 +464,9 @@ class Simulator:
             (state, contacts): ``state`` is what sensors would give (with `MeasurementNoise`
             if set): base pose, twist and its derivative, independent q, qd, qdd (strokes are
             the piston joints; stroke rates come through the driven joints), measured
-            contacts, suspension cylinder forces (positive extends) and payload mass;
-            ``state.extra`` has ``actuator_force``, all 13 actuator forces [N, N m] in
-            independent order, and ``servo_setpoint`` (9,).
+            contacts, suspension cylinder forces (positive extends) and the nine axis
+            servos' setpoints (`MachineState.servo_setpoint`). All 13 actuator forces
+            [N, N m] in independent order are `actuator_forces`.
             ``contacts`` is MuJoCo's exact contact state (see `wheel_contacts`); without noise
             ``state.contacts`` is that same object.
         """
@@ -504,10 +503,12 @@ class Simulator:
         state = MachineState(
             base_position=position, base_rotation=rotation, base_twist=twist,
             base_acceleration=accel, q=q, qd=qd, qdd=qdd, time=t, contacts=measured,
-            suspension_force=suspension, payload_mass=self._payload_mass,
-            extra={"actuator_force": d.actuator_force[ix.actuators],
-                   "servo_setpoint": self._snapshot_setpoint.copy()})
+            suspension_force=suspension, servo_setpoint=self._snapshot_setpoint)
         return state, truth
+
+    def actuator_forces(self) -> np.ndarray:
+        """All 13 actuator forces [N, N m] in independent order (MuJoCo's, oracle data)."""
+        return self.data.actuator_force[self.index.actuators].copy()
 
     def wheel_contacts(self, base_position=None, base_rotation=None) -> WheelContacts:
         """Ground-truth wheel contacts from MuJoCo at the measured instant.

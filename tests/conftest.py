@@ -11,12 +11,12 @@ def machine():
 
 @pytest.fixture(scope="session")
 def coords(machine):
-    return models.TreeCoordinates(machine)
+    return machine.coordinates
 
 
 def random_independent(machine, rng, margin=0.05):
     """Random independent positions inside the valid ranges (a margin of each range kept)."""
-    coords = models.TreeCoordinates(machine)
+    coords = machine.coordinates
     q = np.zeros(models.N_INDEPENDENT)
     for i, name in enumerate(coords.independent_names):
         if name in machine.chains:

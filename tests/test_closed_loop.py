@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 from models import WHEEL_ORDER
+from models.log import load_log
 from scenarios.closed_loop import (
     SCENARIOS,
     SETTLE_SECONDS,
@@ -21,7 +22,6 @@ from scenarios.closed_loop import (
     run_closed_loop,
     threshold,
 )
-from scenarios.log import load_log
 from wbc.cli import main
 
 # [N] below the threshold the MPC may go: MuJoCo's contact flickers for one step when a

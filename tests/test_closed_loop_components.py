@@ -9,7 +9,7 @@ import pytest
 
 from models.state import MachineState
 from wbc.axes import N_AXES, SUSPENSION_AXES
-from wbc.control import (
+from wbc import (
     AffineForceModel,
     ControllerConfig,
     ForceConfig,

@@ -31,9 +31,9 @@ import pytest
 from estimators import NormalForceEstimator, StateBatch
 from estimators.errors import EstimatorInputError
 from estimators.evaluate import error_percent, evaluate_log, log_to_batch, null_split
-from models import TreeCoordinates, build_reference_machine
+from models import build_reference_machine
 from models.description import WHEEL_ORDER
-from scenarios.log import load_log
+from models.log import load_log
 from scenarios.openloop import SCENARIOS, run_open_loop
 from scenarios.simulator import Simulator
 
@@ -115,7 +115,7 @@ def test_null_split_and_error_percent():
 
 def test_log_to_batch_clips_small_stroke_overruns_and_refuses_large(flat_log, machine):
     log = dict(load_log(flat_log))
-    names = TreeCoordinates(machine).independent_names
+    names = machine.coordinates.independent_names
     i = names.index("lift")
     lo, _ = machine.chains["lift"].chain.stroke_range
     q = log["q"].copy()
@@ -149,7 +149,7 @@ def _consistent_qdd(tc, machine, sim, state):
 def mujoco_run(machine):
     """States, MuJoCo's contact forces and consistent accelerations, flat, t in [1, 4] s."""
     sc = SCENARIOS["flat"]
-    tc = TreeCoordinates(machine)
+    tc = machine.coordinates
     sim = Simulator(machine, sc.terrain(0))
     sim.reset(tc.home())
     states, fz, qdd = [], [], []

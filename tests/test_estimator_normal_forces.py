@@ -6,7 +6,7 @@ import pytest
 from estimators import NormalForceEstimator, SingularSystemError
 from estimators.full_dynamics import D_BETA_COEFFICIENTS, d_beta_row
 from estimators.testing import consistent_contact_state, random_state
-from models import MachineState, TreeCoordinates, WheelContacts, build_reference_machine
+from models import MachineState, WheelContacts, build_reference_machine
 from models.pinocchio_model import build_pinocchio
 
 
@@ -26,7 +26,7 @@ def est(machine):
 
 
 def static_state(machine, **kw):
-    q = TreeCoordinates(machine).home()
+    q = machine.coordinates.home()
     z = np.zeros(13)
     return MachineState(np.zeros(3), np.eye(3), np.zeros(6), np.zeros(6), q, z, z, **kw)
 

@@ -7,12 +7,12 @@ import numpy as np
 import pytest
 
 import models.mujoco_model as mm
-from models import TreeCoordinates, build_reference_machine
+from models import build_reference_machine
 from models import terrain as T
 from models.errors import ModelError, PlacementError, StateError
 
 MACHINE = build_reference_machine()
-COORDS = TreeCoordinates(MACHINE)
+COORDS = MACHINE.coordinates
 WARNINGS = [w for name, w in mujoco.mjtWarning.__members__.items() if name != "mjNWARNING"]
 
 

@@ -74,7 +74,7 @@ def test_center_of_mass_matches_description(pm, machine):
 
 def test_static_base_wrench_is_weight(pm, machine):
     st = models.MachineState(np.zeros(3), np.eye(3), np.zeros(6), np.zeros(6),
-                             models.TreeCoordinates(machine).home(), np.zeros(13),
+                             machine.coordinates.home(), np.zeros(13),
                              np.zeros(13))
     w = pm.base_wrench(st)
     assert np.isclose(w[2], machine.total_mass * machine.gravity, rtol=1e-12)

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from models import WHEEL_ORDER
-from scenarios.log import load_log, state_at
+from models.log import load_log, state_at
 from wbc.cli import main
 
 REQUIRED = ("sim_seconds", "wall_seconds", "real_time_factor", "max_closure_violation_m",

@@ -7,7 +7,7 @@ import mujoco
 import numpy as np
 import pytest
 
-from models import StateError, TreeCoordinates, build_reference_machine
+from models import StateError, build_reference_machine
 from models import terrain as T
 from models.errors import PlacementError
 from scenarios.simulator import (
@@ -20,7 +20,7 @@ from scenarios.simulator import (
 )
 
 MACHINE = build_reference_machine()
-COORDS = TreeCoordinates(MACHINE)
+COORDS = MACHINE.coordinates
 NAMES = COORDS.independent_names
 WEIGHT = MACHINE.total_mass * MACHINE.gravity
 

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 import models
-from wbc.control import (
+from wbc import (
     CONTROLLER_NAMES,
     AffineForceModel,
     ConfigurationError,

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 import models
-from wbc.control import (
+from wbc import (
     CRANE_AXES,
     AccelerationLimit,
     AffineForceModel,

@@ -6,7 +6,7 @@ import pytest
 
 from models.pinocchio_model import build_pinocchio
 from tests.conftest import random_independent
-from wbc.control import (
+from wbc import (
     AxisLimits,
     IKError,
     QPContext,

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from wbc.control import (
+from wbc import (
     AffineForceModel,
     ConfigurationError,
     ControllerConfig,

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 import qpsolvers
 
-from wbc.control import (
+from wbc import (
     CRANE_AXES,
     AccelerationLimit,
     AxisLimits,
@@ -197,7 +197,7 @@ def test_qpsolvers_backend_agrees(machine, limits):
 
 
 def test_inequality_type_is_checked(machine, limits):
-    from wbc.control import Constraint, WbcError
+    from wbc import Constraint, WbcError
 
     class Bad(Constraint):
         def compute(self, ctx):

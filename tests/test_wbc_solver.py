@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 import qpsolvers
 
-from wbc.control import (
+from wbc import (
     AffineForceModel,
     JointGoal,
     MpcConfig,

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from models.coordinates import N_INDEPENDENT, TreeCoordinates
+from models.coordinates import N_INDEPENDENT
 from models.description import Machine
 from models.state import MachineState
 from wbc.axes import N_AXES
@@ -22,7 +22,7 @@ __all__ = ["KinematicPlant", "make_state"]
 def make_state(machine: Machine, q=None, qd=None, qdd=None, time: float = 0.0,
                base_twist=None, contacts=None) -> MachineState:
     """A state at the origin, level, with the given independent coordinates (home if None)."""
-    q = TreeCoordinates(machine).home() if q is None else np.asarray(q, float)
+    q = machine.coordinates.home() if q is None else np.asarray(q, float)
     z = np.zeros(N_INDEPENDENT)
     return MachineState(
         base_position=np.array([0.0, 0.0, 0.45]), base_rotation=np.eye(3),
@@ -66,5 +66,5 @@ class KinematicPlant:
         qd[:N_AXES] = v1
         self.state = MachineState(st.base_position, st.base_rotation, st.base_twist,
                                   st.base_acceleration, q, qd, qdd, st.time + dt, st.contacts,
-                                  st.suspension_force, st.payload_mass)
+                                  st.suspension_force)
         return self.state

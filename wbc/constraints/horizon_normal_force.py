@@ -123,7 +123,7 @@ class HorizonNormalForceConstraint(Constraint):
         q[WHEELS] += t * st.qd[WHEELS]
         return MachineState(pos, rot, st.base_twist, np.zeros(6), q, qd,
                             np.zeros(N_INDEPENDENT), st.time + t, st.contacts,
-                            st.suspension_force, st.payload_mass)
+                            st.suspension_force)
 
     def linearize(self, ctx) -> tuple[np.ndarray, list[ForceLinearization], np.ndarray,
                                       np.ndarray]:

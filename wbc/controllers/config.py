@@ -228,6 +228,13 @@ class ForceConfig:
             raise ConfigurationError(f"speed_scale_min must be in [0, 1), got "
                                      f"{self.speed_scale_min}")
 
+    def thresholds_for(self, machine) -> np.ndarray:
+        """Per-wheel f_min of ``machine`` [N], shape (4,): `thresholds`, else
+        ``threshold_fraction`` of its static wheel load (total weight / 4)."""
+        if self.thresholds is not None:
+            return np.array(self.thresholds)
+        return np.full(4, self.threshold_fraction * machine.total_mass * machine.gravity / 4)
+
 
 @dataclass(frozen=True)
 class ControllerConfig:

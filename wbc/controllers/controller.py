@@ -84,8 +84,7 @@ class Controller(abc.ABC):
                                                     rc.acceleration_fraction)
         self.static_wheel_load = machine.total_mass * machine.gravity / 4
         fc = config.force
-        self.force_thresholds = (np.array(fc.thresholds) if fc.thresholds is not None
-                                 else np.full(4, fc.threshold_fraction * self.static_wheel_load))
+        self.force_thresholds = fc.thresholds_for(machine)
         self._tcp = tcp_kinematics
         self.logger = logging.getLogger(f"wbc.controllers.{self.name or type(self).__name__}")
         self.n_fallbacks = 0

@@ -175,13 +175,13 @@ class MpcController(Controller):
     def _compensated(self, fb: ForceFeedback, state: MachineState) -> ForceFeedback:
         """The split measured in ``state``, carried to the setpoints commanded since.
 
-        The state is the servos' at its time (``state.extra['servo_setpoint']``); the
+        The state is the servos' at its time (``state.servo_setpoint``); the
         controller has commanded more since (one period, or more with a measurement
         delay). Through the warp model those commands have already moved the split:
         ``f += W (s_now - s_state)``, a Smith predictor on the suspension. Only with all
         four wheels on the ground (otherwise the warp is free).
         """
-        measured = state.extra.get("servo_setpoint") if state.extra else None
+        measured = state.servo_setpoint
         if (self.warp is None or self.servo is None or self.servo.setpoint is None
                 or measured is None or not np.all(fb.in_contact)):
             return fb

@@ -16,7 +16,7 @@ twist the chassis against the wheels (`wbc.force_models.feedback`).
 with ``s`` the setpoint (integrated commanded rates ``r``), the deflection low-pass filtered
 over ``T`` (it keeps the static sag under load, which the tracking must make up, and drops
 the vibration) and zero for the suspension (whose warp model is in setpoints). When the
-servo's own setpoint (``state.extra['servo_setpoint']``, e.g. clipped at the stroke range or
+servo's own setpoint (``state.servo_setpoint``, e.g. clipped at the stroke range or
 dragged by the anti-windup of a saturated cylinder) differs from the integrated one by more
 than a delay allowance, the servo's value is taken.
 """
@@ -60,7 +60,7 @@ class ServoState:
     def observe(self, state: MachineState) -> tuple[np.ndarray, np.ndarray]:
         """(q, qd) of the axes to predict from, shapes (9,) (see the module docstring)."""
         q_meas = state.q[:N_AXES]
-        measured = state.extra.get("servo_setpoint") if state.extra else None
+        measured = state.servo_setpoint
         if measured is not None:
             measured = np.asarray(measured, float)[:N_AXES]
         if self.setpoint is None:  # the servos move as measured, nothing else is known

@@ -29,7 +29,7 @@ def load_estimator(machine: Machine, method: str) -> NormalForceModel:
         except ImportError as exc:
             raise ForceModelError(
                 "estimators.NormalForceEstimator is not available; pass force_model= "
-                f"explicitly (for example wbc.control.AffineForceModel) ({exc})") from exc
+                f"explicitly (for example wbc.AffineForceModel) ({exc})") from exc
     model = NormalForceEstimator(machine, method=method)
     missing = [m for m in ("estimate", "constraint", "constraint_derivatives")
                if not callable(getattr(model, m, None))]

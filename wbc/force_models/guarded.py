@@ -19,7 +19,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from models.coordinates import N_INDEPENDENT, TreeCoordinates
+from models.coordinates import N_INDEPENDENT
 from models.description import Machine
 from models.state import MachineState
 from wbc.errors import ForceModelError
@@ -54,7 +54,7 @@ class GuardedModel:
 
     def __init__(self, model: NormalForceModel, machine: Machine):
         self.model = model
-        names = TreeCoordinates(machine).independent_names
+        names = machine.coordinates.independent_names
         self._lower = np.full(N_INDEPENDENT, -np.inf)
         self._upper = np.full(N_INDEPENDENT, np.inf)
         for i, name in enumerate(names):

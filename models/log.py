@@ -1,4 +1,7 @@
-"""Scenario logs: states, commands, ground-truth wheel forces, contact flags.
+"""Run logs: states, commands, ground-truth wheel forces, contact flags.
+
+The log schema lives in `models` so that both the scenarios (which write logs) and the
+estimators' evaluation (which reads them) can use it without importing each other.
 
 A log is a compressed ``.npz`` of arrays sampled at the log rate, first axis time:
 
@@ -34,6 +37,8 @@ import numpy as np
 
 from models.state import MachineState, WheelContacts
 
+SETTLE_SECONDS = 1.0  # [s] metrics and scores skip a log's first second (the machine settles)
+
 _STATE_KEYS = ("base_position", "base_rotation", "base_twist", "base_acceleration", "q", "qd",
                "qdd")
 
@@ -49,8 +54,11 @@ class ScenarioLog:
         return len(self._rows.get("time", []))
 
     def append(self, state: MachineState, contacts: WheelContacts, command: np.ndarray,
-               closure_violation: float, **extra) -> None:
-        """Record one sample (state, ground-truth contacts, command sent, closure gap)."""
+               closure_violation: float, **columns) -> None:
+        """Record one sample (state, ground-truth contacts, command sent, closure gap).
+
+        Further keyword arguments are extra columns of the log (one value per sample).
+        """
         row = {k: getattr(state, k) for k in _STATE_KEYS}
         row.update(
             time=state.time,
@@ -64,7 +72,7 @@ class ScenarioLog:
             suspension_force=(state.suspension_force if state.suspension_force is not None
                               else np.full(2, np.nan)),
             closure_violation=closure_violation,
-            **extra,
+            **columns,
         )
         for k, v in row.items():
             self._rows.setdefault(k, []).append(np.array(v, copy=True))
@@ -106,5 +114,4 @@ def state_at(log: dict[str, np.ndarray], i: int, with_contacts: bool = True) -> 
         base_twist=log["base_twist"][i], base_acceleration=log["base_acceleration"][i],
         q=log["q"][i], qd=log["qd"][i], qdd=log["qdd"][i], time=float(log["time"][i]),
         contacts=contacts, suspension_force=None if np.any(np.isnan(susp)) else susp,
-        payload_mass=float(log["meta_payload_mass"]) if "meta_payload_mass" in log else None,
     )
