@@ -8,7 +8,6 @@ import numpy as np
 import pytest
 
 from models.state import MachineState
-from wbc.axes import N_AXES, SUSPENSION_AXES
 from wbc import (
     AffineForceModel,
     ControllerConfig,
@@ -18,6 +17,7 @@ from wbc import (
     MpcConfig,
     MpcController,
 )
+from wbc.axes import N_AXES, SUSPENSION_AXES
 from wbc.controllers.servo_state import ServoState
 from wbc.force_models.feedback import (
     DIAGONAL,

@@ -229,8 +229,11 @@ class ForceConfig:
                                      f"{self.speed_scale_min}")
 
     def thresholds_for(self, machine) -> np.ndarray:
-        """Per-wheel f_min of ``machine`` [N], shape (4,): `thresholds`, else
-        ``threshold_fraction`` of its static wheel load (total weight / 4)."""
+        """Per-wheel f_min of ``machine`` [N], shape (4,).
+
+        `thresholds` if set, else ``threshold_fraction`` of the static wheel load
+        (total weight / 4).
+        """
         if self.thresholds is not None:
             return np.array(self.thresholds)
         return np.full(4, self.threshold_fraction * machine.total_mass * machine.gravity / 4)
