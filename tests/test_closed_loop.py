@@ -22,7 +22,7 @@ from scenarios.closed_loop import (
     run_closed_loop,
     threshold,
 )
-from wbc.cli import main
+from wbc_hdmm.cli import main
 
 # [N] below the threshold the MPC may go: MuJoCo's contact flickers for one step when a
 # lightly loaded wheel's penetration passes zero (measured at ~2.7 kN on a sliding wheel).
