@@ -121,7 +121,7 @@ def test_wbc_run_closed_loop_requires_a_controller_and_defaults_to_mpc_full(tmp_
 
 
 def test_noise_and_delay_are_applied(tmp_path):
-    from scenarios.simulator import MeasurementNoise
+    from scenarios.noise import MeasurementNoise
 
     short = dataclasses.replace(SCENARIOS["swing-out"], duration=1.5)
     noise = MeasurementNoise(q=1e-4, qd=1e-3, suspension_force=100.0, seed=3)

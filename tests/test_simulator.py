@@ -10,14 +10,11 @@ import pytest
 from models import StateError, build_reference_machine
 from models import terrain as T
 from models.errors import PlacementError
-from scenarios.simulator import (
-    ActuatorCommand,
-    CommandError,
-    MeasurementNoise,
-    Simulator,
-    SimulatorError,
-    base_motion_from_free_joint,
-)
+from scenarios.base_motion import base_motion_from_free_joint
+from scenarios.commands import ActuatorCommand
+from scenarios.errors import CommandError, SimulatorError
+from scenarios.noise import MeasurementNoise
+from scenarios.simulator import Simulator
 
 MACHINE = build_reference_machine()
 COORDS = MACHINE.coordinates
