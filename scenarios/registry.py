@@ -4,8 +4,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from scenarios.closed_loop import SCENARIOS as CLOSED_LOOP
 from scenarios.closed_loop import run_closed_loop
+from scenarios.closed_loop_scenarios import SCENARIOS as CLOSED_LOOP
 from scenarios.openloop import SCENARIOS as OPEN_LOOP
 from scenarios.openloop import run_open_loop
 

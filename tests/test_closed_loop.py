@@ -14,14 +14,9 @@ import numpy as np
 import pytest
 
 from models import WHEEL_ORDER
-from models.log import load_log
-from scenarios.closed_loop import (
-    SCENARIOS,
-    SETTLE_SECONDS,
-    TASK_TOLERANCE,
-    run_closed_loop,
-    threshold,
-)
+from models.log import SETTLE_SECONDS, load_log
+from scenarios.closed_loop import run_closed_loop
+from scenarios.closed_loop_scenarios import SCENARIOS, TASK_TOLERANCE, threshold
 from wbc_hdmm.cli import main
 
 # [N] below the threshold the MPC may go: MuJoCo's contact flickers for one step when a

@@ -6,7 +6,8 @@ from pathlib import Path
 
 from estimators.evaluate import evaluate_log
 from scenarios import registry
-from scenarios.closed_loop import DEFAULT_SCENARIO, run_comparison
+from scenarios.closed_loop_scenarios import DEFAULT_SCENARIO
+from scenarios.comparison import run_comparison
 
 __all__ = ["demo"]
 
