@@ -105,9 +105,9 @@ class Simulator:
             [max(map(abs, sp.force_range)) / sp.kp for sp in servos])
         self._setpoint = np.zeros(len(servos))
         self._rates = np.zeros(len(servos))
-        self._chain_rates = [
-            (i, machine.chains[n].chain, self.index.dof_adr[machine.chains[n].driven_joint])
-            for i, n in enumerate(self.index.independent_names) if n in machine.chains]
+        bindings = [(i, self.coordinates.binding(i)) for i in self.coordinates.chain_indices]
+        self._chain_rates = [(i, b.chain, self.index.dof_adr[b.driven_joint])
+                             for i, b in bindings]
         self._command = ActuatorCommand.zero()
         self._snapshot = (self.data.qpos.copy(), self.data.qvel.copy(), 0.0)
         self._snapshot_setpoint = self._setpoint.copy()
