@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: run test lint bench reproduce clean
+.PHONY: run test lint bench clean
 
 $(STAMP): pyproject.toml
 	$(PY) -m venv $(VENV)
@@ -15,8 +15,10 @@ $(STAMP): pyproject.toml
 run: $(STAMP)
 	MUJOCO_GL=egl $(BIN)/wbc demo --out out
 
-test: $(STAMP)
+lint: $(STAMP)
 	$(BIN)/ruff check .
+
+test: lint
 	MUJOCO_GL=egl $(BIN)/python -m pytest
 
 bench: $(STAMP)

@@ -7,8 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from models.log import load_log
-from scenarios.closed_loop import SETTLE_SECONDS as _SETTLE
+from models.log import SETTLE_SECONDS, load_log
 
 __all__ = ["plot_comparison"]
 
@@ -59,7 +58,7 @@ def plot_comparison(out_dirs_by_controller: Mapping[str, Path], png_path: Path) 
         for name, log in logs.items():
             color, ls, lw = _STYLE.get(name, ("tab:gray", "-", 1.0))
             t, f = log["time"], log["normal_force"][:, i]
-            settled = t >= min(_SETTLE, t[-1])
+            settled = t >= min(SETTLE_SECONDS, t[-1])
             dt = float(np.median(np.diff(t))) if t.size > 1 else 0.0
             below = float((f[settled] < thr).sum() * dt) if thr else 0.0
             label = (f"{_LABEL.get(name, name)}: min {f[settled].min() / 1e3:.2f} kN, "

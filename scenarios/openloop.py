@@ -24,12 +24,10 @@ import numpy as np
 
 from models import build_reference_machine
 from models.description import WHEEL_ORDER
-from models.log import ScenarioLog
+from models.log import SETTLE_SECONDS, ScenarioLog
 from models.terrain import Terrain, flat, rough
 from scenarios.progress import Progress
 from scenarios.simulator import Simulator
-
-SETTLE_SECONDS = 1.0  # metrics skip the first second (the paper's settling)
 
 # (amplitude, angular frequency [rad/s], phase [rad]) per servo, independent order:
 # bogie_L, bogie_R [m], slew, lift, tilt [m], telescope [m], wrist_pitch, wrist_roll,

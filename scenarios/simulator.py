@@ -25,15 +25,12 @@ from __future__ import annotations
 
 import copy
 import math
-from collections.abc import Mapping
-from dataclasses import dataclass
 
 import mujoco
 import numpy as np
 
 from models.coordinates import N_INDEPENDENT
 from models.description import Machine
-from models.errors import TerrainError
 from models.mujoco_model import (
     DEFAULT_TIMESTEP,
     MujocoIndex,
@@ -43,12 +40,14 @@ from models.mujoco_model import (
 )
 from models.state import MachineState, WheelContacts
 from models.terrain import Terrain
+from scenarios.base_motion import body_motion
+from scenarios.commands import ActuatorCommand, rates_by_name
+from scenarios.errors import CommandError, SimulationError, SimulatorError
+from scenarios.ground_truth import GroundTruthContacts
+from scenarios.noise import MeasurementNoise
 
-__all__ = ["ActuatorCommand", "CommandError", "MeasurementNoise", "SimulationError",
-           "Simulator", "SimulatorError", "base_motion_from_free_joint"]
+__all__ = ["Simulator"]
 
-CONTACT_FORCE_THRESHOLD = 1.0  # [N] normal force above which a wheel counts as in contact
-_CONTACT_ROWS = np.arange(3)  # an elliptic condim-3 contact: normal, tangent 1, tangent 2
 DEFAULT_SETTLE_TIME = 1.5  # [s]
 _SETTLE_DECAY_FRACTION = 2.0 / 3.0  # of the settling time spent with decaying velocities
 _SETTLE_DECAY_PER_STEP = 0.02  # velocity lost per step meanwhile
@@ -58,155 +57,6 @@ _ANTI_WINDUP = 1.5  # servo setpoint kept within this many full-force deflection
 _FATAL_WARNINGS = tuple(int(w) for w in (
     mujoco.mjtWarning.mjWARN_BADQPOS, mujoco.mjtWarning.mjWARN_BADQVEL,
     mujoco.mjtWarning.mjWARN_BADQACC, mujoco.mjtWarning.mjWARN_BADCTRL))
-
-
-class SimulatorError(Exception):
-    """Base class of the simulator's errors."""
-
-
-class CommandError(SimulatorError, ValueError):
-    """A command has a wrong shape, an unknown name or a non-finite entry."""
-
-
-class SimulationError(SimulatorError, RuntimeError):
-    """The simulation diverged (MuJoCo flagged a bad position, velocity or acceleration)."""
-
-
-def _vector(name: str, value, n: int) -> np.ndarray:
-    try:
-        a = np.array(value, dtype=float)  # a copy: the caller may reuse its buffer
-    except (TypeError, ValueError) as exc:
-        raise CommandError(f"{name} must be numbers, got {value!r}") from exc
-    if a.shape != (n,):
-        raise CommandError(f"{name} must have shape ({n},), got {a.shape}")
-    if not np.isfinite(a).all():
-        raise CommandError(f"{name} has non-finite entries: {a}")
-    return a
-
-
-def _rates(name: str, value, names: tuple[str, ...]):
-    """Rates from None (zeros), a mapping by name, or a sequence in ``names`` order.
-
-    Sequences pass through unchecked: `ActuatorCommand` checks them.
-    """
-    if value is None:
-        return np.zeros(len(names))
-    if isinstance(value, Mapping):
-        unknown = set(value) - set(names)
-        if unknown:
-            raise CommandError(f"{name}: unknown names {sorted(unknown)}; valid: {list(names)}")
-        return [value.get(n, 0.0) for n in names]
-    return value
-
-
-@dataclass(frozen=True)
-class ActuatorCommand:
-    """One command for every actuator; rates beyond the actuator limits are clipped.
-
-    Attributes:
-        cylinder_rates: Stroke rates of the hydraulic cylinders [m/s], shape (6,), order
-            bogie_L, bogie_R, slew, lift, tilt, telescope (the first six independent
-            coordinates). Positive extends.
-        wrist_rates: Joint rates [rad/s], shape (3,), order wrist_pitch, wrist_roll, rotator.
-        wheel_speeds: Wheel spin speeds [rad/s], shape (2,): (left pair FL+RL, right pair
-            FR+RR). Positive drives forward (+x of fb).
-    """
-
-    cylinder_rates: np.ndarray
-    wrist_rates: np.ndarray
-    wheel_speeds: np.ndarray
-
-    def __post_init__(self):
-        for name, n in (("cylinder_rates", 6), ("wrist_rates", 3), ("wheel_speeds", 2)):
-            a = _vector(name, getattr(self, name), n)
-            a.setflags(write=False)
-            object.__setattr__(self, name, a)
-
-    @classmethod
-    def zero(cls) -> ActuatorCommand:
-        """Hold every servo and brake the wheels."""
-        return cls(np.zeros(6), np.zeros(3), np.zeros(2))
-
-    @property
-    def servo_rates(self) -> np.ndarray:
-        """Rates of the nine servos in independent order [m/s, rad/s], shape (9,)."""
-        return np.concatenate([self.cylinder_rates, self.wrist_rates])
-
-
-@dataclass(frozen=True)
-class MeasurementNoise:
-    """Zero-mean Gaussian noise added to the measured `MachineState` (not the ground truth).
-
-    Attributes:
-        base_twist: Std of each twist component [m/s, rad/s].
-        base_acceleration: Std of each acceleration component [m/s^2, rad/s^2].
-        q: Std of each independent coordinate [m or rad].
-        qd: Std of each independent velocity [m/s or rad/s].
-        qdd: Std of each independent acceleration [m/s^2 or rad/s^2].
-        contact_force: Std of each wheel force component in `MachineState.contacts` [N].
-        suspension_force: Std of each suspension cylinder force [N].
-        seed: Seed of the noise generator.
-    """
-
-    base_twist: float = 0.0
-    base_acceleration: float = 0.0
-    q: float = 0.0
-    qd: float = 0.0
-    qdd: float = 0.0
-    contact_force: float = 0.0
-    suspension_force: float = 0.0
-    seed: int = 0
-
-    def __post_init__(self):
-        for name in ("base_twist", "base_acceleration", "q", "qd", "qdd", "contact_force",
-                     "suspension_force"):
-            v = getattr(self, name)
-            if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
-                raise SimulatorError(f"noise '{name}' must be a finite std >= 0, got {v!r}")
-        if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
-            raise SimulatorError(f"noise seed must be a non-negative integer, got {self.seed!r}")
-
-
-def base_motion_from_free_joint(qpos7, qvel6, qacc6
-                                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Base pose, body twist and its derivative from MuJoCo free-joint coordinates.
-
-    MuJoCo's free joint has ``qvel = [v_world; w_fb]`` (linear velocity of the fb origin in
-    world axes, angular velocity in fb axes) and ``qacc`` their time derivatives. With
-    ``R`` = rotation world <- fb, the body twist is ``[v_fb; w_fb] = [R^T v_world; w_fb]`` and
-    its time derivative (Pinocchio's free-flyer ``a``) is
-    ``[R^T a_world - w_fb x v_fb; w_dot_fb]``, since ``d(R^T)/dt = -[w_fb]x R^T``.
-
-    Args:
-        qpos7: Position [m] and unit quaternion (w, x, y, z), shape (7,).
-        qvel6: Free-joint velocity, shape (6,).
-        qacc6: Free-joint acceleration, shape (6,).
-
-    Returns:
-        (position [m] (3,), rotation world <- fb (3, 3), twist [m/s, rad/s] (6,),
-        twist derivative [m/s^2, rad/s^2] (6,)).
-    """
-    qpos7, qvel6, qacc6 = (np.asarray(a, float) for a in (qpos7, qvel6, qacc6))
-    rotation = np.zeros(9)
-    mujoco.mju_quat2Mat(rotation, qpos7[3:7] / np.linalg.norm(qpos7[3:7]))
-    rotation = rotation.reshape(3, 3)
-    twist, accel = _body_motion(rotation, qvel6, qacc6)
-    return qpos7[:3].copy(), rotation, twist, accel
-
-
-def _body_motion(rotation: np.ndarray, qvel6: np.ndarray,
-                 qacc6: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Twist [R^T v; w] and its derivative [R^T a - w x v_fb; w_dot] (see above)."""
-    v = rotation.T @ qvel6[:3]
-    w = qvel6[3:6]
-    w_cross_v = (w[1] * v[2] - w[2] * v[1], w[2] * v[0] - w[0] * v[2], w[0] * v[1] - w[1] * v[0])
-    twist = np.empty(6)
-    twist[:3], twist[3:] = v, w
-    accel = np.empty(6)
-    accel[:3] = rotation.T @ qacc6[:3]
-    accel[:3] -= w_cross_v
-    accel[3:] = qacc6[3:6]
-    return twist, accel
 
 
 class Simulator:
@@ -240,14 +90,7 @@ class Simulator:
         self._rng = np.random.default_rng(noise.seed if noise else 0)
         self._cylinders = self.index.independent_names[:6]
         self._wrist = self.index.independent_names[6:9]
-        self._wheel_of_geom = np.full(self.model.ngeom, -1)
-        self._wheel_of_geom[self.index.wheel_geoms] = np.arange(4)
-        terrain_geom = self.index.terrain_geom
-        if (self.model.opt.cone != mujoco.mjtCone.mjCONE_ELLIPTIC
-                or self.model.geom_condim[terrain_geom] != 3
-                or self.model.geom_priority[terrain_geom] <= 0):
-            raise SimulatorError("wheel contacts are read as elliptic condim-3 contacts, "
-                                 "which this model does not have")
+        self._contacts = GroundTruthContacts(self.model, self.index, machine, terrain)
         self.servos = servo_specs(machine, self.model.opt.timestep)
         servos = self.servos
         self._rate_range = np.array([sp.rate_range for sp in servos])
@@ -262,9 +105,9 @@ class Simulator:
             [max(map(abs, sp.force_range)) / sp.kp for sp in servos])
         self._setpoint = np.zeros(len(servos))
         self._rates = np.zeros(len(servos))
-        self._chain_rates = [
-            (i, machine.chains[n].chain, self.index.dof_adr[machine.chains[n].driven_joint])
-            for i, n in enumerate(self.index.independent_names) if n in machine.chains]
+        bindings = [(i, self.coordinates.binding(i)) for i in self.coordinates.chain_indices]
+        self._chain_rates = [(i, b.chain, self.index.dof_adr[b.driven_joint])
+                             for i, b in bindings]
         self._command = ActuatorCommand.zero()
         self._snapshot = (self.data.qpos.copy(), self.data.qvel.copy(), 0.0)
         self._snapshot_setpoint = self._setpoint.copy()
@@ -292,9 +135,10 @@ class Simulator:
         Raises:
             CommandError: Wrong shape, unknown name or non-finite value.
         """
-        self.apply(ActuatorCommand(_rates("cylinder_rates", cylinder_rates, self._cylinders),
-                                   _rates("wrist_rates", wrist_rates, self._wrist),
-                                   _rates("wheel_speeds", wheel_speeds, ("left", "right"))))
+        self.apply(ActuatorCommand(
+            rates_by_name("cylinder_rates", cylinder_rates, self._cylinders),
+            rates_by_name("wrist_rates", wrist_rates, self._wrist),
+            rates_by_name("wheel_speeds", wheel_speeds, ("left", "right"))))
 
     def apply(self, command: ActuatorCommand) -> None:
         """Set the actuator command from an `ActuatorCommand` (held until changed)."""
@@ -434,12 +278,6 @@ class Simulator:
                 raise SimulationError(f"MuJoCo warning {name} at t = {self.time:.4f} s: the "
                                       f"simulation diverged")
 
-    def warning_counts(self) -> dict[str, int]:
-        """MuJoCo's warning counters since the last reset, by warning name."""
-        counts = self.data.warning.number
-        return {name: int(counts[int(w)])
-                for name, w in mujoco.mjtWarning.__members__.items() if name != "mjNWARNING"}
-
     # ------------------------------------------------------------------ measurements
     @property
     def measured_instant(self) -> tuple[np.ndarray, np.ndarray, float]:
@@ -474,7 +312,7 @@ class Simulator:
         d, ix = self.data, self.index
         rotation = d.xmat[ix.base_body].reshape(3, 3).copy()  # of the measured instant
         position = d.xpos[ix.base_body].copy()
-        twist, accel = _body_motion(rotation, qvel[ix.base_dof], d.qacc[ix.base_dof])
+        twist, accel = body_motion(rotation, qvel[ix.base_dof], d.qacc[ix.base_dof])
         truth = self.wheel_contacts(position, rotation)
         q = qpos[ix.independent_qpos]
         qd = qvel[ix.independent_dof].copy()
@@ -511,74 +349,15 @@ class Simulator:
         return self.data.actuator_force[self.index.actuators].copy()
 
     def wheel_contacts(self, base_position=None, base_rotation=None) -> WheelContacts:
-        """Ground-truth wheel contacts from MuJoCo at the measured instant.
+        """Ground-truth wheel contacts from MuJoCo at the measured instant, in fb.
 
-        For each wheel, the ground's force on it is summed over the wheel's contacts. Per
-        contact this is ``mj_contactForce`` (in the contact frame, acting on the contact's
-        second geom; its sign is flipped when the wheel is the first geom), which for the
-        model's elliptic cones is the contact's rows of ``efc_force``, read here for all
-        contacts at once. The contact point is the normal-force-weighted mean of the contact
-        points, the normal the normalised weighted mean of the contact normals (out of the
-        ground). A wheel is in contact when its normal force exceeds
-        `CONTACT_FORCE_THRESHOLD`; otherwise its point is the wheel's point nearest the
-        terrain plane below it and its normal that plane's normal. Everything in fb.
+        MuJoCo's contact forces summed per wheel (`scenarios.ground_truth`).
 
         Args:
             base_position: fb origin in the world [m], shape (3,); measured if None.
             base_rotation: Rotation world <- fb, shape (3, 3); measured if None.
         """
-        d, ix = self.data, self.index
         if base_position is None or base_rotation is None:
-            base_position = d.xpos[ix.base_body]
-            base_rotation = d.xmat[ix.base_body].reshape(3, 3)
-        force, point, normal, normal_force = (np.zeros((4, 3)), np.zeros((4, 3)),
-                                              np.zeros((4, 3)), np.zeros(4))
-        n = d.ncon
-        if n:
-            contact = d.contact
-            geoms = contact.geom
-            wheel = self._wheel_of_geom[geoms[:, 1]]
-            sign = 1.0
-            rows = contact.efc_address
-            if (wheel < 0).any() or (rows < 0).any():  # not the usual (ground, wheel) pairs
-                first = wheel < 0
-                wheel = np.where(first, self._wheel_of_geom[geoms[:, 0]], wheel)
-                sign = np.where(first, -1.0, 1.0)[:, None]
-                keep = (wheel >= 0) & (rows >= 0)
-                wheel, rows, sign = wheel[keep], rows[keep], sign[keep]
-                frames = contact.frame[keep].reshape(-1, 3, 3)
-                positions = contact.pos[keep]
-            else:
-                frames = contact.frame.reshape(n, 3, 3)
-                positions = contact.pos
-            if wheel.size:
-                f_contact = d.efc_force[rows[:, None] + _CONTACT_ROWS]  # normal, t1, t2
-                fn = f_contact[:, :1]
-                select = np.zeros((4, wheel.size))
-                select[wheel, np.arange(wheel.size)] = 1.0
-                # Rows of frames are the normal (geom 0 -> geom 1) and tangents: f^T frame.
-                force = select @ (sign * (f_contact[:, None, :] @ frames)[:, 0])
-                normal_force = select @ fn[:, 0]
-                point = select @ (fn * positions)
-                normal = select @ (sign * fn * frames[:, 0])
-        in_contact = normal_force > CONTACT_FORCE_THRESHOLD
-        if in_contact.all():
-            point /= normal_force[:, None]
-            normal /= np.sqrt(np.einsum("ij,ij->i", normal, normal))[:, None]
-        else:
-            touching = np.flatnonzero(in_contact)
-            point[touching] /= normal_force[touching, None]
-            normal[touching] /= np.sqrt(np.einsum("ij,ij->i", normal[touching],
-                                                  normal[touching]))[:, None]
-            radius = self.machine.wheel_radius
-            for k in np.flatnonzero(~in_contact):
-                c = d.xpos[ix.wheel_bodies[k]]
-                try:
-                    normal[k] = self.terrain.normal(c[0], c[1])
-                except TerrainError:  # driven off the terrain
-                    normal[k] = (0.0, 0.0, 1.0)
-                point[k] = c - radius * normal[k]
-        rotation = np.asarray(base_rotation)  # rows of (f @ R) are R^T f
-        return WheelContacts(in_contact=in_contact, force_in_fb=force @ rotation,
-                             point_in_fb=(point - base_position) @ rotation,
-                             normal_in_fb=normal @ rotation)
+            base_position = self.data.xpos[self.index.base_body]
+            base_rotation = self.data.xmat[self.index.base_body].reshape(3, 3)
+        return self._contacts.read(self.data, base_position, base_rotation)

@@ -14,15 +14,10 @@ import numpy as np
 import pytest
 
 from models import WHEEL_ORDER
-from models.log import load_log
-from scenarios.closed_loop import (
-    SCENARIOS,
-    SETTLE_SECONDS,
-    TASK_TOLERANCE,
-    run_closed_loop,
-    threshold,
-)
-from wbc.cli import main
+from models.log import SETTLE_SECONDS, load_log
+from scenarios.closed_loop import run_closed_loop
+from scenarios.closed_loop_scenarios import SCENARIOS, TASK_TOLERANCE, threshold
+from wbc_hdmm.cli import main
 
 # [N] below the threshold the MPC may go: MuJoCo's contact flickers for one step when a
 # lightly loaded wheel's penetration passes zero (measured at ~2.7 kN on a sliding wheel).
@@ -121,7 +116,7 @@ def test_wbc_run_closed_loop_requires_a_controller_and_defaults_to_mpc_full(tmp_
 
 
 def test_noise_and_delay_are_applied(tmp_path):
-    from scenarios.simulator import MeasurementNoise
+    from scenarios.noise import MeasurementNoise
 
     short = dataclasses.replace(SCENARIOS["swing-out"], duration=1.5)
     noise = MeasurementNoise(q=1e-4, qd=1e-3, suspension_force=100.0, seed=3)

@@ -7,7 +7,7 @@ import pytest
 
 from models import WHEEL_ORDER
 from models.log import load_log, state_at
-from wbc.cli import main
+from wbc_hdmm.cli import main
 
 REQUIRED = ("sim_seconds", "wall_seconds", "real_time_factor", "max_closure_violation_m",
             "min_normal_force_N", "contact_loss_fraction")

@@ -52,9 +52,9 @@ def _cmd_bench(args) -> int:
 
 
 def _cmd_demo(args) -> int:
-    from scenarios import registry
+    from wbc_hdmm.demo import demo
 
-    return registry.demo(Path(args.out), progress=not args.no_progress)
+    return demo(Path(args.out), progress=not args.no_progress)
 
 
 def _cmd_machine(args) -> int:
@@ -125,7 +125,3 @@ def main(argv: list[str] | None = None) -> int:
     except (ValueError, KeyError, FileNotFoundError) as exc:
         print(f"wbc: error: {exc}", file=sys.stderr)
         return 2
-
-
-if __name__ == "__main__":
-    sys.exit(main())

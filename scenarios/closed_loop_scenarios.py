@@ -1,0 +1,216 @@
+"""The closed-loop scenarios: terrain, crane poses, goals, driving, payload, and settings.
+
+Each scenario runs with each controller (``tracking``, ``mpc-quasi-static``, ``mpc-full``) on
+the same terrain and seed (`scenarios.closed_loop`). The base follows scripted wheel speeds
+(the operator's), which the MPC may scale down (`ControlCommand.wheel_speeds`); the tracking
+controller's scale is 1.
+
+Scenarios (`SCENARIOS`; terrain: the seeded rough terrain of `models.terrain.rough` with the
+given largest slope, added to the side slope of `models.terrain.side_slope`, left side down):
+
+* ``swing-out`` (the default): the machine drives 6 m across a 5 deg side slope with 10 deg
+  rough terrain at 0.4 m/s while the crane swings the payload (150 kg) from its transport
+  pose out to full reach (slew 45 deg, lift 20 deg, tilt -40 deg, telescope 1.08 m) on the
+  downhill side.
+* ``pick-place-slope``: standing 8 m out (where the rough terrain is fully developed) on a
+  5 deg side slope with 5 deg rough terrain, the crane reaches out to full reach on the
+  downhill side (pick), waits 1 s, and swings the payload over to full reach on the uphill
+  side (place).
+* ``pick-in-motion``: driving 5 m at 0.3 m/s across the 5 deg side slope with 10 deg rough
+  terrain, with the crane out on the downhill side (slew 45, lift 30, tilt -60 deg,
+  telescope 0.6 m) and an empty grapple (10 kg); at 3 s it grabs a 220 kg log (the payload
+  body's mass is changed in MuJoCo) and brings it to the transport pose.
+
+The crane motions follow the operator's profile ``crane_speed`` = (60 %, 20 %) of the axis
+velocity and acceleration limits, the same reference for the three controllers.
+
+Why a controller that only tracks gets into trouble here (measured, `wbc.force_models.
+feedback`): the suspension servos are stiff, so with the strokes held the chassis cannot
+follow the terrain's twist and the crane's moment at long reach takes the load off one
+wheel of a diagonal (statically: full reach at 45 deg on flat ground leaves RR at 0 kN held,
+5.1 kN with the chassis leveled); the rough ground twists the chassis by 20-40 kN/s at
+0.4 m/s; crane swings at long reach load the wheels by up to ~10 kN per m/s^2 of slew
+stroke acceleration.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from models import build_reference_machine
+from models.description import Machine
+from models.terrain import Terrain, rough, side_slope
+from wbc import ControllerConfig, ForceConfig, ReferenceConfig
+
+__all__ = ["CONTROL_PERIOD", "DEFAULT_SCENARIO", "SCENARIOS", "TASK_TOLERANCE",
+           "ClosedLoopScenario", "CranePose", "controller_config", "scenario_terrain",
+           "threshold"]
+
+CONTROL_PERIOD = 0.01  # [s] 100 Hz
+TASK_TOLERANCE = 0.05  # [m] tool point within this of its goal
+DRIVE_RAMP_SECONDS = 1.0  # the scripted wheel speeds ramp up smoothly over this
+THRESHOLD_FRACTION = 0.1  # of the reference machine's static wheel load
+DEFAULT_SCENARIO = "swing-out"
+
+
+@dataclass(frozen=True)
+class CranePose:
+    """A crane pose by joint angles; the wrist pitch keeps the tool vertical.
+
+    Attributes:
+        slew_deg: Slew angle [deg], positive to the left, within about +-69 deg.
+        lift_deg, tilt_deg: Lift and tilt joint angles [deg].
+        telescope: Telescope extension [m].
+    """
+
+    slew_deg: float
+    lift_deg: float
+    tilt_deg: float
+    telescope: float
+
+    def coordinates(self, machine: Machine) -> np.ndarray:
+        """The seven crane coordinates (strokes, telescope, wrist), shape (7,)."""
+        ch = machine.chains
+        return np.array([
+            ch["slew"].chain.stroke_from_angle(math.radians(self.slew_deg)),
+            ch["lift"].chain.stroke_from_angle(math.radians(self.lift_deg)),
+            ch["tilt"].chain.stroke_from_angle(math.radians(self.tilt_deg)),
+            self.telescope, -math.radians(self.lift_deg + self.tilt_deg), 0.0, 0.0])
+
+    def q(self, machine: Machine) -> np.ndarray:
+        """Independent coordinates at home with this crane pose, shape (13,)."""
+        q = machine.coordinates.home()
+        q[2:9] = self.coordinates(machine)
+        return q
+
+
+TRANSPORT = CranePose(0.0, 45.0, -90.0, 0.5)  # the home pose: folded over the chassis
+
+
+@dataclass(frozen=True)
+class ClosedLoopScenario:
+    """A closed-loop scenario.
+
+    Attributes:
+        name, description: For humans and the command line.
+        duration: Simulated time [s].
+        side_slope_deg: Side slope [deg]; negative: the left (+y) side is down.
+        rough_slope_deg: Largest slope of the added rough terrain [deg]; 0: none.
+        start_pose: Crane pose at the start.
+        goals: Crane poses given one after the other: the first at ``first_goal_time``,
+            each next one ``dwell`` after the tool point has reached the previous one.
+        first_goal_time: [s].
+        dwell: [s].
+        drive_speed: Scripted driving speed [m/s] (both sides), ramped up over
+            `DRIVE_RAMP_SECONDS`; 0: standing.
+        drive_distance: Distance the base must cover for the task [m].
+        payload_mass: Payload at the start [kg].
+        payload_event: (time [s], new payload mass [kg]) or None.
+        start: Base (x [m], y [m], heading [rad]) at the start. The rough terrain is level
+            within 3 m of the origin (`models.terrain.rough`), so a machine that does not
+            drive starts farther out.
+        crane_speed: (velocity, acceleration) fractions of the axis limits the operator's
+            motions (the controllers' references) use.
+    """
+
+    name: str
+    description: str
+    duration: float
+    side_slope_deg: float
+    rough_slope_deg: float
+    start_pose: CranePose
+    goals: tuple[CranePose, ...]
+    first_goal_time: float = 1.0
+    dwell: float = 1.0
+    drive_speed: float = 0.0
+    drive_distance: float = 0.0
+    payload_mass: float = 150.0
+    payload_event: tuple[float, float] | None = None
+    start: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    crane_speed: tuple[float, float] = (0.6, 0.2)
+
+    def wheel_speed(self, t: float, radius: float) -> float:
+        """The operator's wheel speed at time ``t`` [rad/s] (both sides)."""
+        ramp = min(max(t / DRIVE_RAMP_SECONDS, 0.0), 1.0)
+        return self.drive_speed / radius * ramp * ramp * (3.0 - 2.0 * ramp)
+
+
+FULL_REACH_LEFT = CranePose(45.0, 20.0, -40.0, 1.08)
+
+SCENARIOS = {
+    "swing-out": ClosedLoopScenario(
+        "swing-out",
+        "drive 6 m at 0.4 m/s across a 5 deg side slope with 10 deg rough terrain while "
+        "the crane swings 150 kg out to full reach on the downhill side",
+        20.0, -5.0, 10.0, TRANSPORT, (FULL_REACH_LEFT,), first_goal_time=1.0,
+        drive_speed=0.4, drive_distance=6.0),
+    "pick-place-slope": ClosedLoopScenario(
+        "pick-place-slope",
+        "standing 8 m out on a 5 deg side slope with 5 deg rough terrain: pick at full "
+        "reach downhill, place at full reach uphill (150 kg)",
+        16.0, -5.0, 5.0, TRANSPORT,
+        (FULL_REACH_LEFT, CranePose(-45.0, 20.0, -40.0, 1.08)), first_goal_time=1.0,
+        dwell=1.0, start=(8.0, 0.0, 0.0)),
+    "pick-in-motion": ClosedLoopScenario(
+        "pick-in-motion",
+        "drive 5 m at 0.3 m/s across a 5 deg side slope with 10 deg rough terrain; at 3 s "
+        "the grapple, out on the downhill side, grabs a 220 kg log and brings it in",
+        20.0, -5.0, 10.0, CranePose(45.0, 30.0, -60.0, 0.6), (TRANSPORT,),
+        first_goal_time=3.5, drive_speed=0.3, drive_distance=5.0, payload_mass=10.0,
+        payload_event=(3.0, 220.0)),
+}
+
+
+def threshold() -> float:
+    """The normal-force threshold of the metrics [N]: 10 % of the static wheel load."""
+    return float(ForceConfig(threshold_fraction=THRESHOLD_FRACTION)
+                 .thresholds_for(build_reference_machine())[0])
+
+
+def controller_config(threshold_n: float | None = None,
+                      crane_speed: tuple[float, float] = (0.6, 0.2)) -> ControllerConfig:
+    """The settings every closed-loop scenario runs its controllers with.
+
+    The reference (the operator's motion profile, the same for all three controllers) uses
+    ``crane_speed`` = (60 %, 20 %) of the axis velocity and acceleration limits by default:
+    a heavy crane at long reach, whose lift cylinder is at 75-85 % of its force statically
+    (the description's limits allow 3 rad/s^2 of slew). The MPC keeps ``margin = 1.5 kN``
+    above the threshold for what it cannot predict (terrain ahead), and levels the chassis
+    through the suspension with weight 10.
+
+    Args:
+        threshold_n: Normal-force threshold of every wheel [N]; `threshold` if None.
+        crane_speed: (velocity, acceleration) fractions of the axis limits.
+
+    Returns:
+        The controller settings.
+    """
+    thr = threshold() if threshold_n is None else float(threshold_n)
+    return ControllerConfig(
+        reference=ReferenceConfig(velocity_fraction=crane_speed[0],
+                                  acceleration_fraction=crane_speed[1]),
+        force=ForceConfig(thresholds=(thr, thr, thr, thr), margin=1500.0,
+                          leveling_weight=10.0))
+
+
+def scenario_terrain(scenario: ClosedLoopScenario, seed: int = 0) -> Terrain:
+    """The side slope plus the seeded rough terrain, on the rough terrain's grid.
+
+    Raises:
+        ValueError: The scenario has neither a side slope nor rough terrain.
+    """
+    spacing = 0.25
+    side = side_slope(scenario.side_slope_deg, spacing=spacing) if scenario.side_slope_deg \
+        else None
+    if scenario.rough_slope_deg > 0:
+        base = rough(seed, scenario.rough_slope_deg, spacing=spacing)
+        heights = base.heights + (side.heights if side is not None else 0.0)
+        return Terrain("rough_side_slope", heights, base.x_range, base.y_range,
+                       base.friction)
+    if side is None:
+        raise ValueError(f"scenario '{scenario.name}' has neither a side slope nor rough "
+                         f"terrain")
+    return side

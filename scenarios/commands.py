@@ -1,0 +1,84 @@
+"""Actuator commands of the simulated machine: servo rates and wheel speeds."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+import numpy as np
+
+from scenarios.errors import CommandError
+
+__all__ = ["ActuatorCommand", "rates_by_name"]
+
+
+def _vector(name: str, value, n: int) -> np.ndarray:
+    try:
+        a = np.array(value, dtype=float)  # a copy: the caller may reuse its buffer
+    except (TypeError, ValueError) as exc:
+        raise CommandError(f"{name} must be numbers, got {value!r}") from exc
+    if a.shape != (n,):
+        raise CommandError(f"{name} must have shape ({n},), got {a.shape}")
+    if not np.isfinite(a).all():
+        raise CommandError(f"{name} has non-finite entries: {a}")
+    return a
+
+
+def rates_by_name(name: str, value, names: tuple[str, ...]):
+    """Rates from None (zeros), a mapping by name, or a sequence in ``names`` order.
+
+    Sequences pass through unchecked: `ActuatorCommand` checks them.
+
+    Args:
+        name: What the rates are, for error messages.
+        value: None, a mapping name -> rate (missing names are zero), or a sequence.
+        names: The valid names, in order.
+
+    Returns:
+        The rates in ``names`` order (a sequence as given, else of length ``len(names)``).
+
+    Raises:
+        CommandError: The mapping has a name not in ``names``.
+    """
+    if value is None:
+        return np.zeros(len(names))
+    if isinstance(value, Mapping):
+        unknown = set(value) - set(names)
+        if unknown:
+            raise CommandError(f"{name}: unknown names {sorted(unknown)}; valid: {list(names)}")
+        return [value.get(n, 0.0) for n in names]
+    return value
+
+
+@dataclass(frozen=True)
+class ActuatorCommand:
+    """One command for every actuator; rates beyond the actuator limits are clipped.
+
+    Attributes:
+        cylinder_rates: Stroke rates of the hydraulic cylinders [m/s], shape (6,), order
+            bogie_L, bogie_R, slew, lift, tilt, telescope (the first six independent
+            coordinates). Positive extends.
+        wrist_rates: Joint rates [rad/s], shape (3,), order wrist_pitch, wrist_roll, rotator.
+        wheel_speeds: Wheel spin speeds [rad/s], shape (2,): (left pair FL+RL, right pair
+            FR+RR). Positive drives forward (+x of fb).
+    """
+
+    cylinder_rates: np.ndarray
+    wrist_rates: np.ndarray
+    wheel_speeds: np.ndarray
+
+    def __post_init__(self):
+        for name, n in (("cylinder_rates", 6), ("wrist_rates", 3), ("wheel_speeds", 2)):
+            a = _vector(name, getattr(self, name), n)
+            a.setflags(write=False)
+            object.__setattr__(self, name, a)
+
+    @classmethod
+    def zero(cls) -> ActuatorCommand:
+        """Hold every servo and brake the wheels."""
+        return cls(np.zeros(6), np.zeros(3), np.zeros(2))
+
+    @property
+    def servo_rates(self) -> np.ndarray:
+        """Rates of the nine servos in independent order [m/s, rad/s], shape (9,)."""
+        return np.concatenate([self.cylinder_rates, self.wrist_rates])

@@ -1,0 +1,107 @@
+"""Metrics of a closed-loop run (``metrics.json``), computed from its log.
+
+All after `models.log.SETTLE_SECONDS`:
+
+* ``min_normal_force_N``, ``time_below_threshold_s``: per wheel (FL, RL, FR, RR), ground
+  truth along the terrain normal, sampled at the control rate; ``threshold_N`` = 10 % of the
+  static wheel load of the reference machine (150 kg payload).
+* ``tipped``: fewer than three wheels in contact for more than `TIP_CONTACT_SECONDS`
+  without a break, or base roll or pitch beyond `TIP_ANGLE_DEG`.
+* ``task_error_final``: distance of the tool point from the last goal's [m] at the end;
+  ``task_completion_time_s``: first time every goal has been given, the tool point is
+  within `TASK_TOLERANCE` of the last one and the base has driven its distance (None if
+  never); ``task_completed``.
+
+`scenarios.closed_loop.run_closed_loop` adds ``control_step_ms`` (median and p99 of the
+controller's ``step`` wall time), ``fallbacks``, ``sim_seconds``, ``wall_seconds`` and
+``real_time_factor``.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from models.description import WHEEL_ORDER
+from models.log import SETTLE_SECONDS
+from scenarios.closed_loop_scenarios import CONTROL_PERIOD, TASK_TOLERANCE, ClosedLoopScenario
+
+__all__ = ["TIP_ANGLE_DEG", "TIP_CONTACT_SECONDS", "closed_loop_metrics", "json_default"]
+
+TIP_CONTACT_SECONDS = 0.5  # fewer than three wheels in contact this long: tipped
+TIP_ANGLE_DEG = 30.0  # base roll or pitch beyond this: tipped
+
+
+def _roll_pitch(rotation: np.ndarray) -> tuple[float, float]:
+    """Roll and pitch of the base [rad] (ZYX Euler angles of world <- fb)."""
+    return (math.atan2(rotation[2, 1], rotation[2, 2]),
+            -math.asin(max(-1.0, min(1.0, rotation[2, 0]))))
+
+
+def _longest_run(mask: np.ndarray) -> int:
+    best = run = 0
+    for v in mask:
+        run = run + 1 if v else 0
+        best = max(best, run)
+    return best
+
+
+def json_default(o):
+    """``json.dumps`` ``default`` for NumPy scalars and arrays.
+
+    Raises:
+        TypeError: ``o`` is neither.
+    """
+    if isinstance(o, (np.floating, np.integer)):
+        return o.item()
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    raise TypeError(f"not JSON serializable: {type(o)}")
+
+
+def closed_loop_metrics(log: dict, scenario: ClosedLoopScenario, threshold_n: float) -> dict:
+    """The scenario metrics from a closed-loop log (see the module docstring).
+
+    Args:
+        log: The log's arrays (`models.log.ScenarioLog.arrays`), with the closed loop's
+            columns ``tcp_error``, ``last_goal_given``, ``distance`` and ``speed_scale``.
+        scenario: The scenario that was run.
+        threshold_n: Normal-force threshold [N].
+
+    Returns:
+        The metrics by name.
+    """
+    t = log["time"]
+    dt = float(np.median(np.diff(t))) if t.size > 1 else CONTROL_PERIOD
+    keep = t >= SETTLE_SECONDS - 1e-9
+    if not keep.any():  # a run shorter than the settling: judge all of it
+        keep = np.ones_like(keep)
+    fz = log["normal_force"][keep]
+    per_wheel = lambda a: {w: float(v) for w, v in zip(WHEEL_ORDER, a)}  # noqa: E731
+    n_contact = log["in_contact"].sum(axis=1)
+    roll_pitch = np.array([_roll_pitch(r) for r in log["base_rotation"]])
+    tipped_contact = _longest_run(n_contact[keep] < 3) * dt > TIP_CONTACT_SECONDS
+    tipped_angle = bool(np.any(np.abs(roll_pitch) > math.radians(TIP_ANGLE_DEG)))
+    err = log["tcp_error"]
+    done = (log["last_goal_given"].astype(bool) & (err < TASK_TOLERANCE)
+            & (log["distance"] >= scenario.drive_distance - 1e-9))
+    first = np.flatnonzero(done)
+    completion = float(t[first[0]]) if first.size else None
+    return {
+        "min_normal_force_N": per_wheel(fz.min(axis=0)),
+        "time_below_threshold_s": per_wheel((fz < threshold_n).sum(axis=0) * dt),
+        "tipped": bool(tipped_contact or tipped_angle),
+        "max_roll_deg": float(np.degrees(np.abs(roll_pitch[:, 0]).max())),
+        "max_pitch_deg": float(np.degrees(np.abs(roll_pitch[:, 1]).max())),
+        "longest_below_3_contacts_s": float(_longest_run(n_contact[keep] < 3) * dt),
+        "task_error_final": float(err[-1]),
+        "task_completion_time_s": completion,
+        "task_completed": bool(completion is not None and err[-1] < TASK_TOLERANCE),
+        "drive_distance_m": float(log["distance"][-1]),
+        "drive_distance_target_m": scenario.drive_distance,
+        "min_wheel_speed_scale": float(log["speed_scale"].min()),
+        "mean_wheel_speed_scale": float(log["speed_scale"].mean()),
+        "task_tolerance_m": TASK_TOLERANCE,
+        "settle_seconds": SETTLE_SECONDS,
+    }

@@ -1,7 +1,0 @@
-"""``python -m wbc``."""
-
-import sys
-
-from wbc.cli import main
-
-sys.exit(main())

@@ -1,0 +1,7 @@
+"""``python -m wbc_hdmm``: the ``wbc`` command."""
+
+import sys
+
+from wbc_hdmm.cli import main
+
+sys.exit(main())

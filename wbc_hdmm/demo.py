@@ -1,0 +1,52 @@
+"""The demo (``wbc demo``, ``make run``): the paper's open-loop runs, then the controllers."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from estimators.evaluate import evaluate_log
+from scenarios import registry
+from scenarios.closed_loop_scenarios import DEFAULT_SCENARIO
+from scenarios.comparison import run_comparison
+
+__all__ = ["demo"]
+
+
+def demo(out: Path, progress: bool = True) -> int:
+    """The main job: the paper's open-loop runs with the estimators, then the controllers.
+
+    1. Open-loop flat and rough traversals in MuJoCo (logs and metrics under ``out/``).
+    2. Every estimator method on both logs (``estimation.json`` and the paper's figures).
+    3. The default closed-loop scenario with the three controllers and their comparison plot.
+
+    A summary of each step is printed.
+
+    Args:
+        out: Output folder.
+        progress: Show progress bars.
+
+    Returns:
+        The exit status, 0.
+    """
+    for name in ("flat", "rough"):
+        m = registry.run(name, out / name, progress=progress)
+        print(f"{name:>6s}: {m['sim_seconds']:.0f} s simulated in {m['wall_seconds']:.1f} s "
+              f"({m['real_time_factor']:.1f}x real time); min normal force "
+              + ", ".join(f"{w} {v:.0f} N" for w, v in m["min_normal_force_N"].items())
+              + f"; max closure gap {1e3 * m['max_closure_violation_m']:.3f} mm")
+        report = evaluate_log(out / name, out / name, plots=True)
+        errors = report["summary"]["error_pct_mean_over_wheels"]
+        print(f"{'':>8s}normal-force error (mean |error| / static wheel load):")
+        for method, err in errors.items():
+            print(f"{'':>10s}{method:34s} {err:7.3f} %")
+    result = run_comparison(DEFAULT_SCENARIO, out / "closed_loop")
+    print(f"closed loop '{DEFAULT_SCENARIO}' (results and plot in {out / 'closed_loop'}):")
+    print(f"    acceptance: {result['acceptance']}")
+    for controller, metrics in result["metrics"].items():
+        if isinstance(metrics, dict) and "min_normal_force_N" in metrics:
+            print(f"{'':>4s}{controller:18s} min normal force "
+                  + ", ".join(f"{w} {v:.0f} N" for w, v in metrics["min_normal_force_N"].items())
+                  + f"; below threshold {sum(metrics['time_below_threshold_s'].values()):.2f} s"
+                  f"; tipped {metrics.get('tipped')}; task time "
+                  f"{metrics.get('task_completion_time_s')}")
+    return 0
