@@ -16,7 +16,7 @@ def test_readme_python_examples_run():
 def test_readme_machine_figures_match_the_description():
     """The derived figures the README quotes are the machine's (docs checked against code)."""
     from models import build_reference_machine
-    from scenarios.closed_loop import threshold
+    from scenarios.closed_loop_scenarios import threshold
 
     text = README.read_text()
     m = build_reference_machine()
