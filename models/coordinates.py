@@ -171,16 +171,6 @@ class TreeCoordinates:
         qd_ind = np.asarray(qd_ind, float)
         return q, jac @ qd_ind, jac @ qdd_ind + jdot @ qd_ind
 
-    def independent_positions(self, q_tree) -> np.ndarray:
-        """Inverse map: independent positions read off tree positions (strokes = pistons)."""
-        q_tree = np.asarray(q_tree, float)
-        out = np.zeros(N_INDEPENDENT)
-        for i, j in self._direct:
-            out[i] = q_tree[j]
-        for i, b in self._chains:
-            out[i] = q_tree[self.index[b.piston]]
-        return out
-
     def home(self) -> np.ndarray:
         """A default independent configuration: level bogies, crane folded over the chassis."""
         m = self.machine

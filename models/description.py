@@ -73,12 +73,6 @@ class Inertia:
         return Inertia(m, c, shift(self) + shift(other))
 
 
-def skew(v) -> np.ndarray:
-    """Skew-symmetric matrix [v] with [v] w = v x w."""
-    x, y, z = v
-    return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
-
-
 def box_inertia(mass: float, size, com=(0, 0, 0)) -> Inertia:
     """Solid box of full edge lengths ``size`` [m]."""
     a, b, c = size

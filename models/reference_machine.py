@@ -1,4 +1,4 @@
-"""The reference machine: a 4.3 t skid-steer carrier with a 7-DoF hydraulic crane.
+"""The reference machine: a skid-steer carrier with a 7-DoF hydraulic crane (5.1 t).
 
 The carrier has two actively articulated bogies; the crane is a parallel-serial HIAB XS031
 boom with a slew chain and a 3-DoF wrist added.
@@ -63,14 +63,9 @@ def _rx(a: float) -> np.ndarray:
     return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
 
 
-def _ry(a: float) -> np.ndarray:
-    c, s = math.cos(a), math.sin(a)
-    return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
-
-
-def _vdc(mass, com, inertia, rot_vdc=np.eye(3), origin=(0.0, 0.0, 0.0)) -> Inertia:
+def _vdc(mass, com, inertia, rot_vdc=None, origin=(0.0, 0.0, 0.0)) -> Inertia:
     """Inertia given in a VDC frame (rotated by rot_vdc in VDC axes, at ``origin`` in ours)."""
-    r = _P @ rot_vdc
+    r = _P if rot_vdc is None else _P @ rot_vdc
     return Inertia(mass, com, inertia).transformed(r, origin)
 
 

@@ -7,7 +7,7 @@ import numpy as np
 
 from models.description import Machine
 from models.errors import TerrainError
-from models.mujoco_model import MujocoIndex
+from models.mujoco import MujocoIndex
 from models.state import WheelContacts
 from models.terrain import Terrain
 from scenarios.errors import SimulatorError

@@ -7,7 +7,7 @@ Commands (`ActuatorCommand`, `Simulator.set_command`): stroke rates of the six h
 cylinders [m/s] (bogie_L, bogie_R, slew, lift, tilt, telescope), joint rates of the wrist
 [rad/s] (wrist_pitch, wrist_roll, rotator), and one wheel speed per side [rad/s] (left
 drives FL and RL, right drives FR and RR). Each servo is a valve-controlled cylinder (see
-`models.mujoco_model`): its setpoint moves at the commanded rate, clipped to the valve's
+`models.mujoco`): its setpoint moves at the commanded rate, clipped to the valve's
 rate range and the stroke range, and the cylinder follows with ``F = kp (s - x) - kv x_dot``
 up to its force limit; the damping term is applied here, explicitly, before every step.
 
@@ -31,7 +31,7 @@ import numpy as np
 
 from models.coordinates import N_INDEPENDENT
 from models.description import Machine
-from models.mujoco_model import (
+from models.mujoco import (
     DEFAULT_TIMESTEP,
     MujocoIndex,
     build_model,
@@ -257,7 +257,7 @@ class Simulator:
                     self._setpoint = path[k]
                     self._take_snapshot()
                 # Servo force kp (u - x) with u = setpoint - (kv / kp) x_dot: the damping is
-                # explicit, outside MuJoCo's implicit integration (see `models.mujoco_model`).
+                # explicit, outside MuJoCo's implicit integration (see `models.mujoco`).
                 np.subtract(path[k], lead * d.qvel[servo_dof], out=servo_ctrl)
                 mujoco.mj_step(m, d)
             x = d.qpos[ix.servo_qpos]

@@ -5,7 +5,7 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from models.mujoco_model import MujocoIndex, build_model
+from models.mujoco import MujocoIndex, build_model
 from models.pinocchio_model import build_pinocchio
 from models.terrain import flat
 from tests.conftest import random_state

@@ -6,7 +6,7 @@ import mujoco
 import numpy as np
 import pytest
 
-import models.mujoco_model as mm
+import models.mujoco as mm
 from models import build_reference_machine
 from models import terrain as T
 from models.errors import ModelError, PlacementError, StateError
@@ -183,7 +183,7 @@ def test_options_follow_the_timestep():
     model = mm.build_model(MACHINE, T.flat(), timestep=0.001)
     assert model.opt.timestep == 0.001
     assert model.opt.integrator == mujoco.mjtIntegrator.mjINT_IMPLICITFAST
-    assert model.opt.tolerance == mm.SOLVER_TOLERANCE
+    assert model.opt.tolerance == mm.constants.SOLVER_TOLERANCE
     np.testing.assert_allclose(model.eq_solref, [[0.002, 1.0]] * len(MACHINE.loops))
     np.testing.assert_allclose(model.eq_solimp[:, :3], [[0.99, 0.999, 0.001]] * 5)
     assert model.opt.gravity[2] == -MACHINE.gravity
@@ -233,10 +233,10 @@ def test_servo_specs():
         kind = "slide" if MACHINE.body(s.joint).joint.kind == "prismatic" else "hinge"
         assert max(map(abs, s.force_range)) / s.kp == pytest.approx(
             mm.SERVO_POSITION_ERROR[kind])
-    reduced = mm._reduced_inertia(MACHINE)
+    reduced = mm.servos.reduced_inertia(MACHINE)
     kp, kv = np.array([s.kp for s in specs]), np.array([s.kv for s in specs])
-    assert mm._explicit_step_radius(reduced, kp, kv, mm.DEFAULT_TIMESTEP) <= 1 + 1e-7
-    assert mm._explicit_step_radius(reduced, kp, 20 * kv, mm.DEFAULT_TIMESTEP) > 1.01
+    assert mm.servos.explicit_step_radius(reduced, kp, kv, mm.DEFAULT_TIMESTEP) <= 1 + 1e-7
+    assert mm.servos.explicit_step_radius(reduced, kp, 20 * kv, mm.DEFAULT_TIMESTEP) > 1.01
 
 
 def test_gravity_loads_match_virtual_work_of_the_description():

@@ -24,3 +24,10 @@ def test_readme_machine_figures_match_the_description():
     assert f"# {m.total_mass / 1000:.1f} t" in text
     assert f"static wheel load ({static / 1000:.1f} kN)" in text
     assert f"threshold {threshold() / 1000:.2f} kN = 10 % of the static wheel load" in text
+
+
+def test_reference_machine_docstring_mass_is_the_description_s():
+    import models.reference_machine as rm
+
+    m = rm.build_reference_machine()
+    assert f"({m.total_mass / 1000:.1f} t)" in rm.__doc__.splitlines()[0]

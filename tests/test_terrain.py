@@ -12,7 +12,7 @@ from models.errors import TerrainError
 
 
 def _hfield_model(terrain: T.Terrain) -> mujoco.MjModel:
-    """The terrain alone as a MuJoCo height field (independent of models.mujoco_model)."""
+    """The terrain alone as a MuJoCo height field (independent of models.mujoco)."""
     lo, hi = terrain.height_range
     data = ((terrain.heights - lo) / (hi - lo)).astype("<f4")
     n_y, n_x = terrain.shape

@@ -68,7 +68,7 @@ def _cmd_machine(args) -> int:
         Path(args.doc).write_text(machine_markdown(machine))
         print("wrote", args.doc)
     if args.write_mjcf:
-        from models.mujoco_model import write_mjcf
+        from models.mujoco import write_mjcf
 
         paths = write_mjcf(machine, Path(args.write_mjcf))
         print("wrote", *map(str, paths.values()))

@@ -1,0 +1,33 @@
+"""Settings of the generated MuJoCo model (the reasons are in `models.mujoco`)."""
+
+import math
+
+from models.errors import ModelError
+
+DEFAULT_TIMESTEP = 0.002  # [s]
+EQUALITY_SOLREF_STEPS = 2.0  # loop-closure time constant in timesteps (MuJoCo's minimum)
+EQUALITY_SOLIMP = (0.99, 0.999, 0.001, 0.5, 2.0)
+CONTACT_SOLREF = (0.01, 1.0)  # [s], [-]
+CONTACT_SOLIMP = (0.9, 0.95, 0.001, 0.5, 2.0)
+SERVO_POSITION_ERROR = {"slide": 2e-3, "hinge": 1e-2}  # [m], [rad] deflection at full force
+SERVO_DAMPING_RATIO = 0.5  # [-] target at the locked reflected inertia (see servo_specs)
+SERVO_EXPLICIT_DAMPING = 0.3  # [-] cap of h kv / m_free (one explicit damper: stable < 2)
+SERVO_STABILITY_MARGIN = 1.25  # explicit damping must stay stable at this times the timestep
+WHEEL_VELOCITY_GAIN = 5e3  # [N m s/rad]
+SOLVER_TOLERANCE = 1e-10  # Newton converges in the same 2-4 iterations; forces repeatable
+TERRAIN_BASE_DEPTH = 1.0  # [m] thickness of the height field below its lowest point
+MACHINE_FILE = "machine.xml"
+
+JOINT_TYPE = {"revolute": "hinge", "prismatic": "slide"}
+
+
+def check_timestep(timestep: float) -> float:
+    """``timestep`` [s] as a float in (0, half the contact time constant], else `ModelError`."""
+    try:
+        timestep = float(timestep)
+    except (TypeError, ValueError) as exc:
+        raise ModelError(f"timestep must be a number [s], got {timestep!r}") from exc
+    if not (math.isfinite(timestep) and 0 < timestep <= CONTACT_SOLREF[0] / 2):
+        raise ModelError(f"timestep {timestep:g} s outside (0, {CONTACT_SOLREF[0] / 2:g}] s "
+                         f"(the contact time constant must span two steps)")
+    return timestep
