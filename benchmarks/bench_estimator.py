@@ -17,6 +17,7 @@ prints the same figures.
 from __future__ import annotations
 
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -48,19 +49,19 @@ def timing(calls: int = CALLS, batch: int = BATCH) -> dict:
     import pinocchio as pin
 
     from estimators.estimator import NormalForceEstimator, StateBatch
-    from estimators.testing import random_state
     from models import WheelContacts, build_reference_machine
     from models.pinocchio_model import build_pinocchio
+    from testkit.estimator_states import random_state
 
     machine = build_reference_machine()
     rng = np.random.default_rng(0)
     est = NormalForceEstimator(machine)
     cyl = NormalForceEstimator(machine, fourth="cylinder-force")
     state = random_state(machine, rng, max_tilt=0.3)
-    state.contacts = WheelContacts(np.ones(4, bool), 300 * rng.normal(size=(4, 3)),
+    state = replace(state, contacts=WheelContacts(np.ones(4, bool), 300 * rng.normal(size=(4, 3)),
                                    est.estimate(state).contact_points,
-                                   np.tile([0, 0, 1.0], (4, 1)))
-    state.suspension_force = np.array([3e4, 3.2e4])
+                                   np.tile([0, 0, 1.0], (4, 1))))
+    state = replace(state, suspension_force=np.array([3e4, 3.2e4]))
     pm = build_pinocchio(machine)
     q, v, a = pm.configuration(state)
     out = {"backend": est.backend}

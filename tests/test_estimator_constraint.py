@@ -1,11 +1,13 @@
 """Constraint form f_z = G a + g0 (exact) and derivatives against finite differences."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
 from estimators import NormalForceEstimator
-from estimators.testing import random_state
 from models import MachineState, WheelContacts, build_reference_machine
+from testkit.estimator_states import random_state
 
 
 @pytest.fixture(scope="module")
@@ -20,9 +22,9 @@ def with_acc(s, a):
 
 def with_contacts(est, s, flags, rng):
     pts = est.estimate(s).contact_points + 0.02 * rng.normal(size=(4, 3))
-    s.contacts = WheelContacts(np.array(flags, bool), 1000 * rng.normal(size=(4, 3)), pts,
-                               np.tile([0, 0, 1.0], (4, 1)))
-    return s
+    contacts = WheelContacts(np.array(flags, bool), 1000 * rng.normal(size=(4, 3)), pts,
+                             np.tile([0, 0, 1.0], (4, 1)))
+    return replace(s, contacts=contacts)
 
 
 CASES = [("full", "d-beta", [1, 1, 1, 1]), ("full", "cylinder-force", [1, 1, 1, 1]),
@@ -36,7 +38,7 @@ def test_affine_in_accelerations(machine, method, fourth, flags):
     rng = np.random.default_rng(1)
     for _ in range(3):
         s = with_contacts(est, random_state(machine, rng, max_tilt=0.4), flags, rng)
-        s.suspension_force = 1e4 * rng.normal(size=2)
+        s = replace(s, suspension_force=1e4 * rng.normal(size=2))
         g, g0 = est.constraint(s)
         assert g.shape == (4, 19) and g0.shape == (4,)
         for _ in range(4):
@@ -85,7 +87,7 @@ def test_derivatives_match_finite_differences(machine, method, fourth, contacts)
     s = random_state(machine, rng, max_tilt=0.4, margin=0.01)
     if contacts:
         s = with_contacts(est, s, [1, 1, 1, 1], rng)
-        s.suspension_force = 1e4 * rng.normal(size=2)
+        s = replace(s, suspension_force=1e4 * rng.normal(size=2))
     d = est.constraint_derivatives(s)
     np.testing.assert_allclose(d.normal_forces, est.estimate(s).normal_forces, rtol=1e-12)
     np.testing.assert_allclose(d.d_acceleration, est.constraint(s)[0], rtol=1e-9, atol=1e-6)

@@ -24,6 +24,7 @@ simulator versions of 2026-11-21 13:16 and 13:26; the second in brackets):
 """
 
 import json
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -165,7 +166,7 @@ def mujoco_run(machine):
         qdd.append(_consistent_qdd(tc, machine, sim, state))
     logged = StateBatch.from_states(states)
     consistent = StateBatch.from_states(states)
-    consistent.qdd = np.array(qdd)
+    consistent = replace(consistent, qdd=np.array(qdd))
     return logged, consistent, np.array(fz)
 
 

@@ -1,13 +1,15 @@
 """Normal forces: equilibrium rows, exact recovery in consistent worlds, eqs. (25)-(29), III-B."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
 from estimators import NormalForceEstimator, SingularSystemError
 from estimators.full_dynamics import D_BETA_COEFFICIENTS, d_beta_row
-from estimators.testing import consistent_contact_state, random_state
 from models import MachineState, WheelContacts, build_reference_machine
 from models.pinocchio_model import build_pinocchio
+from testkit.estimator_states import consistent_contact_state, random_state
 
 
 @pytest.fixture(scope="module")
@@ -76,7 +78,7 @@ def test_equilibrium_rows_are_met_exactly(machine):
         est = NormalForceEstimator(machine, fourth=fourth, D=1.5, beta=-2000.0)
         for _ in range(20):
             s = random_state(machine, rng, max_tilt=0.5)
-            s.suspension_force = 1e4 * rng.normal(size=2)
+            s = replace(s, suspension_force=1e4 * rng.normal(size=2))
             e = est.estimate(s)
             scale = np.abs(e.system_rhs).max() + np.abs(e.system_matrix).max() * np.abs(
                 e.normal_forces).max()
@@ -126,8 +128,9 @@ def test_three_contacts_recover_forces_whatever_d(machine, pm, lost):
 @pytest.mark.parametrize("flags", [[1, 0, 0, 1], [0, 1, 0, 0], [0, 0, 0, 0]])
 def test_fewer_than_three_contacts_flag_tipping(machine, est, flags):
     s = random_state(machine, np.random.default_rng(4), max_tilt=0.5)
-    s.contacts = WheelContacts(np.array(flags, bool), np.zeros((4, 3)),
-                               est.estimate(s).contact_points, np.tile([0, 0, 1.0], (4, 1)))
+    contacts = WheelContacts(np.array(flags, bool), np.zeros((4, 3)),
+                             est.estimate(s).contact_points, np.tile([0, 0, 1.0], (4, 1)))
+    s = replace(s, contacts=contacts)
     e = est.estimate(s)
     assert e.tipping and e.mode == "tipping"
     assert np.isfinite(e.normal_forces).all()
@@ -145,7 +148,7 @@ def test_terrain_normal_component(machine, est):
     s = static_state(machine)
     n = np.tile([0.0, np.sin(0.2), np.cos(0.2)], (4, 1))
     f = np.array([[100.0, 200.0, 0.0]] * 4)
-    s.contacts = WheelContacts(np.ones(4, bool), f, est.estimate(s).contact_points, n)
+    s = replace(s, contacts=WheelContacts(np.ones(4, bool), f, est.estimate(s).contact_points, n))
     e = est.estimate(s)
     np.testing.assert_allclose(e.normal_forces_terrain,
                                n[:, 2] * e.normal_forces + n[:, 1] * 200.0)
@@ -155,8 +158,8 @@ def test_singular_contact_geometry_raises(machine, est):
     s = static_state(machine)
     pts = np.array([[1.0, 0.5, -0.45], [-1.0, 0.5, -0.45], [0.5, 0.5, -0.45],
                     [-0.5, 0.5, -0.45]])  # all on one line: the roll row is degenerate
-    s.contacts = WheelContacts(np.ones(4, bool), np.zeros((4, 3)), pts,
-                               np.tile([0, 0, 1.0], (4, 1)))
+    s = replace(s, contacts=WheelContacts(np.ones(4, bool), np.zeros((4, 3)), pts,
+                                          np.tile([0, 0, 1.0], (4, 1))))
     with pytest.raises(SingularSystemError) as info:
         est.estimate(s)
     assert info.value.condition > 1e12
@@ -167,11 +170,11 @@ def test_quasi_static_equals_full_without_base_and_suspension_motion(machine):
     qs = NormalForceEstimator(machine, method="quasi-static")
     rng = np.random.default_rng(5)
     s = random_state(machine, rng, max_tilt=0.3)
-    s.base_twist[:] = 0.0
-    s.base_acceleration[:] = 0.0
+    qd, qdd = s.qd.copy(), s.qdd.copy()
     for idx in (0, 1, 9, 10, 11, 12):  # suspension strokes and wheel angles
-        s.qd[idx] = 0.0
-        s.qdd[idx] = 0.0
+        qd[idx] = 0.0
+        qdd[idx] = 0.0
+    s = replace(s, base_twist=np.zeros(6), base_acceleration=np.zeros(6), qd=qd, qdd=qdd)
     np.testing.assert_allclose(qs.estimate(s).normal_forces, full.estimate(s).normal_forces,
                                rtol=1e-12)
     moving = random_state(machine, rng, max_tilt=0.3, speed=2.0)

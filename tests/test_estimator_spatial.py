@@ -7,8 +7,8 @@ from scipy.linalg import expm
 
 from estimators import spatial as sp
 from estimators._symbolic import CasadiOps
-from estimators.testing import random_rotation
 from models.description import Inertia
+from testkit.estimator_states import random_rotation
 
 RNG = np.random.default_rng(11)
 

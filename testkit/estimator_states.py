@@ -10,6 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from models.description import Machine
+from models.rotations import axis_rotation
 from models.state import MachineState, WheelContacts
 
 __all__ = ["consistent_contact_state", "random_rotation", "random_state"]
@@ -18,10 +19,7 @@ __all__ = ["consistent_contact_state", "random_rotation", "random_state"]
 def random_rotation(rng: np.random.Generator, max_angle: float = np.pi) -> np.ndarray:
     """A random rotation of at most ``max_angle`` [rad] about a random axis, (3, 3)."""
     axis = rng.normal(size=3)
-    axis /= np.linalg.norm(axis)
-    angle = rng.uniform(-max_angle, max_angle)
-    k = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
-    return np.eye(3) + np.sin(angle) * k + (1 - np.cos(angle)) * k @ k
+    return axis_rotation(axis, rng.uniform(-max_angle, max_angle))
 
 
 def random_state(machine: Machine, rng: np.random.Generator, *, max_tilt: float = np.pi,
