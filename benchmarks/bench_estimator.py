@@ -6,7 +6,7 @@ prints the same figures.
 * One `NormalForceEstimator.estimate` call (compiled backend, d-beta and cylinder-force), and
   one ``pin.rnea`` call on the project's Pinocchio model of the same machine with (q, v, a)
   prepared beforehand, timed in the same run: median and p99 [us]. Goal: estimate <= 25 us
-  median. Also `PinocchioMachine.base_wrench`, `constraint`, `constraint_derivatives`, and
+  median. Also `PinocchioMachine.base_wrench`, `constraint`, `linearize`, and
   `estimate` on the CasADi VM and the numpy reference backends.
 * `NormalForceEstimator.estimate_batch` throughput over 200k states, 1 and 2 threads.
   Goal: >= 200k states/s.
@@ -84,7 +84,7 @@ def timing(calls: int = CALLS, batch: int = BATCH) -> dict:
     for name, fn, n in (
             ("pinocchio_base_wrench", lambda: pm.base_wrench(state), calls // 4),
             ("constraint", lambda: est.constraint(state), calls // 4),
-            ("constraint_derivatives", lambda: est.constraint_derivatives(state), calls // 20),
+            ("linearize", lambda: est.linearize(state), calls // 20),
             ("estimate_casadi_vm", lambda: vm.estimate(state), 500),
             ("estimate_reference_numpy", lambda: ref.estimate(state), 100)):
         s = _stats(_times_us(fn, n))

@@ -24,3 +24,9 @@ class SingularSystemError(EstimatorError, ArithmeticError):
     def __init__(self, message: str, condition: float = float("inf")):
         super().__init__(message)
         self.condition = condition
+
+
+def range_message(name: str, index: int, value: float, rng: tuple[float, float]) -> str:
+    """The message of a coordinate outside its chain's stroke range."""
+    return (f"q[{index}] (stroke of cylinder chain '{name}') = {value:.6g} m outside "
+            f"[{rng[0]:.6g}, {rng[1]:.6g}] m")

@@ -218,7 +218,10 @@ def normal_force_system(ops, tree: TreeModel, dyn: TreeDynamics, rotation_world_
     cn = cmat @ nvec
     r_cyl = cmat.T @ cn
     rhs_cyl = ops.dot(cn, dvec)
-    scale = ops.norm_2(r_cyl) + 1e-300
+    # |r_cyl|, with a floor inside the root: in 3-contact and tipping modes r_cyl is 0 and
+    # the derivative of a bare sqrt there is inf (inf * 0 = NaN in every d/dq column of the
+    # bogie strokes, although s_cylinder = 0 drops the row). The floor changes no value.
+    scale = ops.sqrt(ops.dot(r_cyl, r_cyl) + 1e-300)
     r_db = d_beta_row(d)
     row4 = [s_dbeta * r_db[k] + s_cylinder * ops.entry(r_cyl, k) / scale + lost[k]
             for k in range(4)]

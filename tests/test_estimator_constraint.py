@@ -5,7 +5,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from estimators import NormalForceEstimator
+from estimators import EstimatorInputError, NormalForceEstimator
 from models import MachineState, WheelContacts, build_reference_machine
 from testkit.estimator_states import random_state
 
@@ -88,9 +88,9 @@ def test_derivatives_match_finite_differences(machine, method, fourth, contacts)
     if contacts:
         s = with_contacts(est, s, [1, 1, 1, 1], rng)
         s = replace(s, suspension_force=1e4 * rng.normal(size=2))
-    d = est.constraint_derivatives(s)
+    d = est.linearize(s)
     np.testing.assert_allclose(d.normal_forces, est.estimate(s).normal_forces, rtol=1e-12)
-    np.testing.assert_allclose(d.d_acceleration, est.constraint(s)[0], rtol=1e-9, atol=1e-6)
+    np.testing.assert_allclose(d.G, est.constraint(s)[0], rtol=1e-9, atol=1e-6)
     for name, jac in (("q", d.d_q), ("qd", d.d_qd)):
         fd = fd_jacobian(est, s, name)
         scale = np.abs(fd).max()
@@ -103,6 +103,47 @@ def test_tipping_derivatives_are_finite(machine):
     est = NormalForceEstimator(machine)
     rng = np.random.default_rng(4)
     s = with_contacts(est, random_state(machine, rng, max_tilt=0.3), [1, 0, 0, 1], rng)
-    d = est.constraint_derivatives(s)
-    assert all(np.isfinite(x).all() for x in (d.normal_forces, d.d_acceleration, d.d_q,
-                                               d.d_qd))
+    d = est.linearize(s)
+    assert all(np.isfinite(x).all() for x in (d.normal_forces, d.G, d.d_q, d.d_qd))
+    assert d.mode == "tipping"
+    np.testing.assert_allclose(d.d_q, fd_jacobian(est, s, "q"), rtol=1e-6, atol=1e-3)
+
+
+@pytest.mark.parametrize("fourth", ["d-beta", "cylinder-force"])
+@pytest.mark.parametrize("lost", [0, 1, 2, 3])
+def test_three_contact_linearization_is_exact(machine, fourth, lost):
+    """Sec. III-B: the compiled derivatives are exact (no NaN) with a wheel off the ground."""
+    est = NormalForceEstimator(machine, fourth=fourth, D=0.8)
+    rng = np.random.default_rng(10 + lost)
+    flags = [1, 1, 1, 1]
+    flags[lost] = 0
+    s = with_contacts(est, random_state(machine, rng, max_tilt=0.4, margin=0.01), flags, rng)
+    s = replace(s, suspension_force=1e4 * rng.normal(size=2))
+    d = est.linearize(s)
+    assert d.mode == "3-contact" and d.in_contact.tolist() == [bool(f) for f in flags]
+    np.testing.assert_allclose(d.normal_forces, est.estimate(s).normal_forces, rtol=1e-12)
+    np.testing.assert_allclose(d.G, est.constraint(s)[0], rtol=1e-9, atol=1e-6)
+    np.testing.assert_allclose(d.forces_at(s.acceleration), d.normal_forces, atol=1e-6)
+    for name, jac in (("q", d.d_q), ("qd", d.d_qd)):
+        assert np.isfinite(jac).all()
+        fd = fd_jacobian(est, s, name)
+        np.testing.assert_allclose(jac, fd, atol=2e-6 * np.abs(fd).max())
+
+
+def test_stroke_policy_clip_reports_and_raise_raises(machine):
+    rng = np.random.default_rng(5)
+    s = random_state(machine, rng, max_tilt=0.3, margin=0.01)
+    lo, hi = machine.coordinates.lower[3], machine.coordinates.upper[3]
+    q = s.q.copy()
+    q[3] = hi + 0.004  # a few mm past the end, as MuJoCo's soft limits allow
+    over = replace(s, q=q)
+    with pytest.raises(EstimatorInputError, match="'lift'"):
+        NormalForceEstimator(machine).linearize(over)
+    clip = NormalForceEstimator(machine, strokes="clip")
+    d = clip.linearize(over)
+    assert d.clipped == ("lift",) and clip.n_clipped >= 1
+    q[3] = hi
+    np.testing.assert_allclose(d.normal_forces,
+                               clip.estimate(replace(s, q=q)).normal_forces, rtol=1e-12)
+    assert clip.linearize(s).clipped == ()
+    assert lo < hi

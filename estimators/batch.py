@@ -1,0 +1,190 @@
+"""The estimator over a log of states (`NormalForceEstimator.estimate_batch`).
+
+Packing the kernel inputs of many states, running the compiled kernel over chunks (in
+threads), and the least-squares rows.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+
+import numpy as np
+
+from estimators import full_dynamics as fd
+from estimators._symbolic import LAYOUT
+from estimators.errors import EstimatorInputError, SingularSystemError, range_message
+from estimators.results import BatchEstimate
+from estimators.tipping import least_squares
+from models.errors import StateError
+from models.state_batch import StateBatch
+
+__all__ = ["as_batch", "estimate_batch", "pack_rows", "validate_batch"]
+
+SINGULAR_CONDITION = 1e12  # 1-norm condition number above which a system counts as singular
+
+
+def estimate_batch(est, states, *, strict: bool = True, chunk: int = 4096,
+                   threads: int = 2) -> BatchEstimate:
+    """Normal forces of a log of states, vectorised.
+
+    Args:
+        est: The `NormalForceEstimator`.
+        states: A `StateBatch`, a mapping of its field names to arrays, or a sequence of
+            `MachineState`.
+        strict: Raise `SingularSystemError` for a singular row; otherwise solve it in
+            least squares and flag it in `BatchEstimate.singular`.
+        chunk: States per compiled call.
+        threads: Threads over chunks (the compiled code releases the GIL).
+
+    Returns:
+        The `BatchEstimate`.
+
+    Raises:
+        EstimatorInputError: A field has a wrong shape, NaN/inf, or a stroke is out of
+            range (the message names the field, the rows and the range).
+        SingularSystemError: With ``strict``, a row's system is singular.
+    """
+    sb = as_batch(states)
+    validate_batch(est, sb)
+    lay = LAYOUT
+    n = len(sb)
+    x = np.zeros((n, 4))
+    xi = np.zeros((n, 6))
+    a = np.zeros((n, 3, 4))
+    b = np.zeros((n, 3))
+    cond = np.zeros(n)
+    residual = np.zeros((n, 3))
+    points = np.zeros((n, 4, 3))
+    kernel = est._kernels.kernel("nf_estimate") if est._kernels is not None else None
+
+    def run(lo: int) -> None:
+        sl = slice(lo, min(lo + chunk, n))
+        inp, sel = pack_rows(est, sb, sl)
+        if kernel is not None:
+            out = np.empty((inp.shape[0], lay.out_size))
+            kernel.batch(inp, out)
+        else:
+            out = np.array([est._reference_row(row, row_selectors(sel, i))
+                            for i, row in enumerate(inp)]).reshape(-1, lay.out_size)
+        x[sl] = out[:, lay.out_x]
+        xi[sl] = out[:, lay.out_xi]
+        a[sl] = out[:, lay.out_a].reshape(-1, 3, 4)
+        b[sl] = out[:, lay.out_b]
+        cond[sl] = out[:, lay.out_cond]
+        residual[sl] = out[:, lay.out_residual]
+        points[sl] = out[:, lay.out_points].reshape(-1, 4, 3)
+
+    starts = range(0, n, max(1, int(chunk)))
+    if threads > 1 and kernel is not None and len(starts) > 1:
+        list(est._kernels.pool(threads).map(run, starts))
+    else:
+        for lo in starts:
+            run(lo)
+    ic = sb.in_contact if sb.in_contact is not None else np.ones((n, 4), bool)
+    nc = ic.sum(axis=1)
+    tip = nc < 3
+    cyl = est.fourth == "cylinder-force" and sb.suspension_force is not None
+    mode = np.where(nc == 4, "cylinder-force" if cyl else "d-beta",
+                    np.where(nc == 3, "3-contact", "tipping")).astype(object)
+    singular = ~tip & ~(cond < SINGULAR_CONDITION)
+    if strict and singular.any():
+        i = int(np.flatnonzero(singular)[0])
+        raise SingularSystemError(
+            f"row {i}: {mode[i]} system is singular (1-norm condition "
+            f"{cond[i]:.3g}); {int(singular.sum())} singular rows in all", cond[i])
+    for i in np.flatnonzero(tip | singular):
+        x[i], cond[i] = least_squares(a[i], b[i], ic[i].astype(float))
+        residual[i] = a[i] @ x[i] - b[i]
+    normals = sb.normal_in_fb if sb.normal_in_fb is not None else np.repeat(
+        sb.base_rotation[:, 2][:, None, :], 4, axis=1)
+    friction = sb.force_in_fb if sb.force_in_fb is not None else np.zeros((n, 4, 3))
+    return BatchEstimate(x, ic.copy(), xi, cond, mode, tip, residual, points, a, b,
+                         singular, est.backend, normals, friction)
+
+
+def validate_batch(est, sb: StateBatch) -> None:
+    """Raise `EstimatorInputError` for a stroke out of range or a non-rotation in ``sb``."""
+    n = len(sb)
+    for name, i, lo, hi in est._ranges:
+        x = sb.q[:, i]
+        bad = ~((x >= lo - 1e-12) & (x <= hi + 1e-12))
+        if bad.any():
+            k = int(np.flatnonzero(bad)[0])
+            raise EstimatorInputError(
+                f"row {k} ({int(bad.sum())} rows in all): "
+                + range_message(name, i, float(x[k]), (lo, hi)))
+    r = sb.base_rotation
+    if n:
+        err = np.abs(r @ r.transpose(0, 2, 1) - np.eye(3)).max(axis=(1, 2))
+        det = np.einsum("ni,ni->n", np.cross(r[:, 0], r[:, 1]), r[:, 2])
+        bad = (err > 1e-6) | (det < 0)
+        if bad.any():
+            k = int(np.flatnonzero(bad)[0])
+            raise EstimatorInputError(f"'base_rotation' row {k} is not a rotation matrix "
+                                      f"({int(bad.sum())} rows in all)")
+
+
+def pack_rows(est, sb: StateBatch, sl: slice):
+    """Kernel input rows and selectors of the states ``sl`` of a validated batch."""
+    lay = LAYOUT
+    r = sb.base_rotation[sl]
+    n = r.shape[0]
+    inp = np.zeros((n, lay.size))
+    inp[:, lay.rotation] = r.reshape(n, 9)
+    twist, acc, qd, qdd = (sb.base_twist[sl], sb.base_acceleration[sl], sb.qd[sl],
+                           sb.qdd[sl])
+    if est._qs is not None:
+        twist, acc, qd, qdd = est._qs.apply(twist, acc, qd, qdd)
+    inp[:, lay.twist] = twist
+    inp[:, lay.acceleration] = acc
+    inp[:, lay.q] = sb.q[sl]
+    inp[:, lay.qd] = qd
+    inp[:, lay.qdd] = qdd
+    if sb.point_in_fb is not None:
+        inp[:, lay.points] = sb.point_in_fb[sl].reshape(n, 12)
+        inp[:, lay.use_measured] = 1.0
+    if sb.force_in_fb is not None:
+        inp[:, lay.force] = sb.force_in_fb[sl].reshape(n, 12)
+    ic = sb.in_contact[sl] if sb.in_contact is not None else np.ones((n, 4), bool)
+    mask = ic.astype(float)
+    nc = ic.sum(axis=1)
+    hw = np.where(nc[:, None] > 0, mask / np.maximum(nc, 1)[:, None], 0.25)
+    cyl = est.fourth == "cylinder-force" and sb.suspension_force is not None
+    four = nc == 4
+    lost = (~ic & (nc == 3)[:, None]).astype(float)
+    inp[:, lay.mask] = mask
+    inp[:, lay.height_weights] = hw
+    inp[:, lay.s_dbeta] = four & (not cyl)
+    inp[:, lay.s_cylinder] = four & cyl
+    inp[:, lay.lost] = lost
+    inp[:, lay.d] = est.D
+    inp[:, lay.beta] = est.beta
+    if sb.suspension_force is not None:
+        inp[:, lay.suspension_force] = sb.suspension_force[sl]
+    mode = np.where(four, "cylinder-force" if cyl else "d-beta",
+                    np.where(nc == 3, "3-contact", "tipping"))
+    sel = dict(mask=mask, hw=hw, lost=lost, mode=mode, tipping=nc < 3,
+               s_dbeta=inp[:, lay.s_dbeta], s_cylinder=inp[:, lay.s_cylinder])
+    return inp, sel
+
+
+def as_batch(states) -> StateBatch:
+    """``states`` as a validated `StateBatch`; a bad field is an `EstimatorInputError`."""
+    if isinstance(states, StateBatch):
+        return states
+    try:
+        if isinstance(states, Mapping):
+            return StateBatch(**states)
+        if isinstance(states, Sequence) or hasattr(states, "__iter__"):
+            return StateBatch.from_states(list(states))
+    except TypeError as exc:
+        raise EstimatorInputError(f"bad state log fields: {exc}") from exc
+    except StateError as exc:
+        raise EstimatorInputError(str(exc)) from exc
+    raise EstimatorInputError(f"cannot read states from a {type(states).__name__}")
+
+
+def row_selectors(sel: dict, i: int) -> fd.Selectors:
+    return fd.Selectors(str(sel["mode"][i]), sel["mask"][i], sel["hw"][i],
+                        float(sel["s_dbeta"][i]), float(sel["s_cylinder"][i]), sel["lost"][i],
+                        bool(sel["tipping"][i]))
