@@ -380,14 +380,17 @@ class Kernels:
 
     @classmethod
     def for_tree(cls, tree: TreeModel, compile: bool = True) -> Kernels:
-        """Kernels shared by every estimator of the same machine object."""
-        key = (id(tree.machine), compile)
+        """Kernels shared by every estimator of a machine with the same description.
+
+        Keyed by the description's content (`Machine.fingerprint`): two equal machines share
+        the kernels, a changed number gets its own.
+        """
+        key = (tree.machine.fingerprint, compile)
         with cls._lock:
-            entry = cls._registry.get(key)
-            if entry is None or entry[0] is not tree.machine:
-                entry = (tree.machine, cls(tree, compile))
-                cls._registry[key] = entry
-        return entry[1]
+            kernels = cls._registry.get(key)
+            if kernels is None:
+                kernels = cls._registry[key] = cls(tree, compile)
+        return kernels
 
     @staticmethod
     def _compile(fun: ca.Function, opt: str) -> Path:

@@ -56,15 +56,17 @@ def estimate_batch(est, states, *, strict: bool = True, chunk: int = 4096,
     residual = np.zeros((n, 3))
     points = np.zeros((n, 4, 3))
     kernel = est._kernels.kernel("nf_estimate") if est._kernels is not None else None
+    ic = sb.in_contact if sb.in_contact is not None else np.ones((n, 4), bool)
+    systems = fd.select_systems(ic, est.fourth, sb.suspension_force is not None)
 
     def run(lo: int) -> None:
         sl = slice(lo, min(lo + chunk, n))
-        inp, sel = pack_rows(est, sb, sl)
+        inp, sel = pack_rows(est, sb, sl, systems)
         if kernel is not None:
             out = np.empty((inp.shape[0], lay.out_size))
             kernel.batch(inp, out)
         else:
-            out = np.array([est._reference_row(row, row_selectors(sel, i))
+            out = np.array([est._reference_row(row, sel.row(i))
                             for i, row in enumerate(inp)]).reshape(-1, lay.out_size)
         x[sl] = out[:, lay.out_x]
         xi[sl] = out[:, lay.out_xi]
@@ -80,12 +82,8 @@ def estimate_batch(est, states, *, strict: bool = True, chunk: int = 4096,
     else:
         for lo in starts:
             run(lo)
-    ic = sb.in_contact if sb.in_contact is not None else np.ones((n, 4), bool)
-    nc = ic.sum(axis=1)
-    tip = nc < 3
-    cyl = est.fourth == "cylinder-force" and sb.suspension_force is not None
-    mode = np.where(nc == 4, "cylinder-force" if cyl else "d-beta",
-                    np.where(nc == 3, "3-contact", "tipping")).astype(object)
+    tip = systems.tipping
+    mode = systems.mode.astype(object)
     singular = ~tip & ~(cond < SINGULAR_CONDITION)
     if strict and singular.any():
         i = int(np.flatnonzero(singular)[0])
@@ -124,8 +122,11 @@ def validate_batch(est, sb: StateBatch) -> None:
                                       f"({int(bad.sum())} rows in all)")
 
 
-def pack_rows(est, sb: StateBatch, sl: slice):
-    """Kernel input rows and selectors of the states ``sl`` of a validated batch."""
+def pack_rows(est, sb: StateBatch, sl: slice, systems: fd.Selectors):
+    """Kernel input rows and selectors of the states ``sl`` of a validated batch.
+
+    ``systems`` are the whole batch's `full_dynamics.select_systems`.
+    """
     lay = LAYOUT
     r = sb.base_rotation[sl]
     n = r.shape[0]
@@ -145,26 +146,16 @@ def pack_rows(est, sb: StateBatch, sl: slice):
         inp[:, lay.use_measured] = 1.0
     if sb.force_in_fb is not None:
         inp[:, lay.force] = sb.force_in_fb[sl].reshape(n, 12)
-    ic = sb.in_contact[sl] if sb.in_contact is not None else np.ones((n, 4), bool)
-    mask = ic.astype(float)
-    nc = ic.sum(axis=1)
-    hw = np.where(nc[:, None] > 0, mask / np.maximum(nc, 1)[:, None], 0.25)
-    cyl = est.fourth == "cylinder-force" and sb.suspension_force is not None
-    four = nc == 4
-    lost = (~ic & (nc == 3)[:, None]).astype(float)
-    inp[:, lay.mask] = mask
-    inp[:, lay.height_weights] = hw
-    inp[:, lay.s_dbeta] = four & (not cyl)
-    inp[:, lay.s_cylinder] = four & cyl
-    inp[:, lay.lost] = lost
+    sel = systems.rows(sl)
+    inp[:, lay.mask] = sel.mask
+    inp[:, lay.height_weights] = sel.height_weights
+    inp[:, lay.s_dbeta] = sel.s_dbeta
+    inp[:, lay.s_cylinder] = sel.s_cylinder
+    inp[:, lay.lost] = sel.lost
     inp[:, lay.d] = est.D
     inp[:, lay.beta] = est.beta
     if sb.suspension_force is not None:
         inp[:, lay.suspension_force] = sb.suspension_force[sl]
-    mode = np.where(four, "cylinder-force" if cyl else "d-beta",
-                    np.where(nc == 3, "3-contact", "tipping"))
-    sel = dict(mask=mask, hw=hw, lost=lost, mode=mode, tipping=nc < 3,
-               s_dbeta=inp[:, lay.s_dbeta], s_cylinder=inp[:, lay.s_cylinder])
     return inp, sel
 
 
@@ -182,9 +173,3 @@ def as_batch(states) -> StateBatch:
     except StateError as exc:
         raise EstimatorInputError(str(exc)) from exc
     raise EstimatorInputError(f"cannot read states from a {type(states).__name__}")
-
-
-def row_selectors(sel: dict, i: int) -> fd.Selectors:
-    return fd.Selectors(str(sel["mode"][i]), sel["mask"][i], sel["hw"][i],
-                        float(sel["s_dbeta"][i]), float(sel["s_cylinder"][i]), sel["lost"][i],
-                        bool(sel["tipping"][i]))

@@ -412,11 +412,11 @@ _TREES: dict = {}
 
 
 def _tree_for(machine: Machine) -> TreeModel:
-    hit = _TREES.get(id(machine))
-    if hit is None or hit[0] is not machine:
-        hit = (machine, TreeModel(machine))
-        _TREES[id(machine)] = hit
-    return hit[1]
+    """The tree model of ``machine``, shared by estimators of equal descriptions."""
+    tree = _TREES.get(machine.fingerprint)
+    if tree is None:
+        tree = _TREES[machine.fingerprint] = TreeModel(machine)
+    return tree
 
 
 

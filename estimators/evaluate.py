@@ -52,16 +52,18 @@ import numpy as np
 
 from estimators import calibration
 from estimators.errors import EstimatorInputError
-from estimators.estimator import BatchEstimate, NormalForceEstimator, StateBatch
+from estimators.estimator import NormalForceEstimator
 from estimators.full_dynamics import D_BETA_COEFFICIENTS
+from estimators.log_batch import log_to_batch
+from estimators.results import BatchEstimate
 from models.description import WHEEL_ORDER, Machine
+from models.log import SETTLE_SECONDS
+from models.state_batch import StateBatch
 
 __all__ = ["GOALS", "PAPER", "SETTLE_SECONDS", "SLIDING_WINDOW_SECONDS", "error_percent",
            "evaluate_log", "log_to_batch", "null_split"]
 
-SETTLE_SECONDS = 1.0  # [s] samples before log start + this are not scored
 SLIDING_WINDOW_SECONDS = 1.0  # [s] window of the sliding (D, beta) fit (paper Fig. 9)
-STROKE_CLIP_TOLERANCE = 0.005  # [m] stroke excursions beyond the chain range clipped silently
 
 # Project goals [%] by scenario name, and the paper's figures (Sec. IV) for reference.
 GOALS = {
@@ -73,78 +75,10 @@ PAPER = {
     "rough": {"full/d-beta": 5.0, "quasi-static/d-beta": 9.46},
 }
 
-_STATE_FIELDS = ("base_rotation", "base_twist", "base_acceleration", "q", "qd", "qdd")
-_CONTACT_FIELDS = ("in_contact", "force_in_fb", "point_in_fb", "normal_in_fb")
 
 
 def _per_wheel(values) -> dict:
     return {w: float(v) for w, v in zip(WHEEL_ORDER, values)}
-
-
-def log_to_batch(log: dict, machine: Machine, clip_strokes: bool = True
-                 ) -> tuple[StateBatch, dict]:
-    """The `StateBatch` of a scenario log, and notes on what had to be adapted.
-
-    Strokes slightly outside their chain's range (MuJoCo's soft joint limits let a cylinder
-    overrun by a fraction of a millimetre) are clipped into it, since the estimator refuses
-    them; the notes say how many and by how much. Suspension forces are used only if every
-    sample has them.
-
-    Args:
-        log: Arrays of a log (`models.log.load_log`).
-        machine: The machine the log was simulated with.
-        clip_strokes: Clip out-of-range strokes (else leave them and let the estimator raise).
-
-    Returns:
-        ``(batch, notes)``; ``notes`` has ``clipped_strokes`` (samples, largest excursion [m]
-        and chains) and ``suspension_force`` (``logged`` or why not used).
-
-    Raises:
-        EstimatorInputError: A field is missing, or a stroke overruns its range by more
-            than `STROKE_CLIP_TOLERANCE`.
-    """
-    missing = [k for k in _STATE_FIELDS + ("time",) if k not in log]
-    if missing:
-        raise EstimatorInputError(f"log lacks {missing}; a scenario log has "
-                                  f"{list(_STATE_FIELDS + _CONTACT_FIELDS)} and 'time'")
-    q = np.array(log["q"], float)
-    notes: dict = {"clipped_strokes": {"samples": 0, "max_excursion_m": 0.0, "chains": []}}
-    if clip_strokes:
-        bad_rows = np.zeros(len(q), bool)
-        worst = 0.0
-        chains = []
-        names = machine.coordinates.independent_names
-        for name, binding in machine.chains.items():
-            if name not in names:
-                continue
-            i = names.index(name)
-            lo, hi = binding.chain.stroke_range
-            over = np.maximum(lo - q[:, i], q[:, i] - hi)
-            out = over > 0
-            if out.any():
-                worst = max(worst, float(over.max()))
-                chains.append(name)
-                bad_rows |= out
-                q[:, i] = np.clip(q[:, i], lo, hi)
-        if worst > STROKE_CLIP_TOLERANCE:
-            raise EstimatorInputError(
-                f"strokes of {chains} leave their range by up to {worst * 1e3:.2f} mm "
-                f"(> {STROKE_CLIP_TOLERANCE * 1e3:.1f} mm tolerated): not a valid log")
-        notes["clipped_strokes"] = {"samples": int(bad_rows.sum()), "max_excursion_m": worst,
-                                    "chains": chains}
-    kw = {k: log[k] for k in _STATE_FIELDS if k != "q"}
-    kw["q"] = q
-    for k in _CONTACT_FIELDS:
-        if k in log:
-            kw[k] = log[k]
-    susp = log.get("suspension_force")
-    if susp is not None and np.isfinite(susp).all():
-        kw["suspension_force"] = susp
-        notes["suspension_force"] = "logged"
-    else:
-        notes["suspension_force"] = "not logged (cylinder-force closure not evaluated)"
-    kw["time"] = log["time"]
-    return StateBatch(**kw), notes
 
 
 def error_percent(estimate: np.ndarray, truth: np.ndarray, static_load: float) -> np.ndarray:

@@ -69,7 +69,10 @@ def d_beta_row(d):
 
 @dataclass(frozen=True)
 class Selectors:
-    """Numeric choices that fix the linear system for one state (Sec. III-B).
+    """Numeric choices that fix the linear system (Sec. III-B), for one state or for N.
+
+    For one state (`select_system`) the fields are scalars and (4,) arrays; for N states
+    (`select_systems`) they carry a leading axis N.
 
     Attributes:
         mode: ``d-beta``, ``cylinder-force``, ``3-contact`` or ``tipping``.
@@ -82,37 +85,58 @@ class Selectors:
         tipping: Fewer than three wheels in contact.
     """
 
-    mode: str
+    mode: str | np.ndarray
     mask: np.ndarray
     height_weights: np.ndarray
-    s_dbeta: float
-    s_cylinder: float
+    s_dbeta: float | np.ndarray
+    s_cylinder: float | np.ndarray
     lost: np.ndarray
-    tipping: bool
+    tipping: bool | np.ndarray
+
+    def rows(self, sl: slice) -> Selectors:
+        """The selectors of the states ``sl`` of a batch."""
+        return Selectors(self.mode[sl], self.mask[sl], self.height_weights[sl],
+                         self.s_dbeta[sl], self.s_cylinder[sl], self.lost[sl], self.tipping[sl])
+
+    def row(self, i: int) -> Selectors:
+        """The selectors of state ``i`` of a batch."""
+        return Selectors(str(self.mode[i]), self.mask[i], self.height_weights[i],
+                         float(self.s_dbeta[i]), float(self.s_cylinder[i]), self.lost[i],
+                         bool(self.tipping[i]))
+
+
+def select_systems(in_contact, fourth: str, has_cylinder_force: bool) -> Selectors:
+    """Choose the system of each state from its contact flags and the fourth-row option.
+
+    The one place the contact mode is decided: four wheels give the fourth row (eq. 29 or
+    the bogie balances), three the 3-contact system with the lost wheel's column dropped,
+    fewer the tipping least-squares (Sec. III-B).
+
+    Args:
+        in_contact: Contact flags, shape (N, 4) (or (4,)), order FL, RL, FR, RR.
+        fourth: ``d-beta`` or ``cylinder-force``.
+        has_cylinder_force: Whether the states carry the suspension cylinder forces;
+            without them ``cylinder-force`` falls back to ``d-beta``.
+
+    Returns:
+        `Selectors` with a leading axis N.
+    """
+    c = np.asarray(in_contact, bool).reshape(-1, 4)
+    mask = c.astype(float)
+    nc = c.sum(axis=1)
+    hw = np.where(nc[:, None] > 0, mask / np.maximum(nc, 1)[:, None], 0.25)
+    cyl = fourth == "cylinder-force" and has_cylinder_force
+    four = nc == 4
+    lost = (~c & (nc == 3)[:, None]).astype(float)
+    mode = np.where(four, "cylinder-force" if cyl else "d-beta",
+                    np.where(nc == 3, "3-contact", "tipping"))
+    return Selectors(mode, mask, hw, (four & (not cyl)).astype(float),
+                     (four & cyl).astype(float), lost, nc < 3)
 
 
 def select_system(in_contact, fourth: str, has_cylinder_force: bool) -> Selectors:
-    """Choose the system for the contact flags and the fourth-equation option.
-
-    Args:
-        in_contact: Contact flags, shape (4,), order FL, RL, FR, RR.
-        fourth: ``d-beta`` or ``cylinder-force``.
-        has_cylinder_force: Whether the state carries the suspension cylinder forces; without
-            them ``cylinder-force`` falls back to ``d-beta``.
-    """
-    c = np.asarray(in_contact, bool)
-    mask = c.astype(float)
-    n = int(c.sum())
-    hw = mask / n if n else np.full(4, 0.25)
-    lost = np.zeros(4)
-    if n == 4:
-        cyl = fourth == "cylinder-force" and has_cylinder_force
-        return Selectors("cylinder-force" if cyl else "d-beta", mask, hw, 0.0 if cyl else 1.0,
-                         1.0 if cyl else 0.0, lost, False)
-    if n == 3:
-        lost[int(np.flatnonzero(~c)[0])] = 1.0
-        return Selectors("3-contact", mask, hw, 0.0, 0.0, lost, False)
-    return Selectors("tipping", mask, hw, 0.0, 0.0, lost, True)
+    """`select_systems` for one state: scalars and (4,) arrays."""
+    return select_systems(in_contact, fourth, has_cylinder_force).row(0)
 
 
 def contact_points(ops, tree: TreeModel, dyn: TreeDynamics, rotation_world_fb):

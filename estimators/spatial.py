@@ -33,6 +33,7 @@ from __future__ import annotations
 import numpy as np
 
 from models.description import Inertia
+from models.rotations import se3, se3_inverse, skew
 
 __all__ = [
     "ad",
@@ -42,39 +43,12 @@ __all__ = [
     "euler_poincare_wrench",
     "gravity_offset",
     "gravity_wrench",
-    "rotation_about",
     "se3",
     "se3_inverse",
     "skew",
     "spatial_inertia",
     "twist_hat",
 ]
-
-
-def skew(v) -> np.ndarray:
-    """Skew-symmetric matrix ``[v]`` with ``[v] w = v x w``, shape (3, 3)."""
-    x, y, z = v
-    return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
-
-
-def rotation_about(axis, angle: float) -> np.ndarray:
-    """Rotation by ``angle`` [rad] about the unit ``axis`` (Rodrigues), shape (3, 3)."""
-    k = skew(axis)
-    return np.eye(3) + np.sin(angle) * k + (1.0 - np.cos(angle)) * (k @ k)
-
-
-def se3(rotation, position) -> np.ndarray:
-    """Homogeneous 4x4 matrix of the pose (``rotation`` (3, 3), ``position`` (3,) [m])."""
-    t = np.eye(4)
-    t[:3, :3] = rotation
-    t[:3, 3] = position
-    return t
-
-
-def se3_inverse(t: np.ndarray) -> np.ndarray:
-    """Inverse of a homogeneous pose: ``T_ba`` from ``T_ab``."""
-    r = t[:3, :3]
-    return se3(r.T, -r.T @ t[:3, 3])
 
 
 def twist_hat(nu) -> np.ndarray:

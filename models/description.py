@@ -14,7 +14,9 @@ Units: SI throughout ([m], [kg], [kg m^2], [N], [rad]).
 from __future__ import annotations
 
 import functools
-from dataclasses import dataclass, field
+import hashlib
+import pickle
+from dataclasses import dataclass, field, fields
 from typing import Literal
 
 import numpy as np
@@ -306,6 +308,16 @@ class Machine:
     def total_mass(self) -> float:
         """[kg]."""
         return float(sum(b.inertia.mass for b in self.bodies))
+
+    @functools.cached_property
+    def fingerprint(self) -> str:
+        """Content hash of the description (SHA-256 of its fields, hex).
+
+        Equal numbers give an equal fingerprint; derived models and compiled kernels are
+        cached by it, never by ``id``.
+        """
+        data = pickle.dumps(tuple(getattr(self, f.name) for f in fields(self)), protocol=4)
+        return hashlib.sha256(data).hexdigest()
 
     @functools.cached_property
     def coordinates(self):
