@@ -84,8 +84,8 @@ def test_warp_drift_measures_the_terrain_twist_rate():
 def test_servo_state_integrates_commands_and_filters_the_deflection(machine):
     lo, hi = np.full(N_AXES, -1.0), np.full(N_AXES, 1.0)
     servo = ServoState(DT, 0.5, lo, hi)
-    st = make_state(machine)
-    st.extra = {"servo_setpoint": st.q[:N_AXES].copy()}
+    st0 = make_state(machine)
+    st = dataclasses.replace(st0, servo_setpoint=st0.q[:N_AXES].copy())
     q, qd = servo.observe(st)
     np.testing.assert_allclose(q, st.q[:N_AXES])
     rates = np.full(N_AXES, 0.01)
@@ -96,18 +96,18 @@ def test_servo_state_integrates_commands_and_filters_the_deflection(machine):
     bounce = 1e-3
     q2 = st.q.copy()
     q2[:N_AXES] = servo.setpoint + bounce
-    st2 = make_state(machine, q=q2, time=0.1)
-    st2.extra = {"servo_setpoint": servo.setpoint.copy()}
+    st2 = dataclasses.replace(make_state(machine, q=q2, time=0.1),
+                              servo_setpoint=servo.setpoint.copy())
     q, qd = servo.observe(st2)
     np.testing.assert_allclose(qd, rates)
     seen = q - servo.setpoint
     np.testing.assert_allclose(seen[2:], bounce * 0.1 / (0.5 + 0.1))  # first-order filter
     np.testing.assert_allclose(seen[SUSPENSION_AXES], 0.0)
     # A servo setpoint far from the integrated one (clipped, wound down) wins.
-    st3 = make_state(machine, time=0.2)
-    st3.extra = {"servo_setpoint": servo.setpoint - 0.05}
+    st3 = dataclasses.replace(make_state(machine, time=0.2),
+                              servo_setpoint=servo.setpoint - 0.05)
     servo.observe(st3)
-    np.testing.assert_allclose(servo.setpoint, st3.extra["servo_setpoint"])
+    np.testing.assert_allclose(servo.setpoint, st3.servo_setpoint)
 
 
 class _NanDerivatives:
@@ -274,8 +274,9 @@ def test_closure_feedback_without_cylinder_forces_has_no_bias(machine):
 
 
 def test_plot_and_comparison_files(tmp_path):
-    from scenarios.closed_loop import SCENARIOS, run_closed_loop, run_comparison
+    from scenarios.closed_loop import SCENARIOS, run_closed_loop
     from scenarios.closed_loop_plots import plot_comparison
+    from scenarios.comparison import run_comparison
 
     short = dataclasses.replace(SCENARIOS["swing-out"], duration=1.2)
     dirs = {}

@@ -22,7 +22,6 @@ from typing import ClassVar
 
 import numpy as np
 
-from models.coordinates import N_INDEPENDENT
 from models.description import Machine
 from models.state import MachineState
 from wbc.axes import CRANE_AXES, N_AXES, SUSPENSION_AXES, AxisLimits
@@ -43,10 +42,6 @@ from wbc.references.goals import JointGoal, TcpGoal
 from wbc.references.ruckig_reference import RuckigReference
 
 __all__ = ["Controller"]
-
-_STATE_FIELDS = {"base_position": (3,), "base_rotation": (3, 3), "base_twist": (6,),
-                 "base_acceleration": (6,), "q": (N_INDEPENDENT,), "qd": (N_INDEPENDENT,),
-                 "qdd": (N_INDEPENDENT,)}
 
 
 class Controller(abc.ABC):
@@ -216,16 +211,9 @@ class Controller(abc.ABC):
 
     # ------------------------------------------------------------------ loop
     def _check_state(self, state) -> None:
+        # shapes, finiteness and the rotation were checked when the state was built
         if not isinstance(state, MachineState):
             raise WbcInputError(f"state must be a models.MachineState, got {type(state)!r}")
-        for f, shape in _STATE_FIELDS.items():
-            a = np.asarray(getattr(state, f))
-            if a.shape != shape:
-                raise WbcInputError(f"state.{f} must have shape {shape}, got {a.shape}")
-            if not np.all(np.isfinite(a)):
-                raise WbcInputError(f"state.{f} has non-finite entries: {a}")
-        if not np.isfinite(state.time):
-            raise WbcInputError(f"state.time is not finite: {state.time}")
 
     @abc.abstractmethod
     def _solve(self, state: MachineState) -> tuple[np.ndarray, float, dict]:
