@@ -8,9 +8,10 @@ import pytest
 
 import models
 from models.errors import StateError
+from testkit.force_models import AffineForceModel
+from testkit.plant import KinematicPlant, make_state
 from wbc import (
     CONTROLLER_NAMES,
-    AffineForceModel,
     ConfigurationError,
     ControlCommand,
     ControllerConfig,
@@ -26,7 +27,6 @@ from wbc import (
     WholeBodyQPController,
     make_controller,
 )
-from wbc.testing import KinematicPlant, make_state
 
 DT = 0.01
 
@@ -142,7 +142,7 @@ def test_model_failure_falls_back(machine):
     st = make_state(machine)
 
     class Failing(AffineForceModel):
-        def constraint(self, state):
+        def linearize(self, state):
             raise ArithmeticError("singular system")
 
     ctrl = make_controller("mpc-full", machine, force_model=Failing(np.zeros(4), st.q))

@@ -52,13 +52,7 @@ from wbc.errors import (
     WbcError,
     WbcInputError,
 )
-from wbc.force_models import (
-    AffineForceModel,
-    ForceLinearization,
-    NormalForceModel,
-    linearize_forces,
-    load_estimator,
-)
+from wbc.force_models import ForceLinearization, NormalForceModel, load_estimator
 from wbc.kinematics import TcpKinematics, solve_tcp_ik
 from wbc.layout import VariableLayout
 from wbc.mpc import CondensedPrediction, HorizonContext, MpcPlan, MpcPlanner
@@ -80,7 +74,7 @@ from wbc.tasks import (
 
 __all__ = [
     "__version__",
-    "AccelerationLimit", "AffineForceModel", "AxisLimits", "Box", "CONTROLLER_NAMES",
+    "AccelerationLimit", "AxisLimits", "Box", "CONTROLLER_NAMES",
     "CRANE_AXES", "CondensedPrediction", "ConfigurationError", "Constraint", "ControlCommand",
     "Controller", "ControllerConfig", "DampingTask", "ForceConfig", "ForceLinearization",
     "ForceModelError", "HorizonContext", "HorizonInputTask", "HorizonNormalForceConstraint",
@@ -93,6 +87,6 @@ __all__ = [
     "SpeedScaleTask", "SuspensionPostureTask", "Task", "TcpGoal", "TcpKinematics",
     "TcpPositionTask", "TrajectoryError", "UnknownControllerError", "UnknownSolverError",
     "VariableLayout", "VelocityLimit", "WbcError", "WbcInputError", "WholeBodyQPController",
-    "build_qp", "linearize_forces", "load_estimator", "make_controller", "make_solver",
+    "build_qp", "load_estimator", "make_controller", "make_solver",
     "solve_tcp_ik",
 ]

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from estimators.linearization import ForceLinearization
 from models.coordinates import N_INDEPENDENT, WHEELS
 from models.state import MachineState
 from wbc.axes import N_AXES, SUSPENSION_AXES
@@ -12,12 +13,7 @@ from wbc.constraints.normal_force import check_thresholds
 from wbc.drive_model import speed_scale_direction
 from wbc.errors import ConfigurationError
 from wbc.force_models.feedback import DIAGONAL
-from wbc.force_models.protocol import (
-    ForceLinearization,
-    NormalForceModel,
-    contact_flags,
-    linearize_forces,
-)
+from wbc.force_models.protocol import NormalForceModel, contact_flags, linearize_forces
 from wbc.mpc.prediction import predict_base_pose
 
 __all__ = ["HorizonNormalForceConstraint"]
@@ -26,18 +22,18 @@ _AXES_IN_A = slice(6, 6 + N_AXES)
 _MIN_SCALE = 0.05  # below this the drift is not attributed to the driving speed
 
 
-def _without_suspension(lin: ForceLinearization) -> ForceLinearization:
-    """The linearization with the suspension axes' columns zeroed.
+def _without_suspension(lin: ForceLinearization) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(G, d_q, d_qd)`` of the linearization with the suspension axes' columns zeroed.
 
     The model holds the base acceleration and the contact points fixed, so its columns for
     the bogie strokes describe wheels pushed into the ground, not the machine: there the
     chassis moves instead (common mode) or warps (difference, `ctx.warp`).
     """
-    G, dq, dqd = lin.G.copy(), lin.dq.copy(), lin.dqd.copy()
+    G, dq, dqd = lin.G.copy(), lin.d_q.copy(), lin.d_qd.copy()
     G[:, 6 + SUSPENSION_AXES] = 0.0
     dq[:, SUSPENSION_AXES] = 0.0
     dqd[:, SUSPENSION_AXES] = 0.0
-    return ForceLinearization(G, lin.g0, dq, dqd)
+    return G, dq, dqd
 
 
 class HorizonNormalForceConstraint(Constraint):
@@ -170,14 +166,17 @@ class HorizonNormalForceConstraint(Constraint):
         b = np.zeros(4 * n_eval)
         omega = st.qd[N_AXES:N_INDEPENDENT]
         if ctx.warp is not None:  # the suspension acts through the warp model only
-            lins = [_without_suspension(lin) for lin in lins]
+            maps = [_without_suspension(lin) for lin in lins]
+        else:
+            maps = [(lin.G, lin.d_q, lin.d_qd) for lin in lins]
         for k in range(n_eval):
             j = steps[which[k]]
-            lin = lins[which[k]]
+            g0 = lins[which[k]].g0
+            G, d_q, d_qd = maps[which[k]]
             r = slice(4 * k, 4 * k + 4)
-            dq, dqd = lin.dq[:, :N_AXES], lin.dqd[:, :N_AXES]
-            G_axes = lin.G[:, _AXES_IN_A]
-            b[r] = lin.g0 + lin.dq[:, N_AXES:] @ (omega * (times[k] - times[j]))
+            dq, dqd = d_q[:, :N_AXES], d_qd[:, :N_AXES]
+            G_axes = G[:, _AXES_IN_A]
+            b[r] = g0 + d_q[:, N_AXES:] @ (omega * (times[k] - times[j]))
             if k == 0:  # now: the measured state's forces, at the new accelerations
                 A[r, lay.step(0)] = G_axes
             else:
@@ -195,7 +194,7 @@ class HorizonNormalForceConstraint(Constraint):
                     A[r] += ctx.warp @ pred.Pq[rows]
                     b[r] += ctx.warp @ (ctx.free_positions[k - 1] - ctx.q)
             if direction is not None:
-                col = (lin.G @ direction) * np.exp(-times[k] / self.drive_time_constant)
+                col = (G @ direction) * np.exp(-times[k] / self.drive_time_constant)
                 A[r, lay.scale] += col
                 b[r] -= col * ctx.speed_scale
         if ctx.feedback is not None:  # the load split measured now, held over the horizon

@@ -9,11 +9,7 @@ from wbc.axes import N_AXES
 from wbc.constraints.constraint import Constraint, Inequality
 from wbc.drive_model import speed_scale_direction
 from wbc.errors import ConfigurationError
-from wbc.force_models.protocol import (
-    NormalForceModel,
-    contact_flags,
-    linearize_forces,
-)
+from wbc.force_models.protocol import NormalForceModel, contact_flags, linearize_forces
 
 __all__ = ["NormalForceConstraint", "check_thresholds"]
 
@@ -75,14 +71,14 @@ class NormalForceConstraint(Constraint):
         """``(A, b)``: predicted forces ``A x + b`` [N], A shape (4, n), b (4,)."""
         st, lay = ctx.state, ctx.layout
         T = self.lookahead
-        lin = linearize_forces(self.model, st, derivatives=T > 0)
+        lin = linearize_forces(self.model, st)
         A = np.zeros((4, lay.n))
         b = lin.g0.copy()
         A[:, lay.step(0)] = lin.G[:, _AXES_IN_A]
         if T > 0:
-            dq = lin.dq[:, :N_AXES]
+            dq = lin.d_q[:, :N_AXES]
             A[:, lay.step(0)] += 0.5 * T * T * dq
-            b += dq @ (ctx.qd * T) + lin.dq[:, N_AXES:N_INDEPENDENT] @ (
+            b += dq @ (ctx.qd * T) + lin.d_q[:, N_AXES:N_INDEPENDENT] @ (
                 st.qd[N_AXES:N_INDEPENDENT] * T)
         if lay.scale is not None:
             col = lin.G @ speed_scale_direction(st, ctx.speed_scale, self.drive_time_constant)
