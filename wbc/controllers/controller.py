@@ -21,11 +21,12 @@ import logging
 from typing import ClassVar
 
 import numpy as np
+import qpsolvers
 
 from models.description import Machine
 from models.state import MachineState
 from wbc.axes import CRANE_AXES, N_AXES, SUSPENSION_AXES, AxisLimits
-from wbc.context import ReferenceSample
+from wbc.context import ControlContext, ReferenceSample
 from wbc.controllers.command import ControlCommand
 from wbc.controllers.config import ControllerConfig
 from wbc.errors import (
@@ -216,6 +217,24 @@ class Controller(abc.ABC):
             raise WbcInputError(f"state must be a models.MachineState, got {type(state)!r}")
 
     @abc.abstractmethod
+    def context(self, state: MachineState) -> ControlContext:
+        """What this tick's QP is built from (references at the current reference time)."""
+
+    @abc.abstractmethod
+    def _build(self, ctx: ControlContext) -> qpsolvers.Problem:
+        """The QP of ``ctx``."""
+
+    def build_qp(self, state: MachineState) -> qpsolvers.Problem:
+        """The QP of this tick (references must be set: after a `step`, or use `prepare`)."""
+        return self._build(self.context(state))
+
+    def prepare(self, state: MachineState) -> qpsolvers.Problem:
+        """Update the references as `step` would, then return this tick's QP."""
+        self._check_state(state)
+        self._update_references(state)
+        return self.build_qp(state)
+
+    @abc.abstractmethod
     def _solve(self, state: MachineState) -> tuple[np.ndarray, float, dict]:
         """(qdd (9,), wheel-speed scale, info) for this tick; may raise QPSolveError."""
 
@@ -223,7 +242,7 @@ class Controller(abc.ABC):
         """One control tick: measured state in, rate commands out.
 
         Raises:
-            WbcInputError: ``state`` is not a `MachineState` or has non-finite entries.
+            WbcInputError: ``state`` is not a `MachineState`.
         """
         self._check_state(state)
         try:
