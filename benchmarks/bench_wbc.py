@@ -3,7 +3,7 @@
 Goals (2-core machine): whole-body QP median <= 0.5 ms and p99 <= 2 ms; MPC (>= 1 s
 horizon) median <= 10 ms. Each figure is the wall time of ``controller.step(state)`` (goal
 handling, references, building the QP, solving it, the command), in closed loop with a
-kinematic stand-in for the machine (`wbc.testing.KinematicPlant`) while the crane moves to
+kinematic stand-in for the machine (`testkit.plant.KinematicPlant`) while the crane moves to
 a goal that the normal-force constraint partly blocks.
 """
 
@@ -15,15 +15,15 @@ from pathlib import Path
 import numpy as np
 
 from models import build_reference_machine
+from testkit.force_models import AffineForceModel
+from testkit.plant import KinematicPlant, make_state
 from wbc import (
-    AffineForceModel,
     ForceModelError,
     JointGoal,
     WholeBodyQPController,
     load_estimator,
     make_controller,
 )
-from wbc.testing import KinematicPlant, make_state
 
 DT = 0.01
 WARMUP = 20

@@ -7,9 +7,10 @@ import json
 import numpy as np
 import pytest
 
-from models.state import MachineState
+from models.state import MachineState, WheelContacts
+from testkit.force_models import AffineForceModel
+from testkit.plant import KinematicPlant, make_state
 from wbc import (
-    AffineForceModel,
     ControllerConfig,
     ForceConfig,
     ForceModelError,
@@ -18,7 +19,9 @@ from wbc import (
     MpcController,
 )
 from wbc.axes import N_AXES, SUSPENSION_AXES
+from wbc.controllers.registry import estimator_models
 from wbc.controllers.servo_state import ServoState
+from wbc.force_models import ForceLinearization, linearize_forces
 from wbc.force_models.feedback import (
     DIAGONAL,
     ClosureFeedback,
@@ -27,9 +30,7 @@ from wbc.force_models.feedback import (
     leveling_offset,
     warp_matrix,
 )
-from wbc.force_models.guarded import GuardedModel
 from wbc.tasks import HorizonLevelingTask
-from wbc.testing import KinematicPlant, make_state
 
 DT = 0.01
 
@@ -84,8 +85,8 @@ def test_warp_drift_measures_the_terrain_twist_rate():
 def test_servo_state_integrates_commands_and_filters_the_deflection(machine):
     lo, hi = np.full(N_AXES, -1.0), np.full(N_AXES, 1.0)
     servo = ServoState(DT, 0.5, lo, hi)
-    st = make_state(machine)
-    st.extra = {"servo_setpoint": st.q[:N_AXES].copy()}
+    st0 = make_state(machine)
+    st = dataclasses.replace(st0, servo_setpoint=st0.q[:N_AXES].copy())
     q, qd = servo.observe(st)
     np.testing.assert_allclose(q, st.q[:N_AXES])
     rates = np.full(N_AXES, 0.01)
@@ -96,67 +97,58 @@ def test_servo_state_integrates_commands_and_filters_the_deflection(machine):
     bounce = 1e-3
     q2 = st.q.copy()
     q2[:N_AXES] = servo.setpoint + bounce
-    st2 = make_state(machine, q=q2, time=0.1)
-    st2.extra = {"servo_setpoint": servo.setpoint.copy()}
+    st2 = dataclasses.replace(make_state(machine, q=q2, time=0.1),
+                              servo_setpoint=servo.setpoint.copy())
     q, qd = servo.observe(st2)
     np.testing.assert_allclose(qd, rates)
     seen = q - servo.setpoint
     np.testing.assert_allclose(seen[2:], bounce * 0.1 / (0.5 + 0.1))  # first-order filter
     np.testing.assert_allclose(seen[SUSPENSION_AXES], 0.0)
     # A servo setpoint far from the integrated one (clipped, wound down) wins.
-    st3 = make_state(machine, time=0.2)
-    st3.extra = {"servo_setpoint": servo.setpoint - 0.05}
+    st3 = dataclasses.replace(make_state(machine, time=0.2),
+                              servo_setpoint=servo.setpoint - 0.05)
     servo.observe(st3)
-    np.testing.assert_allclose(servo.setpoint, st3.extra["servo_setpoint"])
+    np.testing.assert_allclose(servo.setpoint, st3.servo_setpoint)
 
 
-class _NanDerivatives:
-    """A model whose derivatives have NaN columns (like the estimator off a wheel)."""
-
-    def __init__(self, inner):
-        self.inner = inner
-
-    def estimate(self, state):
-        if np.any(state.q < -1.0):
-            raise ValueError("stroke out of range")
-        return self.inner.estimate(state)
-
-    def constraint(self, state):
-        return self.inner.constraint(state)
-
-    def constraint_derivatives(self, state):
-        est = self.inner.estimate(state)
-        dq = self.inner.K.copy()
-        dq[:, :2] = np.nan
-        return dataclasses.make_dataclass("D", ["normal_forces", "d_acceleration", "d_q",
-                                                "d_qd"])(est.normal_forces, self.inner.G,
-                                                         dq, np.zeros((4, 13)))
+def _contacts_without(model, st, wheel):
+    """Measured contacts at the model's own contact points, ``wheel`` off the ground."""
+    flags = np.ones(4, bool)
+    flags[wheel] = False
+    return WheelContacts(flags, np.zeros((4, 3)), model.estimate(st).contact_points,
+                         np.tile([0.0, 0.0, 1.0], (4, 1)))
 
 
-def test_guarded_model_clips_strokes_and_repairs_nan_columns(machine):
+def test_mpc_force_model_clips_strokes_and_has_finite_derivatives_off_a_wheel(machine):
+    """The estimator as the MPC loads it: valid strokes in, finite derivatives out."""
+    model, _ = estimator_models(machine, "full")
     st = make_state(machine)
-    K = np.random.default_rng(0).standard_normal((4, 13)) * 1e3
-    inner = AffineForceModel(np.full(4, 9000.0), st.q, K)
-    model = GuardedModel(_NanDerivatives(inner), machine)
-    d = model.constraint_derivatives(st)
-    np.testing.assert_allclose(d.d_q, K, rtol=1e-6, atol=1e-3)  # central differences
-    assert model.n_repaired == 1
+    contacts = _contacts_without(model, st, 1)
+    off = make_state(machine, contacts=contacts)
+    lin = linearize_forces(model, off)
+    fd = np.zeros((4, 13))  # the oracle: central differences of the forces
+    for j in range(13):
+        vals = []
+        for step in (-1e-6, 1e-6):
+            q = off.q.copy()
+            q[j] += step
+            vals.append(model.estimate(make_state(machine, q=q, contacts=contacts))
+                        .normal_forces)
+        fd[:, j] = (vals[1] - vals[0]) / 2e-6
+    np.testing.assert_allclose(lin.d_q, fd, rtol=1e-6, atol=1e-3)
+    n_clipped = model.n_clipped
     bad = make_state(machine, q=np.r_[st.q[:2], [5.0], st.q[3:]])  # slew far past its end
-    model.estimate(bad)
-    assert model.n_clipped == 1
+    assert linearize_forces(model, bad).clipped == ("slew",)
+    assert model.n_clipped == n_clipped + 1
     with pytest.raises(ForceModelError):
-        GuardedModel(_AlwaysNan(), machine).constraint_derivatives(st)
+        linearize_forces(_AlwaysNan(), st)
 
 
 class _AlwaysNan:
-    def estimate(self, state):
-        return dataclasses.make_dataclass("E", ["normal_forces"])(np.full(4, np.nan))
-
-    def constraint_derivatives(self, state):
-        return dataclasses.make_dataclass("D", ["normal_forces", "d_acceleration", "d_q",
-                                                "d_qd"])(np.zeros(4), np.zeros((4, 19)),
-                                                         np.full((4, 13), np.nan),
-                                                         np.zeros((4, 13)))
+    def linearize(self, state):
+        return ForceLinearization(np.zeros(4), np.zeros((4, 19)), np.zeros(4),
+                                  np.full((4, 13), np.nan), np.zeros((4, 13)),
+                                  np.ones(4, bool), "d-beta")
 
 
 def _mpc_with_feedback(machine, bias=1500.0, **mpc):
@@ -274,8 +266,9 @@ def test_closure_feedback_without_cylinder_forces_has_no_bias(machine):
 
 
 def test_plot_and_comparison_files(tmp_path):
-    from scenarios.closed_loop import SCENARIOS, run_closed_loop, run_comparison
+    from scenarios.closed_loop import SCENARIOS, run_closed_loop
     from scenarios.closed_loop_plots import plot_comparison
+    from scenarios.comparison import run_comparison
 
     short = dataclasses.replace(SCENARIOS["swing-out"], duration=1.2)
     dirs = {}

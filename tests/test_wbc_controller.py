@@ -1,14 +1,17 @@
 """Controller interface: names, typed input errors, fallback, goals, closed loop."""
 
+import dataclasses
 import logging
 
 import numpy as np
 import pytest
 
 import models
+from models.errors import StateError
+from testkit.force_models import AffineForceModel
+from testkit.plant import KinematicPlant, make_state
 from wbc import (
     CONTROLLER_NAMES,
-    AffineForceModel,
     ConfigurationError,
     ControlCommand,
     ControllerConfig,
@@ -24,7 +27,6 @@ from wbc import (
     WholeBodyQPController,
     make_controller,
 )
-from wbc.testing import KinematicPlant, make_state
 
 DT = 0.01
 
@@ -64,14 +66,12 @@ def test_bad_input_raises_typed_errors(machine, tracking):
     st = make_state(machine)
     with pytest.raises(WbcInputError):
         tracking.step("not a state")
-    bad = make_state(machine)
-    bad.q[3] = np.nan
-    with pytest.raises(WbcInputError, match="state.q has non-finite"):
-        tracking.step(bad)
-    bad = make_state(machine)
-    bad.qd = np.zeros(12)
-    with pytest.raises(WbcInputError, match="shape"):
-        tracking.step(bad)
+    q_nan = make_state(machine).q.copy()
+    q_nan[3] = np.nan
+    with pytest.raises(StateError, match="'q' has non-finite"):
+        make_state(machine, q=q_nan)
+    with pytest.raises(StateError, match="shape"):
+        dataclasses.replace(make_state(machine), qd=np.zeros(12))
     with pytest.raises(WbcInputError):
         JointGoal(crane=np.zeros(6))
     with pytest.raises(WbcInputError):
@@ -142,7 +142,7 @@ def test_model_failure_falls_back(machine):
     st = make_state(machine)
 
     class Failing(AffineForceModel):
-        def constraint(self, state):
+        def linearize(self, state):
             raise ArithmeticError("singular system")
 
     ctrl = make_controller("mpc-full", machine, force_model=Failing(np.zeros(4), st.q))

@@ -4,10 +4,11 @@ import numpy as np
 import pytest
 
 import models
+from testkit.force_models import AffineForceModel
+from testkit.plant import make_state
 from wbc import (
     CRANE_AXES,
     AccelerationLimit,
-    AffineForceModel,
     AxisLimits,
     DampingTask,
     ForceModelError,
@@ -24,11 +25,9 @@ from wbc import (
     VelocityLimit,
     WholeBodyQPController,
     build_qp,
-    linearize_forces,
     load_estimator,
 )
-from wbc.force_models import split_derivatives
-from wbc.testing import make_state
+from wbc.force_models import ForceLinearization, linearize_forces
 
 DT = 0.01
 TEL = 5  # telescope axis (and index in q)
@@ -166,33 +165,28 @@ def test_controller_with_force_model_reports_predicted_forces(machine):
     assert ctrl.layout.n == 9 + 1 + 4
 
 
-def test_split_derivatives_and_model_errors(machine):
+def test_model_errors(machine):
     st = make_state(machine)
-    d = np.ones((4, 13))
-    assert split_derivatives(d)[1] is None
-    assert split_derivatives((d, 2 * d))[1][0, 0] == 2.0
-
-    class Obj:
-        d_q = d
-        d_qd = 3 * d
-    dq, dqd = split_derivatives(Obj())
-    assert dqd[0, 0] == 3.0
-    with pytest.raises(ForceModelError):
-        split_derivatives(np.ones((4, 12)))
-    with pytest.raises(ForceModelError):
-        split_derivatives(object())
 
     class Broken(AffineForceModel):
-        def constraint(self, state):
-            return np.full((4, 19), np.nan), np.zeros(4)
-    with pytest.raises(ForceModelError, match="non-finite G"):
+        def linearize(self, state):
+            lin = super().linearize(state)
+            return ForceLinearization(lin.normal_forces, np.full((4, 19), np.nan), lin.g0,
+                                      lin.d_q, lin.d_qd, lin.in_contact, lin.mode)
+    with pytest.raises(ForceModelError, match="G has non-finite"):
         linearize_forces(Broken(np.zeros(4), st.q), st)
 
     class Raises(AffineForceModel):
-        def constraint(self, state):
+        def linearize(self, state):
             raise ArithmeticError("singular")
     with pytest.raises(ForceModelError, match="singular"):
         linearize_forces(Raises(np.zeros(4), st.q), st)
+
+    class Untyped(AffineForceModel):
+        def linearize(self, state):
+            return np.zeros((4, 13))
+    with pytest.raises(ForceModelError, match="ForceLinearization"):
+        linearize_forces(Untyped(np.zeros(4), st.q), st)
     assert isinstance(Inequality(np.zeros((1, 2)), np.zeros(1)).G, np.ndarray)
 
 

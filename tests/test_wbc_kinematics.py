@@ -5,6 +5,7 @@ import pinocchio as pin
 import pytest
 
 from models.pinocchio_model import build_pinocchio
+from testkit.plant import make_state
 from tests.conftest import random_independent
 from wbc import (
     AxisLimits,
@@ -16,7 +17,6 @@ from wbc import (
     WbcInputError,
     solve_tcp_ik,
 )
-from wbc.testing import make_state
 
 
 @pytest.fixture(scope="module")

@@ -3,8 +3,9 @@
 import numpy as np
 import pytest
 
+from testkit.force_models import AffineForceModel
+from testkit.plant import KinematicPlant, make_state
 from wbc import (
-    AffineForceModel,
     ConfigurationError,
     ControllerConfig,
     ForceConfig,
@@ -16,7 +17,6 @@ from wbc import (
     make_controller,
 )
 from wbc.mpc import CondensedPrediction, predict_base_pose
-from wbc.testing import KinematicPlant, make_state
 
 DT = 0.01
 TEL, RL = 5, 1

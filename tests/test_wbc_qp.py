@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 import qpsolvers
 
+from testkit.plant import KinematicPlant, make_state
 from wbc import (
     CRANE_AXES,
     AccelerationLimit,
@@ -24,7 +25,6 @@ from wbc import (
     build_qp,
     make_controller,
 )
-from wbc.testing import KinematicPlant, make_state
 
 DT = 0.01
 

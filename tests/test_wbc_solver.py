@@ -4,8 +4,9 @@ import numpy as np
 import pytest
 import qpsolvers
 
+from testkit.force_models import AffineForceModel
+from testkit.plant import KinematicPlant, make_state
 from wbc import (
-    AffineForceModel,
     JointGoal,
     MpcConfig,
     ProxQPWorkspace,
@@ -15,7 +16,6 @@ from wbc import (
     make_solver,
 )
 from wbc.controllers import ControllerConfig
-from wbc.testing import KinematicPlant, make_state
 
 
 def _mpc_problems(machine, n=40):

@@ -18,6 +18,7 @@ from wbc.constraints import (
     AccelerationLimit,
     Box,
     Constraint,
+    HorizonLimit,
     HorizonNormalForceConstraint,
     HorizonPositionLimit,
     HorizonVelocityLimit,
@@ -27,7 +28,7 @@ from wbc.constraints import (
     SpeedScaleLimit,
     VelocityLimit,
 )
-from wbc.context import QPContext, ReferenceSample
+from wbc.context import ControlContext, QPContext, ReferenceSample
 from wbc.controllers import (
     CONTROLLER_NAMES,
     ControlCommand,
@@ -52,13 +53,7 @@ from wbc.errors import (
     WbcError,
     WbcInputError,
 )
-from wbc.force_models import (
-    AffineForceModel,
-    ForceLinearization,
-    NormalForceModel,
-    linearize_forces,
-    load_estimator,
-)
+from wbc.force_models import ForceLinearization, NormalForceModel, load_estimator
 from wbc.kinematics import TcpKinematics, solve_tcp_ik
 from wbc.layout import VariableLayout
 from wbc.mpc import CondensedPrediction, HorizonContext, MpcPlan, MpcPlanner
@@ -79,20 +74,18 @@ from wbc.tasks import (
 )
 
 __all__ = [
-    "__version__",
-    "AccelerationLimit", "AffineForceModel", "AxisLimits", "Box", "CONTROLLER_NAMES",
-    "CRANE_AXES", "CondensedPrediction", "ConfigurationError", "Constraint", "ControlCommand",
-    "Controller", "ControllerConfig", "DampingTask", "ForceConfig", "ForceLinearization",
-    "ForceModelError", "HorizonContext", "HorizonInputTask", "HorizonNormalForceConstraint",
-    "HorizonPositionLimit", "HorizonSmoothnessTask", "HorizonTrackingTask",
-    "HorizonVelocityLimit", "IKError", "Inequality", "JointGoal", "JointTask", "MpcConfig",
-    "MpcController", "MpcPlan", "MpcPlanner", "N_AXES", "NormalForceConstraint",
-    "NormalForceModel", "PositionLimit", "ProxQPWorkspace", "QPConfig", "QPContext",
-    "QPSolution", "QPSolveError", "QpsolversBackend", "ReferenceConfig", "ReferenceSample",
-    "RuckigReference", "SUSPENSION_AXES", "SlackPenaltyTask", "SpeedScaleLimit",
-    "SpeedScaleTask", "SuspensionPostureTask", "Task", "TcpGoal", "TcpKinematics",
-    "TcpPositionTask", "TrajectoryError", "UnknownControllerError", "UnknownSolverError",
-    "VariableLayout", "VelocityLimit", "WbcError", "WbcInputError", "WholeBodyQPController",
-    "build_qp", "linearize_forces", "load_estimator", "make_controller", "make_solver",
-    "solve_tcp_ik",
+    "__version__", "CONTROLLER_NAMES", "CRANE_AXES", "N_AXES", "SUSPENSION_AXES",
+    "AccelerationLimit", "AxisLimits", "Box", "CondensedPrediction", "ConfigurationError",
+    "Constraint", "ControlCommand", "ControlContext", "Controller", "ControllerConfig",
+    "DampingTask", "ForceConfig", "ForceLinearization", "ForceModelError", "HorizonContext",
+    "HorizonInputTask", "HorizonLimit", "HorizonNormalForceConstraint", "HorizonPositionLimit",
+    "HorizonSmoothnessTask", "HorizonTrackingTask", "HorizonVelocityLimit", "IKError",
+    "Inequality", "JointGoal", "JointTask", "MpcConfig", "MpcController", "MpcPlan", "MpcPlanner",
+    "NormalForceConstraint", "NormalForceModel", "PositionLimit", "ProxQPWorkspace", "QPConfig",
+    "QPContext", "QPSolution", "QPSolveError", "QpsolversBackend", "ReferenceConfig",
+    "ReferenceSample", "RuckigReference", "SlackPenaltyTask", "SpeedScaleLimit", "SpeedScaleTask",
+    "SuspensionPostureTask", "Task", "TcpGoal", "TcpKinematics", "TcpPositionTask",
+    "TrajectoryError", "UnknownControllerError", "UnknownSolverError", "VariableLayout",
+    "VelocityLimit", "WbcError", "WbcInputError", "WholeBodyQPController", "build_qp",
+    "load_estimator", "make_controller", "make_solver", "solve_tcp_ik",
 ]

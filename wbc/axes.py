@@ -1,7 +1,7 @@
 """The controllable coordinates and their limits, read from the machine description.
 
 The controller acts on the first nine independent coordinates of `models.coordinates`
-(``N_AXES = 9``), in this order::
+(``N_AXES = 9``, the first nine rows of the coordinate table), in this order::
 
     [x_bogie_L, x_bogie_R,                  suspension cylinder strokes [m]
      x_slew, x_lift, x_tilt, telescope,     crane cylinder strokes and telescope [m]
@@ -76,10 +76,10 @@ class AxisLimits:
     def from_machine(cls, machine: Machine, position_margin: float = 0.01) -> AxisLimits:
         """Read the limits of the nine controllable coordinates from ``machine``.
 
-        Cylinder chains give their valid stroke range (`CylinderChain.stroke_range`), the
-        cylinder's flow-limited speeds (`HydraulicCylinder.velocity_range`) and its
-        ``max_acceleration``; direct drives give the joint range, ``velocity_limit`` and
-        ``acceleration_limit``.
+        Positions from the coordinate table (`Machine.coordinates`: the chain's valid
+        stroke range, or the joint range); cylinder chains give the cylinder's flow-limited
+        speeds (`HydraulicCylinder.velocity_range`) and its ``max_acceleration``; direct
+        drives give ``velocity_limit`` and ``acceleration_limit``.
 
         Args:
             machine: The machine description.
@@ -88,35 +88,32 @@ class AxisLimits:
         """
         if not 0.0 <= position_margin < 0.25:
             raise ConfigurationError(f"position_margin {position_margin} outside [0, 0.25)")
-        names = tuple(machine.suspension_coordinates) + tuple(machine.crane_coordinates)
-        if len(names) != N_AXES:
-            raise ConfigurationError(f"expected {N_AXES} controllable coordinates, got {names}")
+        coordinates = machine.coordinates
+        table = coordinates.table[:N_AXES]
         plo, pup, vlo, vup, acc = [], [], [], [], []
-        for name in names:
-            if name in machine.chains:
-                b = machine.chains[name]
-                lo, hi = b.chain.stroke_range
-                v = b.cylinder.velocity_range
-                a = b.cylinder.max_acceleration
-            elif name in machine.direct_drives:
-                d = machine.direct_drives[name]
-                rng = machine.body(name).joint.range
-                if rng is None:
-                    raise ConfigurationError(f"direct drive '{name}' has no joint range")
-                lo, hi = rng
+        for c in table:
+            if c.kind == "stroke":
+                cylinder = coordinates.binding(c.index).cylinder
+                v = cylinder.velocity_range
+                a = cylinder.max_acceleration
+            elif c.name in machine.direct_drives:
+                d = machine.direct_drives[c.name]
                 v = (-d.velocity_limit, d.velocity_limit)
                 a = d.acceleration_limit
             else:
-                raise ConfigurationError(f"coordinate '{name}' is neither a cylinder chain nor "
-                                         f"a direct drive")
+                raise ConfigurationError(f"coordinate '{c.name}' is neither a cylinder chain "
+                                         f"nor a direct drive")
+            lo, hi = c.lower, c.upper
+            if not (np.isfinite(lo) and np.isfinite(hi)):
+                raise ConfigurationError(f"axis '{c.name}' has no finite position range")
             m = position_margin * (hi - lo)
             plo.append(lo + m)
             pup.append(hi - m)
             vlo.append(v[0])
             vup.append(v[1])
             acc.append(a)
-        return cls(names, np.array(plo), np.array(pup), np.array(vlo), np.array(vup),
-                   np.array(acc))
+        return cls(tuple(c.name for c in table), np.array(plo), np.array(pup),
+                   np.array(vlo), np.array(vup), np.array(acc))
 
     def brake_acceleration(self, velocity: np.ndarray, dt: float) -> np.ndarray:
         """Acceleration that brakes each axis to rest at the acceleration limit, shape (9,).

@@ -1,4 +1,8 @@
-"""What the whole-body QP's tasks and constraints see at one control tick."""
+"""What tasks and constraints see at one control tick: the shared part and the whole-body QP's.
+
+`ControlContext` holds what the whole-body QP (`QPContext`) and the MPC
+(`wbc.mpc.context.HorizonContext`) share; each adds its own fields.
+"""
 
 from __future__ import annotations
 
@@ -10,7 +14,7 @@ from models.state import MachineState
 from wbc.axes import N_AXES, AxisLimits
 from wbc.layout import VariableLayout
 
-__all__ = ["QPContext", "ReferenceSample"]
+__all__ = ["ControlContext", "QPContext", "ReferenceSample"]
 
 
 @dataclass(frozen=True)
@@ -29,18 +33,17 @@ class ReferenceSample:
 
 
 @dataclass(frozen=True)
-class QPContext:
-    """Inputs of one whole-body QP (decision variables: ``layout`` with ``n_steps = 1``).
+class ControlContext:
+    """What every QP of the controller sees at one tick.
 
     Attributes:
         state: The measured machine state.
-        q: Positions of the nine axes [m or rad], shape (9,) (``state.q[:9]``).
-        qd: Their velocities, shape (9,).
-        dt: Control period [s]: the time over which the accelerations act.
+        q: Positions of the nine axes [m or rad], shape (9,) (``state.q[:9]``, or the
+            servos' filtered view of them).
+        qd: Their velocities [m/s or rad/s], shape (9,).
+        dt: Control period [s]: how long the first accelerations act before the next solve.
         layout: Decision vector layout.
         limits: Axis limits.
-        reference: Reference at the current time, shapes (9,), or None (no task reference).
-        speed_scale: Wheel-speed scale commanded at the previous tick [-].
     """
 
     state: MachineState
@@ -49,13 +52,24 @@ class QPContext:
     dt: float
     layout: VariableLayout
     limits: AxisLimits
-    reference: ReferenceSample | None = None
-    speed_scale: float = 1.0
 
     @property
     def structure_key(self) -> tuple:
         """What constant Jacobians depend on: layout and period."""
         return (self.layout, self.dt)
+
+
+@dataclass(frozen=True)
+class QPContext(ControlContext):
+    """Inputs of one whole-body QP (decision variables: ``layout`` with ``n_steps = 1``).
+
+    Attributes:
+        reference: Reference at the current time, shapes (9,), or None (no task reference).
+        speed_scale: Wheel-speed scale commanded at the previous tick [-].
+    """
+
+    reference: ReferenceSample | None = None
+    speed_scale: float = 1.0
 
     @classmethod
     def from_state(cls, state: MachineState, dt: float, layout: VariableLayout,

@@ -16,9 +16,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from estimators.linearization import N_GENERALIZED
 from models.coordinates import WHEELS
 from models.state import MachineState
-from wbc.force_models.protocol import N_GENERALIZED
 
 __all__ = ["speed_scale_direction"]
 

@@ -2,16 +2,19 @@
 
 from wbc.constraints.acceleration_limit import AccelerationLimit
 from wbc.constraints.constraint import Box, Constraint, Inequality
+from wbc.constraints.horizon_limits import (
+    HorizonLimit,
+    HorizonPositionLimit,
+    HorizonVelocityLimit,
+)
 from wbc.constraints.horizon_normal_force import HorizonNormalForceConstraint
-from wbc.constraints.horizon_position_limit import HorizonPositionLimit
-from wbc.constraints.horizon_velocity_limit import HorizonVelocityLimit
 from wbc.constraints.normal_force import NormalForceConstraint
 from wbc.constraints.position_limit import PositionLimit
 from wbc.constraints.speed_scale_limit import SpeedScaleLimit
 from wbc.constraints.velocity_limit import VelocityLimit
 
 __all__ = [
-    "AccelerationLimit", "Box", "Constraint", "HorizonNormalForceConstraint",
+    "AccelerationLimit", "Box", "Constraint", "HorizonLimit", "HorizonNormalForceConstraint",
     "HorizonPositionLimit", "HorizonVelocityLimit", "Inequality", "NormalForceConstraint",
     "PositionLimit", "SpeedScaleLimit", "VelocityLimit",
 ]

@@ -4,20 +4,15 @@ from __future__ import annotations
 
 import numpy as np
 
+from estimators.linearization import ForceLinearization
 from models.coordinates import N_INDEPENDENT, WHEELS
 from models.state import MachineState
 from wbc.axes import N_AXES, SUSPENSION_AXES
-from wbc.constraints.constraint import Constraint, Inequality
-from wbc.constraints.normal_force import check_thresholds
+from wbc.constraints.force_rows import ForceRowsConstraint
 from wbc.drive_model import speed_scale_direction
 from wbc.errors import ConfigurationError
 from wbc.force_models.feedback import DIAGONAL
-from wbc.force_models.protocol import (
-    ForceLinearization,
-    NormalForceModel,
-    contact_flags,
-    linearize_forces,
-)
+from wbc.force_models.protocol import NormalForceModel, linearize_forces
 from wbc.mpc.prediction import predict_base_pose
 
 __all__ = ["HorizonNormalForceConstraint"]
@@ -26,21 +21,21 @@ _AXES_IN_A = slice(6, 6 + N_AXES)
 _MIN_SCALE = 0.05  # below this the drift is not attributed to the driving speed
 
 
-def _without_suspension(lin: ForceLinearization) -> ForceLinearization:
-    """The linearization with the suspension axes' columns zeroed.
+def _without_suspension(lin: ForceLinearization) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(G, d_q, d_qd)`` of the linearization with the suspension axes' columns zeroed.
 
     The model holds the base acceleration and the contact points fixed, so its columns for
     the bogie strokes describe wheels pushed into the ground, not the machine: there the
     chassis moves instead (common mode) or warps (difference, `ctx.warp`).
     """
-    G, dq, dqd = lin.G.copy(), lin.dq.copy(), lin.dqd.copy()
+    G, dq, dqd = lin.G.copy(), lin.d_q.copy(), lin.d_qd.copy()
     G[:, 6 + SUSPENSION_AXES] = 0.0
     dq[:, SUSPENSION_AXES] = 0.0
     dqd[:, SUSPENSION_AXES] = 0.0
-    return ForceLinearization(G, lin.g0, dq, dqd)
+    return G, dq, dqd
 
 
-class HorizonNormalForceConstraint(Constraint):
+class HorizonNormalForceConstraint(ForceRowsConstraint):
     r"""``f_z,i(t_k) >= f_min,i`` at the steps k = 0..N-1, for every wheel i in contact now.
 
     Real-time iteration: the model is linearized at ``n_linearizations`` nodes ``j`` of the
@@ -65,11 +60,12 @@ class HorizonNormalForceConstraint(Constraint):
     to the wheel-speed scale (``drift * s / s_prev``). A terminal node (``T_b``) constrains
     the forces while every axis brakes to rest after the horizon (`forces_map`).
 
-    Rows are scaled by ``1 / force_scale``, and with slacks in the layout they read
-    ``f_k >= f_min - force_scale * eps``: one slack per wheel shared by all steps, or, with
-    eight slacks, one per wheel for step 0 and another for the later steps and the
-    terminal node. Step 0 is the measured state (only the accelerations act on it), and a
-    wheel below its threshold *now* must not relax the plan for the rest of the horizon.
+    Rows (`ForceRowsConstraint`) are scaled by ``1 / force_scale``, and with slacks in the
+    layout they read ``f_k >= f_min - force_scale * eps``: one slack per wheel shared by all
+    steps, or, with eight slacks, one per wheel for step 0 and another for the later steps
+    and the terminal node. Step 0 is the measured state (only the accelerations act on it),
+    and a wheel below its threshold *now* must not relax the plan for the rest of the
+    horizon.
 
     Args:
         model: Normal-force model.
@@ -105,13 +101,8 @@ class HorizonNormalForceConstraint(Constraint):
         if not start_time >= 0:
             raise ConfigurationError(f"start_time must be >= 0 s, got {start_time}")
         self.start_time = float(start_time)
-        self.model = model
-        self.thresholds = check_thresholds(thresholds)
+        super().__init__(model, thresholds, force_scale, drive_time_constant)
         self.n_linearizations = int(n_linearizations)
-        self.force_scale = float(force_scale)
-        self.drive_time_constant = float(drive_time_constant)
-        self.last_forces_map: tuple[np.ndarray, np.ndarray] | None = None
-        self.last_in_contact: np.ndarray | None = None
         self.linearization_steps: np.ndarray = np.zeros(0, dtype=int)
 
     def _nominal_state(self, ctx, t: float, q_axes, qd_axes) -> MachineState:
@@ -170,14 +161,17 @@ class HorizonNormalForceConstraint(Constraint):
         b = np.zeros(4 * n_eval)
         omega = st.qd[N_AXES:N_INDEPENDENT]
         if ctx.warp is not None:  # the suspension acts through the warp model only
-            lins = [_without_suspension(lin) for lin in lins]
+            maps = [_without_suspension(lin) for lin in lins]
+        else:
+            maps = [(lin.G, lin.d_q, lin.d_qd) for lin in lins]
         for k in range(n_eval):
             j = steps[which[k]]
-            lin = lins[which[k]]
+            g0 = lins[which[k]].g0
+            G, d_q, d_qd = maps[which[k]]
             r = slice(4 * k, 4 * k + 4)
-            dq, dqd = lin.dq[:, :N_AXES], lin.dqd[:, :N_AXES]
-            G_axes = lin.G[:, _AXES_IN_A]
-            b[r] = lin.g0 + lin.dq[:, N_AXES:] @ (omega * (times[k] - times[j]))
+            dq, dqd = d_q[:, :N_AXES], d_qd[:, :N_AXES]
+            G_axes = G[:, _AXES_IN_A]
+            b[r] = g0 + d_q[:, N_AXES:] @ (omega * (times[k] - times[j]))
             if k == 0:  # now: the measured state's forces, at the new accelerations
                 A[r, lay.step(0)] = G_axes
             else:
@@ -195,7 +189,7 @@ class HorizonNormalForceConstraint(Constraint):
                     A[r] += ctx.warp @ pred.Pq[rows]
                     b[r] += ctx.warp @ (ctx.free_positions[k - 1] - ctx.q)
             if direction is not None:
-                col = (lin.G @ direction) * np.exp(-times[k] / self.drive_time_constant)
+                col = (G @ direction) * np.exp(-times[k] / self.drive_time_constant)
                 A[r, lay.scale] += col
                 b[r] -= col * ctx.speed_scale
         if ctx.feedback is not None:  # the load split measured now, held over the horizon
@@ -209,23 +203,8 @@ class HorizonNormalForceConstraint(Constraint):
                 b -= drift * ctx.speed_scale / s_prev
         return A, b
 
-    def compute(self, ctx) -> Inequality | None:
-        """Rows ``-(A x + b) / f_s - eps <= -f_min / f_s`` of the wheels in contact now."""
-        A, b = self.forces_map(ctx)
-        flags = contact_flags(self.model, ctx.state)
-        self.last_forces_map, self.last_in_contact = (A, b), flags
-        wheels = np.flatnonzero(flags)
-        if wheels.size == 0:
-            return None
-        n_eval = A.shape[0] // 4
-        times = np.append(ctx.prediction.start_times, ctx.prediction.horizon)[:n_eval]
-        evals = np.flatnonzero(times >= self.start_time - 1e-12)
-        rows = (4 * evals[:, None] + wheels[None, :]).ravel()
-        G = -A[rows] / self.force_scale
-        h = (b[rows] - np.tile(self.thresholds[wheels], evals.size)) / self.force_scale
-        if ctx.layout.slack is not None:
-            col = ctx.layout.slack.start + np.tile(wheels, evals.size)
-            if ctx.layout.n_slack == 8:  # the future's own slacks: see the class docstring
-                col = col + 4 * np.repeat(times[evals] > ctx.dt / 2, wheels.size)
-            G[np.arange(rows.size), col] = -1.0
-        return Inequality(G, h)
+    def _constrained_nodes(self, ctx, n_nodes: int) -> tuple[np.ndarray, np.ndarray]:
+        """The nodes from `start_time` on; later: those after the first control period."""
+        times = np.append(ctx.prediction.start_times, ctx.prediction.horizon)[:n_nodes]
+        nodes = np.flatnonzero(times >= self.start_time - 1e-12)
+        return nodes, times[nodes] > ctx.dt / 2

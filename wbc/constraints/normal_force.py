@@ -6,29 +6,17 @@ import numpy as np
 
 from models.coordinates import N_INDEPENDENT
 from wbc.axes import N_AXES
-from wbc.constraints.constraint import Constraint, Inequality
+from wbc.constraints.force_rows import ForceRowsConstraint
 from wbc.drive_model import speed_scale_direction
 from wbc.errors import ConfigurationError
-from wbc.force_models.protocol import (
-    NormalForceModel,
-    contact_flags,
-    linearize_forces,
-)
+from wbc.force_models.protocol import NormalForceModel, linearize_forces
 
-__all__ = ["NormalForceConstraint", "check_thresholds"]
+__all__ = ["NormalForceConstraint"]
 
 _AXES_IN_A = slice(6, 6 + N_AXES)  # columns of the nine axes in a = [base (6), qdd (13)]
 
 
-def check_thresholds(thresholds) -> np.ndarray:
-    """Per-wheel thresholds [N] as a finite array of shape (4,), order FL, RL, FR, RR."""
-    t = np.broadcast_to(np.asarray(thresholds, dtype=float), (4,)).copy()
-    if not np.all(np.isfinite(t)):
-        raise ConfigurationError(f"force thresholds must be finite, got {thresholds}")
-    return t
-
-
-class NormalForceConstraint(Constraint):
+class NormalForceConstraint(ForceRowsConstraint):
     r"""``f_z,i >= f_min,i`` for every wheel i in contact (whole-body QP).
 
     The model gives the forces exactly affine in the generalized accelerations,
@@ -41,8 +29,9 @@ class NormalForceConstraint(Constraint):
     .. math:: f_z(x) = g_0 + G_{axes} \ddot q + (G\, \partial a/\partial s)(s - s_{prev})
               + \frac{\partial f_z}{\partial q}_{axes} (\dot q T + \tfrac12 \ddot q T^2).
 
-    Rows are scaled by ``1 / force_scale``. With slacks in the layout (one per wheel) the
-    rows read ``f_z(x) >= f_min - force_scale * eps``.
+    Rows (`ForceRowsConstraint`) at the one node, now: ``f_z(x) >= f_min - force_scale *
+    eps``, scaled by ``1 / force_scale``, with ``eps`` the wheel's slack if the layout has
+    slacks.
 
     Args:
         model: The normal-force model.
@@ -63,43 +52,24 @@ class NormalForceConstraint(Constraint):
             raise ConfigurationError(f"need lookahead >= 0, force_scale > 0, "
                                      f"drive_time_constant > 0; got {lookahead}, "
                                      f"{force_scale}, {drive_time_constant}")
-        self.model = model
-        self.thresholds = check_thresholds(thresholds)
+        super().__init__(model, thresholds, force_scale, drive_time_constant)
         self.lookahead = float(lookahead)
-        self.force_scale = float(force_scale)
-        self.drive_time_constant = float(drive_time_constant)
-        self.last_forces_map: tuple[np.ndarray, np.ndarray] | None = None
-        self.last_in_contact: np.ndarray | None = None
 
     def forces_map(self, ctx) -> tuple[np.ndarray, np.ndarray]:
         """``(A, b)``: predicted forces ``A x + b`` [N], A shape (4, n), b (4,)."""
         st, lay = ctx.state, ctx.layout
         T = self.lookahead
-        lin = linearize_forces(self.model, st, derivatives=T > 0)
+        lin = linearize_forces(self.model, st)
         A = np.zeros((4, lay.n))
         b = lin.g0.copy()
         A[:, lay.step(0)] = lin.G[:, _AXES_IN_A]
         if T > 0:
-            dq = lin.dq[:, :N_AXES]
+            dq = lin.d_q[:, :N_AXES]
             A[:, lay.step(0)] += 0.5 * T * T * dq
-            b += dq @ (ctx.qd * T) + lin.dq[:, N_AXES:N_INDEPENDENT] @ (
+            b += dq @ (ctx.qd * T) + lin.d_q[:, N_AXES:N_INDEPENDENT] @ (
                 st.qd[N_AXES:N_INDEPENDENT] * T)
         if lay.scale is not None:
             col = lin.G @ speed_scale_direction(st, ctx.speed_scale, self.drive_time_constant)
             A[:, lay.scale] = col
             b -= col * ctx.speed_scale
         return A, b
-
-    def compute(self, ctx) -> Inequality | None:
-        """Rows ``-(A x + b) / f_s - eps <= -f_min / f_s`` of the wheels in contact."""
-        A, b = self.forces_map(ctx)
-        flags = contact_flags(self.model, ctx.state)
-        self.last_forces_map, self.last_in_contact = (A, b), flags
-        rows = np.flatnonzero(flags)
-        if rows.size == 0:
-            return None
-        G = -A[rows] / self.force_scale
-        h = (b[rows] - self.thresholds[rows]) / self.force_scale
-        if ctx.layout.slack is not None:
-            G[np.arange(rows.size), ctx.layout.slack.start + rows] = -1.0
-        return Inequality(G, h)

@@ -21,12 +21,12 @@ import logging
 from typing import ClassVar
 
 import numpy as np
+import qpsolvers
 
-from models.coordinates import N_INDEPENDENT
 from models.description import Machine
 from models.state import MachineState
 from wbc.axes import CRANE_AXES, N_AXES, SUSPENSION_AXES, AxisLimits
-from wbc.context import ReferenceSample
+from wbc.context import ControlContext, ReferenceSample
 from wbc.controllers.command import ControlCommand
 from wbc.controllers.config import ControllerConfig
 from wbc.errors import (
@@ -43,10 +43,6 @@ from wbc.references.goals import JointGoal, TcpGoal
 from wbc.references.ruckig_reference import RuckigReference
 
 __all__ = ["Controller"]
-
-_STATE_FIELDS = {"base_position": (3,), "base_rotation": (3, 3), "base_twist": (6,),
-                 "base_acceleration": (6,), "q": (N_INDEPENDENT,), "qd": (N_INDEPENDENT,),
-                 "qdd": (N_INDEPENDENT,)}
 
 
 class Controller(abc.ABC):
@@ -216,16 +212,27 @@ class Controller(abc.ABC):
 
     # ------------------------------------------------------------------ loop
     def _check_state(self, state) -> None:
+        # shapes, finiteness and the rotation were checked when the state was built
         if not isinstance(state, MachineState):
             raise WbcInputError(f"state must be a models.MachineState, got {type(state)!r}")
-        for f, shape in _STATE_FIELDS.items():
-            a = np.asarray(getattr(state, f))
-            if a.shape != shape:
-                raise WbcInputError(f"state.{f} must have shape {shape}, got {a.shape}")
-            if not np.all(np.isfinite(a)):
-                raise WbcInputError(f"state.{f} has non-finite entries: {a}")
-        if not np.isfinite(state.time):
-            raise WbcInputError(f"state.time is not finite: {state.time}")
+
+    @abc.abstractmethod
+    def context(self, state: MachineState) -> ControlContext:
+        """What this tick's QP is built from (references at the current reference time)."""
+
+    @abc.abstractmethod
+    def _build(self, ctx: ControlContext) -> qpsolvers.Problem:
+        """The QP of ``ctx``."""
+
+    def build_qp(self, state: MachineState) -> qpsolvers.Problem:
+        """The QP of this tick (references must be set: after a `step`, or use `prepare`)."""
+        return self._build(self.context(state))
+
+    def prepare(self, state: MachineState) -> qpsolvers.Problem:
+        """Update the references as `step` would, then return this tick's QP."""
+        self._check_state(state)
+        self._update_references(state)
+        return self.build_qp(state)
 
     @abc.abstractmethod
     def _solve(self, state: MachineState) -> tuple[np.ndarray, float, dict]:
@@ -235,7 +242,7 @@ class Controller(abc.ABC):
         """One control tick: measured state in, rate commands out.
 
         Raises:
-            WbcInputError: ``state`` is not a `MachineState` or has non-finite entries.
+            WbcInputError: ``state`` is not a `MachineState`.
         """
         self._check_state(state)
         try:

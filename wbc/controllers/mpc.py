@@ -7,7 +7,7 @@ import qpsolvers
 
 from models.description import Machine
 from models.state import MachineState
-from wbc.axes import CRANE_AXES, N_AXES, SUSPENSION_AXES, AxisLimits
+from wbc.axes import CRANE_AXES, N_AXES, SUSPENSION_AXES
 from wbc.constraints import (
     AccelerationLimit,
     HorizonNormalForceConstraint,
@@ -116,9 +116,9 @@ class MpcController(Controller):
         self.planner = MpcPlanner(self.limits, layout, mc.step_lengths(cfg.dt), cfg.dt, tasks,
                                   constraints, solver)
         self.last_plan: MpcPlan | None = None
-        ranges = AxisLimits.from_machine(machine, 0.0)
-        self.servo = (ServoState(cfg.dt, mc.deflection_time_constant, ranges.position_lower,
-                                 ranges.position_upper) if mc.setpoint_state else None)
+        ranges = machine.coordinates  # the setpoints may use the full ranges (no margin)
+        self.servo = (ServoState(cfg.dt, mc.deflection_time_constant, ranges.lower[:N_AXES],
+                                 ranges.upper[:N_AXES]) if mc.setpoint_state else None)
 
     @property
     def layout(self) -> VariableLayout:
@@ -213,15 +213,8 @@ class MpcController(Controller):
                                     qd=qd, feedback=fb, warp=self.warp,
                                     leveling_offset=offset, warp_drift=drift)
 
-    def build_qp(self, state: MachineState) -> qpsolvers.Problem:
-        """The condensed QP of this tick (references must be set)."""
-        return self.planner.build(self.context(state))
-
-    def prepare(self, state: MachineState) -> qpsolvers.Problem:
-        """Update the references as `step` would, then return this tick's QP."""
-        self._check_state(state)
-        self._update_references(state)
-        return self.build_qp(state)
+    def _build(self, ctx: HorizonContext) -> qpsolvers.Problem:
+        return self.planner.build(ctx)
 
     def _reset(self) -> None:
         self.planner.reset()
@@ -232,8 +225,7 @@ class MpcController(Controller):
 
     def _solve(self, state: MachineState) -> tuple[np.ndarray, float, dict]:
         ctx = self.context(state)
-        problem = self.planner.build(ctx)
-        plan = self.planner.solve(ctx, problem)
+        plan = self.planner.solve(ctx, self._build(ctx))
         self.last_plan = plan
         sol = plan.solution
         N = self.layout.n_steps

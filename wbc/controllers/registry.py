@@ -8,9 +8,8 @@ from wbc.controllers.controller import Controller
 from wbc.controllers.mpc import MpcController
 from wbc.controllers.tracking import WholeBodyQPController
 from wbc.errors import ConfigurationError, UnknownControllerError
-from wbc.force_models.estimator import load_estimator
-from wbc.force_models.feedback import ClosureFeedback, load_closure
-from wbc.force_models.guarded import GuardedModel
+from wbc.force_models.estimator import load_closure, load_estimator
+from wbc.force_models.feedback import ClosureFeedback
 from wbc.force_models.protocol import NormalForceModel
 from wbc.kinematics.tcp_kinematics import TcpKinematics
 
@@ -27,14 +26,13 @@ def make_controller(name: str, machine: Machine, config: ControllerConfig | None
     * ``tracking``: the whole-body QP without the force constraint.
     * ``mpc-quasi-static``, ``mpc-full``: the MPC with
       ``estimators.NormalForceEstimator(machine, method="quasi-static" | "full")`` (d-beta
-      fourth row, `GuardedModel`) along the horizon, corrected by the same method's
-      cylinder-force closure at the measured state (`ClosureFeedback`); or with
+      fourth row, strokes clipped into their ranges) along the horizon, corrected by the
+      same method's cylinder-force closure at the measured state (`ClosureFeedback`); or with
       ``force_model`` when given (e.g. a test double), then without the feedback.
 
     Raises:
         UnknownControllerError: ``name`` is not in `CONTROLLER_NAMES`.
         ConfigurationError: A force model given to ``tracking``.
-        ForceModelError: The estimator is not available and no ``force_model`` is given.
     """
     if name not in CONTROLLER_NAMES:
         raise UnknownControllerError(str(name), CONTROLLER_NAMES)
@@ -49,8 +47,7 @@ def make_controller(name: str, machine: Machine, config: ControllerConfig | None
     if force_model is not None:
         model = force_model
     else:
-        model = GuardedModel(load_estimator(machine, method), machine)
-        feedback = ClosureFeedback(GuardedModel(load_closure(machine, method), machine))
+        model, feedback = estimator_models(machine, method)
     return MpcController(machine, config, force_model=model, tcp_kinematics=tcp_kinematics,
                          name=name, feedback=feedback)
 
@@ -61,5 +58,4 @@ def estimator_models(machine: Machine, method: str) -> tuple[NormalForceModel,
 
     For `MpcController.set_force_model` when the machine changes (a new payload mass).
     """
-    model = GuardedModel(load_estimator(machine, method), machine)
-    return model, ClosureFeedback(GuardedModel(load_closure(machine, method), machine))
+    return load_estimator(machine, method), ClosureFeedback(load_closure(machine, method))

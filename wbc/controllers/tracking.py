@@ -87,15 +87,8 @@ class WholeBodyQPController(Controller):
         return QPContext.from_state(state, self.dt, self.layout, self.limits, ref,
                                     self._speed_scale)
 
-    def build_qp(self, state: MachineState) -> qpsolvers.Problem:
-        """The QP of this tick (references must be set: after a `step`, or use `prepare`)."""
-        return build_qp(self.context(state), self.tasks, self.constraints)
-
-    def prepare(self, state: MachineState) -> qpsolvers.Problem:
-        """Update the references as `step` would, then return this tick's QP."""
-        self._check_state(state)
-        self._update_references(state)
-        return self.build_qp(state)
+    def _build(self, ctx: QPContext) -> qpsolvers.Problem:
+        return build_qp(ctx, self.tasks, self.constraints)
 
     def _reset(self) -> None:
         self.solver.reset()
@@ -104,9 +97,7 @@ class WholeBodyQPController(Controller):
         self.solver.reset()
 
     def _solve(self, state: MachineState) -> tuple[np.ndarray, float, dict]:
-        ctx = self.context(state)
-        problem = build_qp(ctx, self.tasks, self.constraints)
-        sol = self.solver.solve(problem)
+        sol = self.solver.solve(self._build(self.context(state)))
         lay = self.layout
         qdd = sol.x[lay.step(0)].copy()
         scale = 1.0 if lay.scale is None else float(sol.x[lay.scale])

@@ -1,38 +1,41 @@
-"""Loading the project's normal-force estimator as a `NormalForceModel`."""
+"""The project's normal-force estimator, as the MPC's force model and its closure."""
 
 from __future__ import annotations
 
+from estimators.estimator import NormalForceEstimator
 from models.description import Machine
 from wbc.errors import ForceModelError
-from wbc.force_models.protocol import NormalForceModel
 
-__all__ = ["load_estimator"]
+__all__ = ["ESTIMATOR_METHODS", "load_closure", "load_estimator"]
 
 ESTIMATOR_METHODS = ("full", "quasi-static")
 
 
-def load_estimator(machine: Machine, method: str) -> NormalForceModel:
-    """``estimators.NormalForceEstimator(machine, method=method)``.
-
-    Raises:
-        ForceModelError: The `estimators` package has no `NormalForceEstimator` yet, or it
-            does not provide the methods of `NormalForceModel`.
-    """
+def _checked_method(method: str) -> str:
     if method not in ESTIMATOR_METHODS:
         raise ForceModelError(f"unknown estimator method '{method}'; valid: "
                               f"{', '.join(ESTIMATOR_METHODS)}")
-    try:
-        from estimators import NormalForceEstimator
-    except ImportError:
-        try:  # the class's module, before the package re-exports it
-            from estimators.estimator import NormalForceEstimator
-        except ImportError as exc:
-            raise ForceModelError(
-                "estimators.NormalForceEstimator is not available; pass force_model= "
-                f"explicitly (for example wbc.AffineForceModel) ({exc})") from exc
-    model = NormalForceEstimator(machine, method=method)
-    missing = [m for m in ("estimate", "constraint", "constraint_derivatives")
-               if not callable(getattr(model, m, None))]
-    if missing:
-        raise ForceModelError(f"NormalForceEstimator lacks {', '.join(missing)}")
-    return model
+    return method
+
+
+def load_estimator(machine: Machine, method: str) -> NormalForceEstimator:
+    """The estimator with the d-beta fourth row (eq. 29), ``method`` full or quasi-static.
+
+    Strokes outside their ranges are clipped (``strokes="clip"``): the MPC evaluates it at
+    nominal states ahead that can lie a little outside, and MuJoCo's soft joint limits let
+    a measured stroke overshoot.
+
+    Raises:
+        ForceModelError: Unknown ``method``.
+    """
+    return NormalForceEstimator(machine, method=_checked_method(method), strokes="clip")
+
+
+def load_closure(machine: Machine, method: str) -> NormalForceEstimator:
+    """The estimator with the cylinder-force fourth row (the measured load split).
+
+    Raises:
+        ForceModelError: Unknown ``method``.
+    """
+    return NormalForceEstimator(machine, method=_checked_method(method),
+                                fourth="cylinder-force", strokes="clip")

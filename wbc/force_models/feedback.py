@@ -37,14 +37,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from models.description import Machine
 from models.state import MachineState
 from wbc.axes import N_AXES, SUSPENSION_AXES
 from wbc.errors import ForceModelError
-from wbc.force_models.protocol import NormalForceModel, contact_flags
+from wbc.force_models.protocol import MODEL_ERRORS, NormalForceModel, contact_flags
 
 __all__ = ["DIAGONAL", "WARP_STIFFNESS", "ClosureFeedback", "ForceFeedback", "WarpDrift",
-           "leveling_offset", "load_closure", "warp_matrix"]
+           "leveling_offset", "warp_matrix"]
 
 DIAGONAL = np.array([1.0, -1.0, -1.0, 1.0])  # FL, RL, FR, RR: the free (warp) direction
 # [N/m] per wheel along DIAGONAL per metre of (setpoint_L - setpoint_R): measured on the
@@ -106,20 +105,6 @@ def leveling_offset(forces, thresholds, in_contact=None, limit: float = np.inf) 
     return float(np.clip(delta, -limit, limit))
 
 
-def load_closure(machine: Machine, method: str) -> NormalForceModel:
-    """The estimator with the cylinder-force fourth row (``method``: full or quasi-static).
-
-    Raises:
-        ForceModelError: The estimator is not available.
-    """
-    try:
-        from estimators import NormalForceEstimator
-    except ImportError as exc:
-        raise ForceModelError(f"estimators.NormalForceEstimator is not available ({exc})") \
-            from exc
-    return NormalForceEstimator(machine, method=method, fourth="cylinder-force")
-
-
 class ClosureFeedback:
     """The measured load split (`ForceFeedback`) from a cylinder-force closure model.
 
@@ -141,9 +126,7 @@ class ClosureFeedback:
         try:
             f = np.asarray(self.closure.estimate(state).normal_forces, float)
             g = np.asarray(model.estimate(state).normal_forces, float)
-        except ForceModelError:
-            raise
-        except Exception as exc:
+        except MODEL_ERRORS as exc:
             raise ForceModelError(f"force feedback failed at t={state.time:.3f} s: "
                                   f"{type(exc).__name__}: {exc}") from exc
         if f.shape != (4,) or g.shape != (4,) or not (np.isfinite(f).all()

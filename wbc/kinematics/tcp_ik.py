@@ -14,7 +14,7 @@ __all__ = ["IKResult", "solve_tcp_ik"]
 
 # Relative cost of moving each crane axis (slew, lift, tilt, telescope, wrist pitch, roll,
 # rotator): the boom places the tool, the wrist keeps its orientation.
-DEFAULT_AXIS_COST = np.array([1.0, 1.0, 1.0, 1.0, 1e3, 1e3, 1e3])
+DEFAULT_AXIS_COST = (1.0, 1.0, 1.0, 1.0, 1e3, 1e3, 1e3)
 
 
 @dataclass(frozen=True)
@@ -45,7 +45,7 @@ def solve_tcp_ik(kinematics: TcpKinematics, target_in_fb, q_init, limits: AxisLi
         tolerance: Position tolerance [m].
         max_iterations: Iteration cap.
         damping: lambda.
-        axis_cost: W's diagonal for the 7 crane axes.
+        axis_cost: W's diagonal for the 7 crane axes [-], shape (7,).
         max_step: Per-iteration step cap.
 
     Raises:

@@ -6,26 +6,18 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from models.state import MachineState
-from wbc.axes import AxisLimits
-from wbc.context import ReferenceSample
+from wbc.context import ControlContext, ReferenceSample
 from wbc.force_models.feedback import ForceFeedback
-from wbc.layout import VariableLayout
 from wbc.mpc.prediction import CondensedPrediction
 
 __all__ = ["HorizonContext"]
 
 
 @dataclass(frozen=True)
-class HorizonContext:
+class HorizonContext(ControlContext):
     """Inputs of one MPC QP (decision variables: ``layout`` with ``n_steps = N``).
 
     Attributes:
-        state: The measured state.
-        q, qd: Axis positions and velocities now, shapes (9,).
-        dt: Control period [s] (how long the first input is applied before the next solve).
-        layout: Decision layout.
-        limits: Axis limits.
         prediction: Condensed double-integrator prediction.
         reference: Reference at the node times ``0, t_1, ..., t_N``: arrays (N + 1, 9).
         nominal_inputs: The previous plan shifted to now, (N, 9): where the force model is
@@ -45,12 +37,6 @@ class HorizonContext:
             (`wbc.force_models.feedback.WarpDrift`); None: none.
     """
 
-    state: MachineState
-    q: np.ndarray
-    qd: np.ndarray
-    dt: float
-    layout: VariableLayout
-    limits: AxisLimits
     prediction: CondensedPrediction
     reference: ReferenceSample
     nominal_inputs: np.ndarray

@@ -12,7 +12,7 @@ from models.state import MachineState
 from wbc.axes import N_AXES, AxisLimits
 from wbc.constraints.constraint import Constraint
 from wbc.context import ReferenceSample
-from wbc.errors import ConfigurationError
+from wbc.errors import ConfigurationError, QPSolveError
 from wbc.layout import VariableLayout
 from wbc.mpc.context import HorizonContext
 from wbc.mpc.prediction import CondensedPrediction
@@ -141,7 +141,7 @@ class MpcPlanner:
         """
         try:
             sol = self.solver.solve(problem)
-        except Exception:
+        except QPSolveError:
             self._plan = None
             raise
         lay = self.layout

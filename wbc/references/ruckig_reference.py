@@ -72,11 +72,6 @@ class RuckigReference:
         return self.axes.size
 
     @property
-    def is_set(self) -> bool:
-        """Whether a trajectory or a hold position is set."""
-        return self._planned or self._hold is not None
-
-    @property
     def duration(self) -> float:
         """Duration of the planned trajectory [s] (0 when holding)."""
         return float(self._traj.duration) if self._planned else 0.0

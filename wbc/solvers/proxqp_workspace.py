@@ -31,7 +31,7 @@ class ProxQPWorkspace:
     and ``mu_in`` are reset to their defaults on every ``update``. A very tight
     ``eps_primal_inf`` also makes a truly infeasible MPC take ~10^4 iterations (2 s)
     instead of 6 (1.7 ms) before it is reported, so the workspace resets the proximal
-    parameters, keeps ``eps_primal_inf = 1e-6``, and retries a failed warm solve once from a
+    parameters, keeps ``eps_primal_inf = 1e-9``, and retries a failed warm solve once from a
     cold start. Every tolerance is set explicitly.
 
     Args:
@@ -160,9 +160,6 @@ class ProxQPWorkspace:
             raise QPSolveError(f"ProxQP did not solve the QP: status {status} after "
                                f"{info.iter} iterations (n={n}, inequalities={n_in})", status)
         return QPSolution(x, info.status.name, int(info.iter), elapsed, warm)
-
-    def _primal_infeasible(self) -> bool:
-        return self._qp.results.info.status == proxqp.QPSolverOutput.PROXQP_PRIMAL_INFEASIBLE
 
     def _solved(self) -> bool:
         r = self._qp.results

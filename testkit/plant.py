@@ -1,4 +1,4 @@
-"""Helpers for tests, examples and benchmarks without the MuJoCo simulator.
+"""A kinematic plant and a state builder for tests and benchmarks without MuJoCo.
 
 `KinematicPlant` stands in for the velocity-servoed machine: each axis follows its rate
 command with a first-order lag (time constant 0 = ideal servo); the base holds its pose

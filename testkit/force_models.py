@@ -2,8 +2,9 @@
 
     f_z = f_static + K (q - q_ref) + G a,    a = [base_acceleration (6), qdd (13)].
 
-It is *not* a physical model; it has the interface of `NormalForceModel` and simple,
-controllable sensitivities, so that tests can say beforehand which constraint must bind.
+It is *not* a physical model; it has the interface of `wbc.force_models.NormalForceModel`
+and simple, controllable sensitivities, so that tests can say beforehand which constraint
+must bind.
 """
 
 from __future__ import annotations
@@ -12,10 +13,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from estimators.linearization import N_GENERALIZED, ForceLinearization
 from models.coordinates import N_INDEPENDENT
 from models.description import Machine
 from models.state import MachineState
-from wbc.force_models.protocol import N_GENERALIZED
 
 __all__ = ["AffineForceEstimate", "AffineForceModel"]
 
@@ -90,11 +91,12 @@ class AffineForceModel:
         flags = f > 0.0 if self.in_contact is None else self.in_contact.copy()
         return AffineForceEstimate(f, flags)
 
-    def constraint(self, state: MachineState) -> tuple[np.ndarray, np.ndarray]:
-        """(G, g0) with ``f_z = G a + g0``."""
+    def linearize(self, state: MachineState) -> ForceLinearization:
+        """``G``, ``g0 = f_static + K (q - q_ref)``, ``d_q = K``, ``d_qd = 0`` at ``state``."""
         self.calls += 1
-        return self.G.copy(), self._g0(state)
-
-    def constraint_derivatives(self, state: MachineState) -> np.ndarray:
-        """``df_z/dq`` = K, shape (4, 13)."""
-        return self.K.copy()
+        a = np.concatenate([state.base_acceleration, state.qdd])
+        g0 = self._g0(state)
+        f = self.G @ a + g0
+        flags = f > 0.0 if self.in_contact is None else self.in_contact.copy()
+        return ForceLinearization(f, self.G, g0, self.K, np.zeros((4, N_INDEPENDENT)), flags,
+                                  "d-beta", (), state.time)

@@ -1,0 +1,79 @@
+"""What the whole-body and the MPC normal-force constraints share: thresholds, rows, slacks."""
+
+from __future__ import annotations
+
+import abc
+
+import numpy as np
+
+from wbc.constraints.constraint import Constraint, Inequality
+from wbc.errors import ConfigurationError
+from wbc.force_models.protocol import NormalForceModel, contact_flags
+
+__all__ = ["ForceRowsConstraint", "check_thresholds"]
+
+
+def check_thresholds(thresholds) -> np.ndarray:
+    """Per-wheel thresholds [N] as a finite array of shape (4,), order FL, RL, FR, RR."""
+    t = np.broadcast_to(np.asarray(thresholds, dtype=float), (4,)).copy()
+    if not np.all(np.isfinite(t)):
+        raise ConfigurationError(f"force thresholds must be finite, got {thresholds}")
+    return t
+
+
+class ForceRowsConstraint(Constraint):
+    r"""``f_z,i(t_k) >= f_min,i`` at some nodes k, for every wheel i in contact now.
+
+    A subclass predicts the forces of all four wheels at its nodes, ``A x + b`` node-major
+    (`forces_map`), and says which nodes get rows (`_constrained_nodes`). The rows are
+    scaled by ``1 / force_scale``: ``-(A x + b) / f_s - eps <= -f_min / f_s``, with
+    ``eps`` the wheel's slack when the layout has slacks (else no ``eps``): one per wheel,
+    or with eight slacks one per wheel for the node now and another for the later nodes.
+
+    Args:
+        model: The normal-force model.
+        thresholds: f_min [N], scalar or shape (4,), order FL, RL, FR, RR.
+        force_scale: Row scaling [N].
+        drive_time_constant: tau of the base drive [s] (`wbc.drive_model`).
+
+    Attributes:
+        last_forces_map: ``(A, b)`` of the last call, the predicted forces ``A x + b`` [N]
+            of all four wheels; for logging and tests.
+        last_in_contact: Contact flags of the last call, shape (4,).
+    """
+
+    def __init__(self, model: NormalForceModel, thresholds, force_scale: float,
+                 drive_time_constant: float):
+        self.model = model
+        self.thresholds = check_thresholds(thresholds)
+        self.force_scale = float(force_scale)
+        self.drive_time_constant = float(drive_time_constant)
+        self.last_forces_map: tuple[np.ndarray, np.ndarray] | None = None
+        self.last_in_contact: np.ndarray | None = None
+
+    @abc.abstractmethod
+    def forces_map(self, ctx) -> tuple[np.ndarray, np.ndarray]:
+        """``(A, b)``: predicted forces ``A x + b`` [N], four rows per node."""
+
+    def _constrained_nodes(self, ctx, n_nodes: int) -> tuple[np.ndarray, np.ndarray]:
+        """``(nodes, later)``: the nodes that get rows and whether each lies after now."""
+        return np.zeros(1, dtype=int), np.zeros(1, dtype=bool)
+
+    def compute(self, ctx) -> Inequality | None:
+        """Rows ``-(A x + b) / f_s - eps <= -f_min / f_s`` of the wheels in contact now."""
+        A, b = self.forces_map(ctx)
+        flags = contact_flags(self.model, ctx.state)
+        self.last_forces_map, self.last_in_contact = (A, b), flags
+        wheels = np.flatnonzero(flags)
+        if wheels.size == 0:
+            return None
+        nodes, later = self._constrained_nodes(ctx, A.shape[0] // 4)
+        rows = (4 * nodes[:, None] + wheels[None, :]).ravel()
+        G = -A[rows] / self.force_scale
+        h = (b[rows] - np.tile(self.thresholds[wheels], nodes.size)) / self.force_scale
+        if ctx.layout.slack is not None:
+            col = ctx.layout.slack.start + np.tile(wheels, nodes.size)
+            if ctx.layout.n_slack == 8:  # the later nodes' own slacks
+                col = col + 4 * np.repeat(later, wheels.size)
+            G[np.arange(rows.size), col] = -1.0
+        return Inequality(G, h)
