@@ -48,7 +48,7 @@ def timing(calls: int = CALLS, batch: int = BATCH) -> dict:
     """Single-call and batch timings; a flat dict of figures."""
     import pinocchio as pin
 
-    from estimators.estimator import NormalForceEstimator, StateBatch
+    from estimators import NormalForceEstimator, StateBatch
     from models import WheelContacts, build_reference_machine
     from models.pinocchio_model import build_pinocchio
     from testkit.estimator_states import random_state
