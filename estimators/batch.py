@@ -25,25 +25,7 @@ SINGULAR_CONDITION = 1e12  # 1-norm condition number above which a system counts
 
 def estimate_batch(est, states, *, strict: bool = True, chunk: int = 4096,
                    threads: int = 2) -> BatchEstimate:
-    """Normal forces of a log of states, vectorised.
-
-    Args:
-        est: The `NormalForceEstimator`.
-        states: A `StateBatch`, a mapping of its field names to arrays, or a sequence of
-            `MachineState`.
-        strict: Raise `SingularSystemError` for a singular row; otherwise solve it in
-            least squares and flag it in `BatchEstimate.singular`.
-        chunk: States per compiled call.
-        threads: Threads over chunks (the compiled code releases the GIL).
-
-    Returns:
-        The `BatchEstimate`.
-
-    Raises:
-        EstimatorInputError: A field has a wrong shape, NaN/inf, or a stroke is out of
-            range (the message names the field, the rows and the range).
-        SingularSystemError: With ``strict``, a row's system is singular.
-    """
+    """`NormalForceEstimator.estimate_batch` (see there) of the estimator ``est``."""
     sb = as_batch(states)
     validate_batch(est, sb)
     lay = LAYOUT
@@ -101,8 +83,10 @@ def estimate_batch(est, states, *, strict: bool = True, chunk: int = 4096,
 
 
 def validate_batch(est, sb: StateBatch) -> None:
-    """Raise `EstimatorInputError` for a stroke out of range or a non-rotation in ``sb``."""
-    n = len(sb)
+    """Raise `EstimatorInputError` for a stroke out of its chain's range in ``sb``.
+
+    Shapes, finiteness and the rotations were checked when the `StateBatch` was built.
+    """
     for name, i, lo, hi in est._ranges:
         x = sb.q[:, i]
         bad = ~((x >= lo - 1e-12) & (x <= hi + 1e-12))
@@ -111,15 +95,6 @@ def validate_batch(est, sb: StateBatch) -> None:
             raise EstimatorInputError(
                 f"row {k} ({int(bad.sum())} rows in all): "
                 + range_message(name, i, float(x[k]), (lo, hi)))
-    r = sb.base_rotation
-    if n:
-        err = np.abs(r @ r.transpose(0, 2, 1) - np.eye(3)).max(axis=(1, 2))
-        det = np.einsum("ni,ni->n", np.cross(r[:, 0], r[:, 1]), r[:, 2])
-        bad = (err > 1e-6) | (det < 0)
-        if bad.any():
-            k = int(np.flatnonzero(bad)[0])
-            raise EstimatorInputError(f"'base_rotation' row {k} is not a rotation matrix "
-                                      f"({int(bad.sum())} rows in all)")
 
 
 def pack_rows(est, sb: StateBatch, sl: slice, systems: fd.Selectors):

@@ -20,10 +20,21 @@ from models.description import WHEEL_ORDER
 from models.errors import StateError
 
 __all__ = ["MachineState", "WheelContacts", "WHEEL_ORDER", "N_SERVO_AXES",
-           "ROTATION_TOLERANCE", "frozen_array"]
+           "ROTATION_TOLERANCE", "frozen_array", "shaped_array"]
 
 N_SERVO_AXES = 9  # the servo-driven axes: 2 suspension strokes, 7 crane coordinates
 ROTATION_TOLERANCE = 1e-6  # max |R R^T - I| entry of a valid rotation matrix
+
+
+def shaped_array(name: str, value, shape: tuple[int, ...], dtype=float) -> np.ndarray:
+    """``value`` as a new array of ``shape``; `StateError` naming the field otherwise."""
+    try:
+        a = np.array(value, dtype=dtype)
+    except (TypeError, ValueError) as exc:
+        raise StateError(f"'{name}' must be numeric with shape {shape}: {exc}") from None
+    if a.shape != shape:
+        raise StateError(f"'{name}' must have shape {shape}, got {a.shape}")
+    return a
 
 
 def frozen_array(name: str, value, shape: tuple[int, ...], dtype=float) -> np.ndarray:
@@ -32,12 +43,7 @@ def frozen_array(name: str, value, shape: tuple[int, ...], dtype=float) -> np.nd
     Raises:
         StateError: Not numeric, wrong shape, or a NaN/inf entry (the message names the field).
     """
-    try:
-        a = np.array(value, dtype=dtype)
-    except (TypeError, ValueError) as exc:
-        raise StateError(f"'{name}' must be numeric with shape {shape}: {exc}") from None
-    if a.shape != shape:
-        raise StateError(f"'{name}' must have shape {shape}, got {a.shape}")
+    a = shaped_array(name, value, shape, dtype)
     if dtype is float and not np.all(np.isfinite(a)):
         raise StateError(f"'{name}' has non-finite entries (NaN or inf): {a}")
     a.flags.writeable = False

@@ -13,7 +13,7 @@ import numpy as np
 
 from models.coordinates import N_INDEPENDENT
 from models.errors import StateError
-from models.state import ROTATION_TOLERANCE, MachineState
+from models.state import ROTATION_TOLERANCE, MachineState, shaped_array
 
 __all__ = ["StateBatch"]
 
@@ -59,12 +59,7 @@ class StateBatch:
             v = getattr(self, name)
             if v is None:
                 continue
-            try:
-                a = np.array(v, dtype=float)
-            except (TypeError, ValueError) as exc:
-                raise StateError(f"'{name}' must be numeric with shape {shape}: {exc}") from None
-            if a.shape != shape:
-                raise StateError(f"'{name}' must have shape {shape}, got {a.shape}")
+            a = shaped_array(name, v, shape)
             bad = ~np.isfinite(a.reshape(n, -1)).all(axis=1) if n else np.zeros(0, bool)
             if bad.any():
                 raise StateError(f"'{name}' has non-finite entries (NaN or inf) at rows "
