@@ -34,6 +34,7 @@ import numpy as np
 
 from estimators.full_dynamics import normal_force_system
 from estimators.tree import TreeModel
+from models.coordinates import N_INDEPENDENT
 
 __all__ = ["CasadiOps", "Kernels", "Layout", "build_kernels"]
 
@@ -134,52 +135,46 @@ class CasadiOps:
         return ca.vertcat(ca.horzcat(w, ca.SX.zeros(3, 3)), ca.horzcat(v, w))
 
 
-class Layout:
-    """Slices of the flat kernel input (one row per state).
+def _packed(fields) -> dict:
+    """Consecutive positions of named fields: a slice per vector, an int per scalar (None)."""
+    out, start = {}, 0
+    for name, size in fields:
+        out[name] = start if size is None else slice(start, start + size)
+        start += 1 if size is None else size
+    out["size"] = start
+    return out
 
-    State: base rotation (9, row-major world <- fb), base twist (6), base acceleration (6),
-    q, qd, qdd (13 each). Contacts: measured points (12, row-major (4, 3)), use-measured
-    flags (4), measured forces in fb (12). Selectors (`full_dynamics.Selectors`): mask (4),
-    height weights (4), s_dbeta, s_cylinder, lost (4). Parameters: D, beta, suspension
-    forces (2).
+
+class Layout:
+    """Positions in the flat kernel input (one row per state) and in each kernel's output.
+
+    Computed from the field sizes, in this order. State: base rotation (9, row-major world <-
+    fb), base twist (6), base acceleration (6), q, qd, qdd (13 each). Contacts: measured
+    points (12, row-major (4, 3)), use-measured flags (4), measured forces in fb (12).
+    Selectors (`full_dynamics.Selectors`): mask (4), height weights (4), s_dbeta, s_cylinder,
+    lost (4). Parameters: D, beta, suspension forces (2). Outputs of ``nf_estimate``: x (4),
+    F_Xi (6), A (3x4), b (3), condition, contact points (4x3), residual (3); of
+    ``nf_constraint``: x, d x / d a (4x19 row-major), d b / d a (3x19); of
+    ``nf_derivatives``: x, d x / d a, d x / d q (4x13), d x / d qd (4x13).
     """
 
-    rotation: slice = slice(0, 9)
-    twist: slice = slice(9, 15)
-    acceleration: slice = slice(15, 21)
-    q: slice = slice(21, 34)
-    qd: slice = slice(34, 47)
-    qdd: slice = slice(47, 60)
-    points: slice = slice(60, 72)
-    use_measured: slice = slice(72, 76)
-    force: slice = slice(76, 88)
-    mask: slice = slice(88, 92)
-    height_weights: slice = slice(92, 96)
-    s_dbeta: int = 96
-    s_cylinder: int = 97
-    lost: slice = slice(98, 102)
-    d: int = 102
-    beta: int = 103
-    suspension_force: slice = slice(104, 106)
-    size: int = 106
-    # Outputs of nf_estimate.
-    out_x: slice = slice(0, 4)
-    out_xi: slice = slice(4, 10)
-    out_a: slice = slice(10, 22)
-    out_b: slice = slice(22, 25)
-    out_cond: int = 25
-    out_points: slice = slice(26, 38)
-    out_residual: slice = slice(38, 41)
-    out_size: int = 41
-    # Outputs of nf_constraint: x (4), d x / d a (4x19 row-major), d b / d a (3x19).
-    con_x: slice = slice(0, 4)
-    con_g: slice = slice(4, 80)
-    con_jb: slice = slice(80, 137)
-    # Outputs of nf_derivatives: x, d x / d a, d x / d q (4x13), d x / d qd (4x13).
-    der_x: slice = slice(0, 4)
-    der_a: slice = slice(4, 80)
-    der_q: slice = slice(80, 132)
-    der_qd: slice = slice(132, 184)
+    def __init__(self):
+        n = N_INDEPENDENT
+        g = 6 + n
+        inputs = _packed([("rotation", 9), ("twist", 6), ("acceleration", 6), ("q", n),
+                          ("qd", n), ("qdd", n), ("points", 12), ("use_measured", 4),
+                          ("force", 12), ("mask", 4), ("height_weights", 4),
+                          ("s_dbeta", None), ("s_cylinder", None), ("lost", 4), ("d", None),
+                          ("beta", None), ("suspension_force", 2)])
+        estimate = _packed([("out_x", 4), ("out_xi", 6), ("out_a", 12), ("out_b", 3),
+                            ("out_cond", None), ("out_points", 12), ("out_residual", 3)])
+        estimate["out_size"] = estimate.pop("size")
+        constraint = _packed([("con_x", 4), ("con_g", 4 * g), ("con_jb", 3 * g)])
+        derivatives = _packed([("der_x", 4), ("der_a", 4 * g), ("der_q", 4 * n),
+                               ("der_qd", 4 * n)])
+        del constraint["size"], derivatives["size"]
+        for part in (inputs, estimate, constraint, derivatives):
+            self.__dict__.update(part)
 
 
 LAYOUT = Layout()

@@ -26,7 +26,7 @@ import numpy as np
 
 from models.description import Machine
 
-__all__ = ["QuasiStaticMask", "quasi_static_mask"]
+__all__ = ["QuasiStaticMask"]
 
 
 class QuasiStaticMask:
@@ -55,8 +55,3 @@ class QuasiStaticMask:
         qdd[..., self.dropped_index] = 0.0
         return np.zeros_like(twist, dtype=float), np.zeros_like(acceleration, dtype=float), \
             qd, qdd
-
-
-def quasi_static_mask(machine: Machine) -> QuasiStaticMask:
-    """The `QuasiStaticMask` of ``machine``."""
-    return QuasiStaticMask(machine)
