@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-__all__ = ["CommandError", "SimulationError", "SimulatorError"]
+__all__ = ["CommandError", "RunInputError", "RunInterrupted", "SimulationError", "SimulatorError"]
 
 
 class SimulatorError(Exception):
@@ -15,3 +15,24 @@ class CommandError(SimulatorError, ValueError):
 
 class SimulationError(SimulatorError, RuntimeError):
     """The simulation diverged (MuJoCo flagged a bad position, velocity or acceleration)."""
+
+
+class RunInputError(SimulatorError, ValueError):
+    """A run's argument (duration, seed, threshold, ...) is outside its valid range."""
+
+
+class RunInterrupted(KeyboardInterrupt):
+    """Ctrl-C stopped a run; the partial log and metrics were written.
+
+    A `KeyboardInterrupt`, so callers that stop on Ctrl-C still stop.
+
+    Attributes:
+        out_dir: Folder holding the partial ``log.npz`` and ``metrics.json``, or None.
+        metrics: The partial run's metrics (``"partial": True``).
+    """
+
+    def __init__(self, out_dir, metrics: dict):
+        super().__init__(f"interrupted after {metrics.get('sim_seconds', 0.0):.2f} s "
+                         f"simulated")
+        self.out_dir = out_dir
+        self.metrics = metrics

@@ -1,47 +1,57 @@
-"""A dependency-free progress bar for long runs (stderr, quiet when not a terminal)."""
+"""Progress bars with an ETA for long runs (tqdm on stderr)."""
 
 from __future__ import annotations
 
 import sys
-import time
+
+from tqdm import tqdm
+
+__all__ = ["Progress"]
 
 
 class Progress:
-    """Text progress bar: ``with Progress(total, label) as p: p.update(done)``.
+    """Progress bar with elapsed time and ETA: ``with Progress(total, label) as p: p.update(done)``.
 
     Args:
-        total: Amount at 100 % (e.g. simulated seconds).
+        total: Amount at 100 % (e.g. simulated seconds [s]).
         label: Text in front of the bar.
-        enabled: Draw at all; by default only when stderr is a terminal, else one line
-            every 10 %.
+        enabled: Draw at all; None: draw (a live bar on a terminal, a line every 10 % else).
+        unit: Unit of ``total`` shown in the bar.
     """
 
-    def __init__(self, total: float, label: str = "", enabled: bool | None = None):
+    def __init__(self, total: float, label: str = "", enabled: bool | None = None,
+                 unit: str = "s"):
         self.total = max(float(total), 1e-12)
-        self.label = label
-        self.tty = sys.stderr.isatty() if enabled is None else enabled
-        self.enabled = True if enabled is None else enabled
-        self._t0 = time.perf_counter()
-        self._last_decile = -1
+        self.enabled = True if enabled is None else bool(enabled)
+        self._done = 0.0
+        self._bar = None
+        if self.enabled:
+            tty = sys.stderr.isatty()
+            self._bar = tqdm(total=round(self.total, 3), desc=label, unit=unit,
+                             file=sys.stderr, leave=True, dynamic_ncols=True,
+                             mininterval=0.2 if tty else 0.0,
+                             miniters=None if tty else max(self.total / 10, 1e-12),
+                             bar_format="{desc} {percentage:3.0f}%|{bar}| {n:.1f}/{total:.1f} "
+                                        "{unit} [{elapsed}<{remaining}]")
 
     def __enter__(self) -> Progress:
         return self
 
     def __exit__(self, *exc) -> None:
-        if self.enabled and self.tty:
-            sys.stderr.write("\n")
+        self.close()
 
     def update(self, done: float) -> None:
-        """Show progress ``done`` out of ``total``."""
-        if not self.enabled:
+        """Show progress ``done`` out of ``total`` (absolute, not an increment)."""
+        if self._bar is None:
             return
-        frac = min(max(done / self.total, 0.0), 1.0)
-        elapsed = time.perf_counter() - self._t0
-        if self.tty:
-            n = int(30 * frac)
-            sys.stderr.write(f"\r{self.label} [{'#' * n}{'.' * (30 - n)}] {100 * frac:5.1f}% "
-                             f"{elapsed:6.1f}s")
-            sys.stderr.flush()
-        elif int(10 * frac) > self._last_decile:
-            self._last_decile = int(10 * frac)
-            sys.stderr.write(f"{self.label} {100 * frac:5.1f}% ({elapsed:.1f}s)\n")
+        done = min(max(float(done), 0.0), self.total)
+        step = round(done - self._done, 3)
+        if step > 0:
+            self._bar.update(step)
+            self._done += step
+
+    def close(self) -> None:
+        """Finish the bar (idempotent)."""
+        if self._bar is not None:
+            self._bar.close()
+            self._bar = None
