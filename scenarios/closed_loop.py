@@ -13,8 +13,7 @@ are cached per machine), at the pick instant (`MpcController.set_force_model`).
 
 from __future__ import annotations
 
-import json
-import math
+import sys
 import time
 from collections import deque
 from dataclasses import dataclass
@@ -35,9 +34,13 @@ from scenarios.closed_loop_scenarios import (
     scenario_terrain,
     threshold,
 )
-from scenarios.metrics import closed_loop_metrics, json_default
+from scenarios.errors import RunInterrupted
+from scenarios.json_io import write_json
+from scenarios.kernels import warm_estimator_kernels
+from scenarios.metrics import closed_loop_metrics
 from scenarios.noise import MeasurementNoise
 from scenarios.progress import Progress
+from scenarios.run_args import check_delay, check_duration, check_seed, check_threshold
 from scenarios.simulator import Simulator
 from wbc import (
     CONTROLLER_NAMES,
@@ -105,7 +108,7 @@ def run_closed_loop(scenario: ClosedLoopScenario | str, out_dir: Path | None = N
                     duration: float | None = None, progress: bool = False,
                     noise: MeasurementNoise | None = None, delay_periods: int = 0,
                     config: ControllerConfig | None = None,
-                    inform_payload: bool = True) -> dict:
+                    inform_payload: bool = True, threshold_n: float | None = None) -> dict:
     """Run a closed-loop scenario; write ``log.npz`` and ``metrics.json`` to ``out_dir``.
 
     Args:
@@ -119,9 +122,19 @@ def run_closed_loop(scenario: ClosedLoopScenario | str, out_dir: Path | None = N
         delay_periods: The controller sees the state of this many control periods ago.
         config: Controller settings; `controller_config` if None.
         inform_payload: Tell the MPC the new payload mass at the payload event.
+        threshold_n: Normal-force threshold of the metrics and the controllers [N];
+            `threshold` (10 % of the static wheel load) if None. Ignored by the controllers
+            when ``config`` is given.
 
     Returns:
-        The metrics (also written to ``metrics.json``).
+        The metrics (also written to ``metrics.json``), with ``"partial": False``.
+
+    Raises:
+        ValueError: Unknown scenario or controller.
+        RunInputError: ``duration``, ``seed``, ``delay_periods`` or ``threshold_n`` outside
+            its range (`scenarios.run_args`).
+        RunInterrupted: Ctrl-C during the run; the log and metrics so far were written
+            (``"partial": True``).
     """
     if isinstance(scenario, str):
         if scenario not in SCENARIOS:
@@ -131,15 +144,13 @@ def run_closed_loop(scenario: ClosedLoopScenario | str, out_dir: Path | None = N
     if controller not in CONTROLLER_NAMES:
         raise ValueError(f"unknown controller '{controller}'; valid: "
                          f"{', '.join(CONTROLLER_NAMES)}")
-    duration = scenario.duration if duration is None else float(duration)
-    if not (math.isfinite(duration) and duration > 0):
-        raise ValueError(f"duration must be a positive number of seconds, got {duration}")
-    if isinstance(delay_periods, bool) or not isinstance(delay_periods, int) \
-            or delay_periods < 0:
-        raise ValueError(f"delay_periods must be an integer >= 0, got {delay_periods!r}")
-    thr = threshold()
-    config = controller_config(thr, scenario.crane_speed) if config is None else config
+    duration = check_duration(duration, scenario.duration)
+    seed = check_seed(seed)
+    delay_periods = check_delay(delay_periods)
     machine = build_reference_machine(payload_mass=scenario.payload_mass)
+    thr = threshold() if threshold_n is None else check_threshold(
+        threshold_n, machine.total_mass * machine.gravity / 4)
+    config = controller_config(thr, scenario.crane_speed) if config is None else config
     terrain = scenario_terrain(scenario, seed)
     sim = Simulator(machine, terrain, noise=noise)
     sim.reset(scenario.start_pose.q(machine), scenario.start)
@@ -150,6 +161,9 @@ def run_closed_loop(scenario: ClosedLoopScenario | str, out_dir: Path | None = N
             and inform_payload:
         heavy = build_reference_machine(payload_mass=scenario.payload_event[1])
         new_models = estimator_models(heavy, controller.removeprefix("mpc-"))
+    if isinstance(ctrl, MpcController):  # compile before the clock starts
+        warm_estimator_kernels([machine] + ([heavy] if new_models is not None else []),
+                               notice=_notice if progress else None)
     kin = TcpKinematics(machine)
     goals = _GoalSequence([JointGoal(crane=p.coordinates(machine)) for p in scenario.goals],
                           scenario.first_goal_time, scenario.dwell)
@@ -165,59 +179,69 @@ def run_closed_loop(scenario: ClosedLoopScenario | str, out_dir: Path | None = N
     step_s = np.zeros(n_ticks)
     fallbacks = 0
     payload_done = scenario.payload_event is None
+    interrupted = False
     wall0 = time.perf_counter()
     with Progress(duration, f"{scenario.name}/{controller}",
                   enabled=None if progress else False) as bar:
-        for k in range(n_ticks):
-            state, truth = sim.measure()
-            t = state.time
-            if not payload_done and t >= scenario.payload_event[0] - 1e-9:
-                _set_payload(sim, scenario.payload_event[1])
-                if new_models is not None:
-                    ctrl.set_force_model(*new_models)
-                payload_done = True
-            tcp_err = float(np.linalg.norm(kin.position(_true_q(sim, state)) - tcp_goal))
-            new_goal = goals.update(t, tcp_err)
-            if new_goal is not None:
-                ctrl.set_goal(new_goal)
-                goal_q_full = _true_q(sim, state).copy()
-                goal_q_full[2:9] = new_goal.crane
-                tcp_goal = kin.position(goal_q_full)
+        try:
+            for k in range(n_ticks):
+                state, truth = sim.measure()
+                t = state.time
+                if not payload_done and t >= scenario.payload_event[0] - 1e-9:
+                    _set_payload(sim, scenario.payload_event[1])
+                    if new_models is not None:
+                        ctrl.set_force_model(*new_models)
+                    payload_done = True
                 tcp_err = float(np.linalg.norm(kin.position(_true_q(sim, state)) - tcp_goal))
-            history.append(state)
-            t0 = time.perf_counter()
-            cmd = ctrl.step(history[0])
-            step_s[k] = time.perf_counter() - t0
-            fallbacks += int(cmd.fallback)
-            w = scenario.wheel_speed(t, machine.wheel_radius)
-            wheels = cmd.wheel_speeds(w, w)
-            sim.set_command(cmd.cylinder_rates, cmd.wrist_rates, wheels)
-            info = cmd.info
-            log.append(state, truth, np.concatenate([cmd.rates, wheels]),
-                       sim.closure_violation(),
-                       tcp_error=tcp_err, goal_index=goals.index,
-                       last_goal_given=goals.last_given,
-                       distance=float((state.base_position - x0) @ heading),
-                       speed_scale=cmd.wheel_speed_scale, fallback=cmd.fallback,
-                       step_ms=1e3 * step_s[k],
-                       measured_forces=info.get("measured_forces", np.full(4, np.nan)),
-                       payload_now=(scenario.payload_event[1] if scenario.payload_event
-                                    and payload_done else scenario.payload_mass))
-            sim.step(n_sub)
-            if k % 50 == 0:
-                bar.update(sim.time)
-        bar.update(duration)
+                new_goal = goals.update(t, tcp_err)
+                if new_goal is not None:
+                    ctrl.set_goal(new_goal)
+                    goal_q_full = _true_q(sim, state).copy()
+                    goal_q_full[2:9] = new_goal.crane
+                    tcp_goal = kin.position(goal_q_full)
+                    tcp_err = float(np.linalg.norm(kin.position(_true_q(sim, state)) - tcp_goal))
+                history.append(state)
+                t0 = time.perf_counter()
+                cmd = ctrl.step(history[0])
+                step_s[k] = time.perf_counter() - t0
+                fallbacks += int(cmd.fallback)
+                w = scenario.wheel_speed(t, machine.wheel_radius)
+                wheels = cmd.wheel_speeds(w, w)
+                sim.set_command(cmd.cylinder_rates, cmd.wrist_rates, wheels)
+                info = cmd.info
+                log.append(state, truth, np.concatenate([cmd.rates, wheels]),
+                           sim.closure_violation(),
+                           tcp_error=tcp_err, goal_index=goals.index,
+                           last_goal_given=goals.last_given,
+                           distance=float((state.base_position - x0) @ heading),
+                           speed_scale=cmd.wheel_speed_scale, fallback=cmd.fallback,
+                           step_ms=1e3 * step_s[k],
+                           measured_forces=info.get("measured_forces", np.full(4, np.nan)),
+                           payload_now=(scenario.payload_event[1] if scenario.payload_event
+                                        and payload_done else scenario.payload_mass))
+                sim.step(n_sub)
+                if k % 50 == 0:
+                    bar.update(sim.time)
+        except KeyboardInterrupt:
+            interrupted = True
+        else:
+            bar.update(duration)
     wall = time.perf_counter() - wall0
+    n_done = len(log) if interrupted else n_ticks
+    if n_done == 0:  # nothing to save
+        raise KeyboardInterrupt
     arrays = log.arrays()
+    step_s = step_s[:n_done]
     metrics = {
         "scenario": scenario.name, "description": scenario.description,
         "controller": controller, "terrain": terrain.name, "seed": seed,
         "noise": None if noise is None else vars(noise),
         "delay_periods": delay_periods,
         "control_period_s": CONTROL_PERIOD,
-        "sim_seconds": float(n_ticks * CONTROL_PERIOD),
+        "partial": interrupted,
+        "sim_seconds": float(n_done * CONTROL_PERIOD),
         "wall_seconds": wall,
-        "real_time_factor": float(n_ticks * CONTROL_PERIOD / wall),
+        "real_time_factor": float(n_done * CONTROL_PERIOD / wall),
         "threshold_N": thr,
         **closed_loop_metrics(arrays, scenario, thr),
         "control_step_ms": {"median": float(1e3 * np.median(step_s)),
@@ -228,8 +252,14 @@ def run_closed_loop(scenario: ClosedLoopScenario | str, out_dir: Path | None = N
     if out_dir is not None:
         out_dir = Path(out_dir)
         log.save(out_dir / "log.npz")
-        (out_dir / "metrics.json").write_text(json.dumps(metrics, indent=2, default=json_default))
+        write_json(out_dir / "metrics.json", metrics)
+    if interrupted:
+        raise RunInterrupted(out_dir, metrics)
     return metrics
+
+
+def _notice(text: str) -> None:
+    print(text, file=sys.stderr, flush=True)
 
 
 def _true_q(sim: Simulator, state: MachineState) -> np.ndarray:

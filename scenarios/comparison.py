@@ -2,13 +2,12 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 from scenarios.closed_loop import run_closed_loop
 from scenarios.closed_loop_plots import plot_comparison
 from scenarios.closed_loop_scenarios import DEFAULT_SCENARIO
-from scenarios.metrics import json_default
+from scenarios.json_io import write_json
 from wbc import CONTROLLER_NAMES
 
 __all__ = ["acceptance", "run_comparison"]
@@ -71,6 +70,5 @@ def run_comparison(scenario: str = DEFAULT_SCENARIO, out_root: Path = Path("out/
     png = plot_comparison(dirs, out_root / "forces.png")
     report = {"scenario": scenario, "seed": seed, "plot": str(png),
               "metrics": results, "acceptance": acceptance(results)}
-    (out_root / "comparison.json").write_text(json.dumps(report, indent=2,
-                                                         default=json_default))
+    write_json(out_root / "comparison.json", report)
     return report

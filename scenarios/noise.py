@@ -7,7 +7,7 @@ from dataclasses import dataclass
 
 from scenarios.errors import SimulatorError
 
-__all__ = ["MeasurementNoise"]
+__all__ = ["DEFAULT_NOISE", "MeasurementNoise"]
 
 
 @dataclass(frozen=True)
@@ -42,3 +42,8 @@ class MeasurementNoise:
                 raise SimulatorError(f"noise '{name}' must be a finite std >= 0, got {v!r}")
         if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
             raise SimulatorError(f"noise seed must be a non-negative integer, got {self.seed!r}")
+
+
+# The command line's ``--noise default``: encoder-grade coordinates and rates, and the
+# suspension cylinders' pressure-derived forces (the closed-loop tests run the MPC with it).
+DEFAULT_NOISE = MeasurementNoise(q=1e-4, qd=1e-3, suspension_force=100.0)

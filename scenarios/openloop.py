@@ -14,7 +14,6 @@ servos (the servo integrates them back to the sinusoid).
 
 from __future__ import annotations
 
-import json
 import math
 import time
 from dataclasses import dataclass, field
@@ -26,7 +25,10 @@ from models import build_reference_machine
 from models.description import WHEEL_ORDER
 from models.log import SETTLE_SECONDS, ScenarioLog
 from models.terrain import Terrain, flat, rough
+from scenarios.errors import RunInterrupted
+from scenarios.json_io import write_json
 from scenarios.progress import Progress
+from scenarios.run_args import check_duration, check_seed
 from scenarios.simulator import Simulator
 
 # (amplitude, angular frequency [rad/s], phase [rad]) per servo, independent order:
@@ -100,6 +102,8 @@ SCENARIOS = {
 def _summary(log: dict, machine, settle: float) -> dict:
     t = log["time"]
     keep = t >= settle
+    if not keep.any():  # a partial run (Ctrl-C) within the settling: judge all of it
+        keep = np.ones_like(keep)
     fz = log["normal_force"][keep]
     contact = log["in_contact"][keep]
     per_wheel = lambda a: {w: float(v) for w, v in zip(WHEEL_ORDER, a)}  # noqa: E731
@@ -116,12 +120,23 @@ def run_open_loop(scenario: OpenLoopScenario, out_dir: Path, seed: int = 0,
                   duration: float | None = None, progress: bool = True) -> dict:
     """Run an open-loop scenario; write ``log.npz`` and ``metrics.json`` to ``out_dir``.
 
+    Args:
+        scenario: The scenario.
+        out_dir: Output folder.
+        seed: Terrain seed (the flat terrain has none; it is checked all the same).
+        duration: Override the scenario's duration [s].
+        progress: Show a progress bar.
+
     Returns:
-        The metrics written to ``metrics.json``.
+        The metrics written to ``metrics.json``, with ``"partial": False``.
+
+    Raises:
+        RunInputError: ``duration`` or ``seed`` outside its range (`scenarios.run_args`).
+        RunInterrupted: Ctrl-C during the run; the log and metrics so far were written
+            (``"partial": True``).
     """
-    duration = scenario.duration if duration is None else float(duration)
-    if not (math.isfinite(duration) and duration > 0):
-        raise ValueError(f"duration must be a positive number of seconds, got {duration}")
+    duration = check_duration(duration, scenario.duration)
+    seed = check_seed(seed)
     machine = build_reference_machine()
     terrain = scenario.terrain(seed)
     sim = Simulator(machine, terrain)
@@ -131,21 +146,29 @@ def run_open_loop(scenario: OpenLoopScenario, out_dir: Path, seed: int = 0,
     n_samples = int(duration / (every * sim.timestep))
     log = ScenarioLog(scenario=scenario.name, seed=seed, payload_mass=machine.body(
         machine.payload).inertia.mass, timestep=sim.timestep, terrain=terrain.name)
+    interrupted = False
     wall0 = time.perf_counter()
     with Progress(duration, f"{scenario.name:>12s}", enabled=None if progress else False) as bar:
-        for k in range(n_samples):
-            t = sim.time
-            rates = scenario.servo_rates(t)
-            left, right = scenario.wheel_speeds(t)
-            sim.set_command(rates[:6], rates[6:], (left, right))
-            sim.step(every)
-            state, contacts = sim.measure()
-            log.append(state, contacts, np.concatenate([rates, (left, right)]),
-                       sim.closure_violation())
-            if k % 50 == 0:
-                bar.update(sim.time)
-        bar.update(duration)
+        try:
+            for k in range(n_samples):
+                t = sim.time
+                rates = scenario.servo_rates(t)
+                left, right = scenario.wheel_speeds(t)
+                sim.set_command(rates[:6], rates[6:], (left, right))
+                sim.step(every)
+                state, contacts = sim.measure()
+                log.append(state, contacts, np.concatenate([rates, (left, right)]),
+                           sim.closure_violation())
+                if k % 50 == 0:
+                    bar.update(sim.time)
+        except KeyboardInterrupt:
+            interrupted = True
+        else:
+            bar.update(duration)
     wall = time.perf_counter() - wall0
+    n_done = len(log) if interrupted else n_samples
+    if n_done == 0:  # nothing to save
+        raise KeyboardInterrupt
     out_dir = Path(out_dir)
     log.save(out_dir / "log.npz")
     arrays = log.arrays()
@@ -155,12 +178,15 @@ def run_open_loop(scenario: OpenLoopScenario, out_dir: Path, seed: int = 0,
         "controller": "open-loop",
         "terrain": terrain.name,
         "seed": seed,
-        "sim_seconds": float(n_samples * every * sim.timestep),
+        "partial": interrupted,
+        "sim_seconds": float(n_done * every * sim.timestep),
         "wall_seconds": wall,
-        "real_time_factor": float(n_samples * every * sim.timestep / wall),
+        "real_time_factor": float(n_done * every * sim.timestep / wall),
         "timestep_s": sim.timestep,
         "log_rate_hz": 1.0 / (every * sim.timestep),
         **_summary(arrays, machine, SETTLE_SECONDS),
     }
-    (out_dir / "metrics.json").write_text(json.dumps(metrics, indent=2))
+    write_json(out_dir / "metrics.json", metrics)
+    if interrupted:
+        raise RunInterrupted(out_dir, metrics)
     return metrics
