@@ -1,127 +1,298 @@
-"""Command line: ``wbc run``, ``wbc estimate``, ``wbc bench``, ``wbc demo``, ``wbc machine``."""
+"""The ``wbc`` command: list, run, compare, estimate, bench, demo, machine.
+
+Every error becomes one line on stderr (``wbc: error: ...``) and exit code 2; Ctrl-C during a
+run writes the partial log and metrics (``"partial": true``) and exits with 130.
+"""
 
 from __future__ import annotations
 
-import argparse
-import json
+import pickle
 import sys
+import zipfile
 from pathlib import Path
 
+import click
 
-def _print_metrics(name: str, metrics: dict) -> None:
-    keys = ("sim_seconds", "wall_seconds", "real_time_factor", "max_closure_violation_m",
-            "min_normal_force_N", "contact_loss_fraction", "tipped", "task_error_final",
-            "time_below_threshold_s", "fallbacks")
-    print(f"== {name}")
-    for k in keys:
-        if k in metrics:
-            v = metrics[k]
-            if isinstance(v, dict):
-                v = ", ".join(f"{kk} {vv:.4g}" if isinstance(vv, float) else f"{kk} {vv}"
-                              for kk, vv in v.items())
-            elif isinstance(v, float):
-                v = f"{v:.4g}"
-            print(f"   {k:26s} {v}")
+from wbc_hdmm.output import OutputError, prepare_out_dir
+from wbc_hdmm.report import acceptance_lines, comparison_table, metrics_lines
+
+__all__ = ["cli", "main"]
+
+CONTROLLERS = ("tracking", "mpc-quasi-static", "mpc-full")
+BENCHES = ("simulator", "estimator", "controller")
+EXIT_ERROR = 2
+EXIT_INTERRUPTED = 130
+
+# Errors that are the user's input or files, not bugs: one line and exit code 2.
+_USER_ERRORS = (ValueError, KeyError, OSError, EOFError, zipfile.BadZipFile,
+                pickle.UnpicklingError, OutputError)
 
 
-def _cmd_run(args) -> int:
+def _version() -> str:
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("wbc-hdmm")
+    except PackageNotFoundError:
+        return "unknown (not installed)"
+
+
+class _ScenarioHelp(click.Command):
+    """A command whose help ends with the scenarios (imported only when help is shown)."""
+
+    def format_epilog(self, ctx, formatter) -> None:
+        from scenarios.registry import describe
+
+        for kind, scenarios in describe().items():
+            with formatter.section(f"{kind.capitalize()} scenarios"):
+                formatter.write_dl(list(scenarios.items()))
+        super().format_epilog(ctx, formatter)
+
+
+def _out_option(default: str):
+    return click.option("--out", default=default, show_default=True,
+                        type=click.Path(file_okay=True, dir_okay=True, path_type=Path),
+                        help="Output folder; refused if it is a file, not writable, or not "
+                             "empty (see --force).")
+
+
+_force_option = click.option("--force", is_flag=True,
+                             help="Write into a non-empty output folder (same-named files "
+                                  "are replaced).")
+_progress_option = click.option("--no-progress", is_flag=True,
+                                help="No progress bars (they go to stderr).")
+
+
+@click.group(context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100})
+@click.version_option(_version(), "--version", prog_name="wbc",
+                      message="%(prog)s %(version)s")
+def cli() -> None:
+    """Stability-aware whole-body MPC for a heavy hydraulic mobile manipulator.
+
+    Start with 'wbc list', then 'wbc run SCENARIO' or 'wbc compare SCENARIO'.
+    """
+
+
+@cli.command("list")
+def list_cmd() -> None:
+    """List the scenarios and controllers, one line each."""
+    from scenarios.registry import DEFAULT_CONTROLLER, describe
+    from wbc.controllers.registry import CONTROLLER_NAMES
+
+    for kind, scenarios in describe().items():
+        click.echo(f"{kind} scenarios:")
+        for name, text in scenarios.items():
+            click.echo(f"  {name:18s} {text}")
+    descriptions = {
+        "tracking": "whole-body QP that tracks the operator's motion, no force constraint",
+        "mpc-quasi-static": "MPC with the quasi-static normal-force estimator",
+        "mpc-full": "MPC with the full-dynamics normal-force estimator",
+    }
+    click.echo(f"controllers (closed-loop scenarios; default {DEFAULT_CONTROLLER}):")
+    for name in CONTROLLER_NAMES:
+        click.echo(f"  {name:18s} {descriptions.get(name, '')}")
+    click.echo("scenario families and sensor suites: none yet (scenarios are the built-in "
+               "ones above; sensors are exact or the 'default' noise preset, see wbc run "
+               "--noise)")
+
+
+@cli.command("run", cls=_ScenarioHelp)
+@click.argument("scenario")
+@click.option("--controller", type=click.Choice(CONTROLLERS), default=None,
+              help="Closed-loop controller  [default: mpc-full; open-loop scenarios take "
+                   "none]")
+@click.option("--duration", type=float, default=None,
+              help="Simulated time [s], more than the 1 s settling  [default: the "
+                   "scenario's]")
+@click.option("--seed", type=int, default=0, show_default=True,
+              help="Terrain seed, an integer >= 0.")
+@click.option("--threshold", type=float, default=None,
+              help="Normal-force threshold [N] (closed loop)  [default: 10 % of the static "
+                   "wheel load]")
+@click.option("--noise", type=click.Choice(("none", "default")), default="none",
+              show_default=True, help="Measurement-noise preset (closed loop).")
+@click.option("--delay", type=int, default=0, show_default=True,
+              help="Measurement delay [control periods of 10 ms] (closed loop).")
+@_out_option("out/run")
+@_force_option
+@_progress_option
+def run_cmd(scenario, controller, duration, seed, threshold, noise, delay, out, force,
+            no_progress) -> int:
+    """Run one scenario; write log.npz and metrics.json to --out."""
+    out = prepare_out_dir(out, force)
     from scenarios import registry
 
-    metrics = registry.run(args.scenario, out_dir=Path(args.out), controller=args.controller,
-                           duration=args.duration, seed=args.seed,
-                           progress=not args.no_progress)
-    _print_metrics(f"{args.scenario} ({args.controller or 'open-loop'})", metrics)
-    print(f"   wrote {Path(args.out) / 'metrics.json'}")
+    metrics = registry.run(scenario, out_dir=out, controller=controller, duration=duration,
+                           seed=seed, progress=not no_progress, noise=noise,
+                           delay_periods=delay, threshold_n=threshold)
+    title = f"{scenario} ({metrics.get('controller', 'open-loop')})"
+    click.echo("\n".join(metrics_lines(title, metrics)))
+    click.echo(f"   wrote {out / 'log.npz'}, {out / 'metrics.json'}")
     return 0
 
 
-def _cmd_estimate(args) -> int:
+@cli.command("compare", cls=_ScenarioHelp)
+@click.argument("scenario", default="swing-out")
+@click.option("--duration", type=float, default=None,
+              help="Simulated time [s]  [default: the scenario's]")
+@click.option("--seed", type=int, default=0, show_default=True,
+              help="Terrain seed, an integer >= 0.")
+@_out_option("out/compare")
+@_force_option
+@_progress_option
+def compare_cmd(scenario, duration, seed, out, force, no_progress) -> int:
+    """Run the three controllers on one closed-loop scenario (same terrain and seed).
+
+    Prints a table; writes each controller's log and metrics, forces.png and
+    comparison.json to --out.
+    """
+    from scenarios import registry
+
+    if not registry.is_closed_loop(scenario):
+        raise ValueError(f"'{scenario}' is not a closed-loop scenario; valid: "
+                         f"{', '.join(registry.describe()['closed-loop'])}")
+    from scenarios.run_args import check_seed
+
+    check_seed(seed)
+    out = prepare_out_dir(out, force)
+    from scenarios.comparison import run_comparison
+
+    result = run_comparison(scenario, out, duration=duration, seed=seed,
+                            progress=not no_progress)
+    click.echo(f"== {scenario}: the three controllers, seed {seed}")
+    click.echo("\n".join(comparison_table(result["metrics"])))
+    click.echo("acceptance:")
+    click.echo("\n".join(acceptance_lines(result["acceptance"])))
+    click.echo(f"wrote {out / 'comparison.json'}, {result['plot']}")
+    return 0
+
+
+@cli.command("estimate")
+@click.argument("log", type=click.Path(path_type=Path))
+@click.option("--out", type=click.Path(path_type=Path), default=None,
+              help="Output folder  [default: the log's folder]")
+@click.option("--no-plots", is_flag=True, help="Skip the figures.")
+def estimate_cmd(log, out, no_plots) -> int:
+    """Evaluate every estimator method on a scenario log (log.npz or its folder)."""
+    import json
+
     from estimators.evaluate import evaluate_log
 
-    report = evaluate_log(Path(args.log), Path(args.out) if args.out else None,
-                          plots=not args.no_plots)
-    print(json.dumps(report.get("summary", report), indent=2))
+    if out is not None:
+        prepare_out_dir(out, force=True)
+    try:
+        report = evaluate_log(log, out, plots=not no_plots)
+    except (zipfile.BadZipFile, EOFError, pickle.UnpicklingError) as exc:
+        raise ValueError(f"'{log}' is not a readable scenario log (a log.npz written by "
+                         f"wbc run): {exc}") from exc
+    except KeyError as exc:
+        raise ValueError(f"'{log}' is not a scenario log: it lacks the key {exc}") from exc
+    click.echo(json.dumps(report.get("summary", report), indent=2))
     return 0
 
 
-def _cmd_bench(args) -> int:
+@cli.command("bench")
+@click.option("--out", type=click.Path(path_type=Path), default=Path("out/bench"),
+              show_default=True, help="Output folder.")
+@click.option("--only", type=click.Choice(BENCHES), default=None,
+              help="One benchmark  [default: all]")
+def bench_cmd(out, only) -> int:
+    """Benchmarks of the simulator, the estimator and the controllers."""
+    prepare_out_dir(out, force=True)
     import benchmarks
 
-    benchmarks.main(["--out", args.out] + (["--only", args.only] if args.only else []))
+    benchmarks.main(["--out", str(out)] + (["--only", only] if only else []))
     return 0
 
 
-def _cmd_demo(args) -> int:
+@cli.command("demo")
+@_out_option("out")
+@_force_option
+@_progress_option
+def demo_cmd(out, force, no_progress) -> int:
+    """The main job: the paper's open-loop runs with the estimators, then the controllers."""
+    out = prepare_out_dir(out, force)
     from wbc_hdmm.demo import demo
 
-    return demo(Path(args.out), progress=not args.no_progress)
+    return demo(out, progress=not no_progress)
 
 
-def _cmd_machine(args) -> int:
+@cli.command("machine")
+@click.option("--write-mjcf", type=click.Path(path_type=Path), default=None,
+              help="Folder to write the MJCF files to.")
+@click.option("--doc", type=click.Path(path_type=Path), default=None,
+              help="Markdown file to write the figures to.")
+def machine_cmd(write_mjcf, doc) -> int:
+    """Print the machine's figures and their sources."""
     from models import build_reference_machine
 
     machine = build_reference_machine()
-    if args.doc:
+    if doc:
         from models.report import machine_markdown
 
-        Path(args.doc).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.doc).write_text(machine_markdown(machine))
-        print("wrote", args.doc)
-    if args.write_mjcf:
-        from models.mujoco import write_mjcf
+        doc.parent.mkdir(parents=True, exist_ok=True)
+        doc.write_text(machine_markdown(machine))
+        click.echo(f"wrote {doc}")
+    if write_mjcf:
+        from models.mujoco import write_mjcf as write
 
-        paths = write_mjcf(machine, Path(args.write_mjcf))
-        print("wrote", *map(str, paths.values()))
-    print(f"total mass {machine.total_mass:.1f} kg, {len(machine.bodies)} bodies, "
-          f"{len(machine.loops)} closed chains")
+        paths = write(machine, write_mjcf)
+        click.echo("wrote " + " ".join(map(str, paths.values())))
+    click.echo(f"total mass {machine.total_mass:.1f} kg, {len(machine.bodies)} bodies, "
+               f"{len(machine.loops)} closed chains")
     for item, value, source in machine.sources:
-        print(f"- {item}: {value}  [{source}]")
+        click.echo(f"- {item}: {value}  [{source}]")
     return 0
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """The argument parser of the ``wbc`` command."""
-    p = argparse.ArgumentParser(prog="wbc", description=__doc__)
-    sub = p.add_subparsers(dest="command", required=True)
+def _project_errors() -> tuple[type[Exception], ...]:
+    """The packages' error bases (typed errors with messages for the user)."""
+    from estimators.errors import EstimatorError
+    from models.errors import ModelError
+    from scenarios.errors import SimulatorError
+    from wbc.errors import WbcError
 
-    r = sub.add_parser("run", help="run a scenario (open loop or closed loop)")
-    r.add_argument("scenario", help="scenario name; `wbc run list` lists them")
-    r.add_argument("--out", default="out/run", help="output folder (log.npz, metrics.json)")
-    r.add_argument("--controller", default=None,
-                   help="closed-loop controller: tracking, mpc-quasi-static, mpc-full")
-    r.add_argument("--duration", type=float, default=None, help="override duration [s]")
-    r.add_argument("--seed", type=int, default=0, help="terrain seed")
-    r.add_argument("--no-progress", action="store_true")
-    r.set_defaults(func=_cmd_run)
+    return ModelError, EstimatorError, WbcError, SimulatorError
 
-    e = sub.add_parser("estimate", help="evaluate every estimator method on a scenario log")
-    e.add_argument("log", help="log.npz or the folder holding it")
-    e.add_argument("--out", default=None, help="output folder (default: the log's folder)")
-    e.add_argument("--no-plots", action="store_true")
-    e.set_defaults(func=_cmd_estimate)
 
-    b = sub.add_parser("bench", help="benchmarks (simulator, estimator, controller)")
-    b.add_argument("--out", default="out/bench")
-    b.add_argument("--only", default=None, help="simulator, estimator or controller")
-    b.set_defaults(func=_cmd_bench)
-
-    d = sub.add_parser("demo", help="the main job: scenarios with a summary")
-    d.add_argument("--out", default="out")
-    d.add_argument("--no-progress", action="store_true")
-    d.set_defaults(func=_cmd_demo)
-
-    m = sub.add_parser("machine", help="print the machine's figures and sources")
-    m.add_argument("--write-mjcf", default=None, help="folder to write the MJCF files to")
-    m.add_argument("--doc", default=None, help="markdown file to write the figures to")
-    m.set_defaults(func=_cmd_machine)
-    return p
+def _error(message: str) -> int:
+    text = " ".join(str(message).split())  # one line
+    click.echo(f"wbc: error: {text}", err=True)
+    return EXIT_ERROR
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Entry point of the ``wbc`` console command."""
-    args = build_parser().parse_args(argv)
+    """Entry point of the ``wbc`` console command; returns the exit code."""
+    from scenarios.errors import RunInterrupted
+
     try:
-        return int(args.func(args) or 0)
-    except (ValueError, KeyError, FileNotFoundError) as exc:
-        print(f"wbc: error: {exc}", file=sys.stderr)
-        return 2
+        rv = cli.main(args=argv, prog_name="wbc", standalone_mode=False)
+    except click.exceptions.Exit as exc:
+        return exc.exit_code
+    except click.UsageError as exc:
+        hint = f" (see wbc {exc.ctx.info_name} --help)" if exc.ctx is not None \
+            and exc.ctx.parent is not None else " (see wbc --help)"
+        return _error(exc.format_message() + hint)
+    except click.Abort as exc:
+        cause = exc.__cause__ or exc.__context__
+        if isinstance(cause, RunInterrupted):
+            where = f"; partial log and metrics in {cause.out_dir}" if cause.out_dir else ""
+            click.echo(f"wbc: interrupted ({cause}){where}", err=True)
+        else:
+            click.echo("wbc: interrupted; nothing saved", err=True)
+        return EXIT_INTERRUPTED
+    except click.ClickException as exc:
+        return _error(exc.format_message())
+    except Exception as exc:
+        if not isinstance(exc, _USER_ERRORS + _project_errors()):
+            raise
+        if isinstance(exc, KeyError):
+            return _error(f"missing key {exc}")
+        if isinstance(exc, OSError) and exc.filename is not None:
+            return _error(f"{exc.strerror or exc}: '{exc.filename}'")
+        return _error(str(exc) or type(exc).__name__)
+    return int(rv or 0)
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())
