@@ -8,6 +8,7 @@ from estimators.evaluate import evaluate_log
 from scenarios import registry
 from scenarios.closed_loop_scenarios import DEFAULT_SCENARIO
 from scenarios.comparison import run_comparison
+from wbc_hdmm.report import acceptance_lines
 
 __all__ = ["demo"]
 
@@ -39,14 +40,16 @@ def demo(out: Path, progress: bool = True) -> int:
         print(f"{'':>8s}normal-force error (mean |error| / static wheel load):")
         for method, err in errors.items():
             print(f"{'':>10s}{method:34s} {err:7.3f} %")
-    result = run_comparison(DEFAULT_SCENARIO, out / "closed_loop")
+    result = run_comparison(DEFAULT_SCENARIO, out / "closed_loop", progress=progress)
     print(f"closed loop '{DEFAULT_SCENARIO}' (results and plot in {out / 'closed_loop'}):")
-    print(f"    acceptance: {result['acceptance']}")
+    print("    acceptance:")
+    print("\n".join(acceptance_lines(result["acceptance"], indent="      ")))
     for controller, metrics in result["metrics"].items():
         if isinstance(metrics, dict) and "min_normal_force_N" in metrics:
+            task = metrics.get("task_completion_time_s")
             print(f"{'':>4s}{controller:18s} min normal force "
                   + ", ".join(f"{w} {v:.0f} N" for w, v in metrics["min_normal_force_N"].items())
                   + f"; below threshold {sum(metrics['time_below_threshold_s'].values()):.2f} s"
-                  f"; tipped {metrics.get('tipped')}; task time "
-                  f"{metrics.get('task_completion_time_s')}")
+                  f"; tipped {'yes' if metrics.get('tipped') else 'no'}; task time "
+                  + ("not completed" if task is None else f"{task:.1f} s"))
     return 0

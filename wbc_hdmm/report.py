@@ -17,7 +17,7 @@ def fmt(value, digits: int = 4) -> str:
     if isinstance(value, bool):
         return "yes" if value else "no"
     if isinstance(value, float):
-        return f"{value:.{digits}g}"
+        return f"{value:.0f}" if abs(value) >= 10 ** digits else f"{value:.{digits}g}"
     if isinstance(value, dict):
         return ", ".join(f"{k} {fmt(v, digits)}" for k, v in value.items())
     return str(value)
