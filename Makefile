@@ -13,7 +13,7 @@ $(STAMP): pyproject.toml
 	touch $(STAMP)
 
 run: $(STAMP)
-	MUJOCO_GL=egl $(BIN)/wbc demo --out out
+	MUJOCO_GL=egl $(BIN)/wbc demo --out out --force
 
 lint: $(STAMP)
 	$(BIN)/ruff check .
