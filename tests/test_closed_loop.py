@@ -104,15 +104,17 @@ def test_payload_event_changes_mujoco_and_the_mpc_model(runs):
 def test_wbc_run_closed_loop_requires_a_controller_and_defaults_to_mpc_full(tmp_path,
                                                                            capsys):
     out = tmp_path / "run"
-    assert main(["run", "swing-out", "--out", str(out), "--duration", "0.3",
+    assert main(["run", "swing-out", "--out", str(out), "--duration", "1.1",
                  "--no-progress"]) == 0
     m = json.loads((out / "metrics.json").read_text())
-    assert m["controller"] == "mpc-full"
-    assert main(["run", "swing-out", "--controller", "open-loop", "--out", str(out),
-                 "--duration", "0.3", "--no-progress"]) == 2
-    assert "valid: tracking, mpc-quasi-static, mpc-full" in capsys.readouterr().err
-    assert main(["run", "flat", "--controller", "tracking", "--out", str(out),
+    assert m["controller"] == "mpc-full" and m["partial"] is False
+    capsys.readouterr()
+    assert main(["run", "swing-out", "--controller", "open-loop", "--out",
+                 str(tmp_path / "b"), "--duration", "1.1", "--no-progress"]) == 2
+    assert "'tracking', 'mpc-quasi-static', 'mpc-full'" in capsys.readouterr().err
+    assert main(["run", "flat", "--controller", "tracking", "--out", str(tmp_path / "c"),
                  "--no-progress"]) == 2
+    assert "is open loop; it takes no controller" in capsys.readouterr().err
 
 
 def test_noise_and_delay_are_applied(tmp_path):

@@ -180,6 +180,10 @@ def estimate_cmd(log, out, no_plots) -> int:
 
     if out is not None:
         prepare_out_dir(out, force=True)
+    log_file = log / "log.npz" if log.is_dir() else log
+    if log_file.is_file() and not zipfile.is_zipfile(log_file):
+        raise ValueError(f"'{log_file}' is not a readable scenario log (a log.npz written by "
+                         f"wbc run): not an npz archive, or truncated")
     try:
         report = evaluate_log(log, out, plots=not no_plots)
     except (zipfile.BadZipFile, EOFError, pickle.UnpicklingError) as exc:
@@ -275,6 +279,8 @@ def main(argv: list[str] | None = None) -> int:
         return _error(exc.format_message() + hint)
     except click.Abort as exc:
         cause = exc.__cause__ or exc.__context__
+        if isinstance(cause, EOFError):  # click turns EOFError into Abort too
+            return _error(f"unexpected end of a file or of the input ({cause})")
         if isinstance(cause, RunInterrupted):
             where = f"; partial log and metrics in {cause.out_dir}" if cause.out_dir else ""
             click.echo(f"wbc: interrupted ({cause}){where}", err=True)
