@@ -269,6 +269,9 @@ def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``wbc`` console command; returns the exit code."""
     from scenarios.errors import RunInterrupted
 
+    argv = sys.argv[1:] if argv is None else list(argv)
+    if not argv:  # the overview, not a usage error
+        argv = ["--help"]
     try:
         rv = cli.main(args=argv, prog_name="wbc", standalone_mode=False)
     except click.exceptions.Exit as exc:
