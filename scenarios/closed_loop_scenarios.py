@@ -5,7 +5,8 @@ the same terrain and seed (`scenarios.closed_loop`). The base follows scripted w
 (the operator's), which the MPC may scale down (`ControlCommand.wheel_speeds`); the tracking
 controller's scale is 1.
 
-Scenarios (`SCENARIOS`; terrain: the seeded rough terrain of `models.terrain.rough` with the
+Scenarios (`SCENARIOS`, read from `scenarios/data/*.toml` in the format of
+`scenarios.scenario_file`; terrain: the seeded rough terrain of `models.terrain.rough` with the
 given largest slope, added to the side slope of `models.terrain.side_slope`, left side down):
 
 * ``swing-out`` (the default): the machine drives 6 m across a 5 deg side slope with 10 deg
@@ -35,14 +36,10 @@ stroke acceleration.
 
 from __future__ import annotations
 
-import math
-from dataclasses import dataclass
-
-import numpy as np
-
 from models import build_reference_machine
-from models.description import Machine
 from models.terrain import Terrain, rough, side_slope
+from scenarios.scenario import ClosedLoopScenario, CranePose
+from scenarios.scenario_file import DATA_DIR, load_scenario_file
 from wbc import ControllerConfig, ForceConfig, ReferenceConfig
 
 __all__ = ["CONTROL_PERIOD", "DEFAULT_SCENARIO", "SCENARIOS", "TASK_TOLERANCE",
@@ -51,117 +48,14 @@ __all__ = ["CONTROL_PERIOD", "DEFAULT_SCENARIO", "SCENARIOS", "TASK_TOLERANCE",
 
 CONTROL_PERIOD = 0.01  # [s] 100 Hz
 TASK_TOLERANCE = 0.05  # [m] tool point within this of its goal
-DRIVE_RAMP_SECONDS = 1.0  # the scripted wheel speeds ramp up smoothly over this
 THRESHOLD_FRACTION = 0.1  # of the reference machine's static wheel load
 DEFAULT_SCENARIO = "swing-out"
 
 
-@dataclass(frozen=True)
-class CranePose:
-    """A crane pose by joint angles; the wrist pitch keeps the tool vertical.
-
-    Attributes:
-        slew_deg: Slew angle [deg], positive to the left, within about +-69 deg.
-        lift_deg, tilt_deg: Lift and tilt joint angles [deg].
-        telescope: Telescope extension [m].
-    """
-
-    slew_deg: float
-    lift_deg: float
-    tilt_deg: float
-    telescope: float
-
-    def coordinates(self, machine: Machine) -> np.ndarray:
-        """The seven crane coordinates (strokes, telescope, wrist), shape (7,)."""
-        ch = machine.chains
-        return np.array([
-            ch["slew"].chain.stroke_from_angle(math.radians(self.slew_deg)),
-            ch["lift"].chain.stroke_from_angle(math.radians(self.lift_deg)),
-            ch["tilt"].chain.stroke_from_angle(math.radians(self.tilt_deg)),
-            self.telescope, -math.radians(self.lift_deg + self.tilt_deg), 0.0, 0.0])
-
-    def q(self, machine: Machine) -> np.ndarray:
-        """Independent coordinates at home with this crane pose, shape (13,)."""
-        q = machine.coordinates.home()
-        q[2:9] = self.coordinates(machine)
-        return q
-
-
-TRANSPORT = CranePose(0.0, 45.0, -90.0, 0.5)  # the home pose: folded over the chassis
-
-
-@dataclass(frozen=True)
-class ClosedLoopScenario:
-    """A closed-loop scenario.
-
-    Attributes:
-        name, description: For humans and the command line.
-        duration: Simulated time [s].
-        side_slope_deg: Side slope [deg]; negative: the left (+y) side is down.
-        rough_slope_deg: Largest slope of the added rough terrain [deg]; 0: none.
-        start_pose: Crane pose at the start.
-        goals: Crane poses given one after the other: the first at ``first_goal_time``,
-            each next one ``dwell`` after the tool point has reached the previous one.
-        first_goal_time: [s].
-        dwell: [s].
-        drive_speed: Scripted driving speed [m/s] (both sides), ramped up over
-            `DRIVE_RAMP_SECONDS`; 0: standing.
-        drive_distance: Distance the base must cover for the task [m].
-        payload_mass: Payload at the start [kg].
-        payload_event: (time [s], new payload mass [kg]) or None.
-        start: Base (x [m], y [m], heading [rad]) at the start. The rough terrain is level
-            within 3 m of the origin (`models.terrain.rough`), so a machine that does not
-            drive starts farther out.
-        crane_speed: (velocity, acceleration) fractions of the axis limits the operator's
-            motions (the controllers' references) use.
-    """
-
-    name: str
-    description: str
-    duration: float
-    side_slope_deg: float
-    rough_slope_deg: float
-    start_pose: CranePose
-    goals: tuple[CranePose, ...]
-    first_goal_time: float = 1.0
-    dwell: float = 1.0
-    drive_speed: float = 0.0
-    drive_distance: float = 0.0
-    payload_mass: float = 150.0
-    payload_event: tuple[float, float] | None = None
-    start: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    crane_speed: tuple[float, float] = (0.6, 0.2)
-
-    def wheel_speed(self, t: float, radius: float) -> float:
-        """The operator's wheel speed at time ``t`` [rad/s] (both sides)."""
-        ramp = min(max(t / DRIVE_RAMP_SECONDS, 0.0), 1.0)
-        return self.drive_speed / radius * ramp * ramp * (3.0 - 2.0 * ramp)
-
-
-FULL_REACH_LEFT = CranePose(45.0, 20.0, -40.0, 1.08)
-
-SCENARIOS = {
-    "swing-out": ClosedLoopScenario(
-        "swing-out",
-        "drive 6 m at 0.4 m/s across a 5 deg side slope with 10 deg rough terrain while "
-        "the crane swings 150 kg out to full reach on the downhill side",
-        20.0, -5.0, 10.0, TRANSPORT, (FULL_REACH_LEFT,), first_goal_time=1.0,
-        drive_speed=0.4, drive_distance=6.0),
-    "pick-place-slope": ClosedLoopScenario(
-        "pick-place-slope",
-        "standing 8 m out on a 5 deg side slope with 5 deg rough terrain: pick at full "
-        "reach downhill, place at full reach uphill (150 kg)",
-        16.0, -5.0, 5.0, TRANSPORT,
-        (FULL_REACH_LEFT, CranePose(-45.0, 20.0, -40.0, 1.08)), first_goal_time=1.0,
-        dwell=1.0, start=(8.0, 0.0, 0.0)),
-    "pick-in-motion": ClosedLoopScenario(
-        "pick-in-motion",
-        "drive 5 m at 0.3 m/s across a 5 deg side slope with 10 deg rough terrain; at 3 s "
-        "the grapple, out on the downhill side, grabs a 220 kg log and brings it in",
-        20.0, -5.0, 10.0, CranePose(45.0, 30.0, -60.0, 0.6), (TRANSPORT,),
-        first_goal_time=3.5, drive_speed=0.3, drive_distance=5.0, payload_mass=10.0,
-        payload_event=(3.0, 220.0)),
-}
+# The built-in scenarios, in the file format a user's scenario uses (scenarios/data/*.toml).
+SCENARIOS = {sc.name: sc for sc in (load_scenario_file(DATA_DIR / f"{name}.toml")
+                                    for name in ("swing-out", "pick-place-slope",
+                                                 "pick-in-motion"))}
 
 
 def threshold() -> float:

@@ -8,6 +8,7 @@ from scenarios.closed_loop import run_closed_loop
 from scenarios.closed_loop_plots import plot_comparison
 from scenarios.closed_loop_scenarios import DEFAULT_SCENARIO
 from scenarios.json_io import write_json
+from scenarios.scenario import ClosedLoopScenario
 from wbc import CONTROLLER_NAMES
 
 __all__ = ["acceptance", "run_comparison"]
@@ -42,8 +43,9 @@ def acceptance(results: dict) -> dict:
     return out
 
 
-def run_comparison(scenario: str = DEFAULT_SCENARIO, out_root: Path = Path("out/compare"),
-                   duration: float | None = None, seed: int = 0,
+def run_comparison(scenario: str | ClosedLoopScenario = DEFAULT_SCENARIO,
+                   out_root: Path = Path("out/compare"), duration: float | None = None,
+                   seed: int = 0,
                    progress: bool = False) -> dict:
     """Run the three controllers on ``scenario`` (same terrain and seed).
 
@@ -52,7 +54,7 @@ def run_comparison(scenario: str = DEFAULT_SCENARIO, out_root: Path = Path("out/
     acceptance checks).
 
     Args:
-        scenario: Name of a closed-loop scenario.
+        scenario: Name of a closed-loop scenario, or the `ClosedLoopScenario` itself.
         out_root: Output folder.
         duration: Override the scenario's duration [s].
         seed: Terrain seed.
@@ -68,7 +70,8 @@ def run_comparison(scenario: str = DEFAULT_SCENARIO, out_root: Path = Path("out/
         results[name] = run_closed_loop(scenario, dirs[name], name, seed=seed,
                                         duration=duration, progress=progress)
     png = plot_comparison(dirs, out_root / "forces.png")
-    report = {"scenario": scenario, "seed": seed, "plot": str(png),
+    name = scenario.name if isinstance(scenario, ClosedLoopScenario) else scenario
+    report = {"scenario": name, "seed": seed, "plot": str(png),
               "metrics": results, "acceptance": acceptance(results)}
     write_json(out_root / "comparison.json", report)
     return report

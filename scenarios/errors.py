@@ -2,7 +2,8 @@
 
 from __future__ import annotations
 
-__all__ = ["CommandError", "RunInputError", "RunInterrupted", "SimulationError", "SimulatorError"]
+__all__ = ["CommandError", "RunInputError", "RunInterrupted", "ScenarioFileError",
+           "SimulationError", "SimulatorError"]
 
 
 class SimulatorError(Exception):
@@ -19,6 +20,10 @@ class SimulationError(SimulatorError, RuntimeError):
 
 class RunInputError(SimulatorError, ValueError):
     """A run's argument (duration, seed, threshold, ...) is outside its valid range."""
+
+
+class ScenarioFileError(RunInputError):
+    """A scenario file cannot be read, or a field is unknown, missing or out of range."""
 
 
 class RunInterrupted(KeyboardInterrupt):

@@ -10,6 +10,7 @@ from scenarios.errors import RunInputError
 from scenarios.noise import DEFAULT_NOISE, MeasurementNoise
 from scenarios.openloop import SCENARIOS as OPEN_LOOP
 from scenarios.openloop import run_open_loop
+from scenarios.scenario import ClosedLoopScenario
 
 __all__ = ["DEFAULT_CONTROLLER", "NOISE_PRESETS", "describe", "is_closed_loop", "names", "run"]
 
@@ -48,7 +49,8 @@ def run(name: str, out_dir: Path, controller: str | None = None, duration: float
     ones take none of these.
 
     Args:
-        name: Scenario name (`names`).
+        name: Scenario name (`names`), or a `ClosedLoopScenario` (e.g. from a scenario file,
+            `scenarios.scenario_file.load_scenario_file`).
         out_dir: Output folder.
         controller: Closed-loop controller; None: the default.
         duration: Override the scenario's duration [s].
@@ -65,7 +67,7 @@ def run(name: str, out_dir: Path, controller: str | None = None, duration: float
     if noise not in NOISE_PRESETS:
         raise RunInputError(f"noise preset {noise!r} is not one of "
                             f"{', '.join(NOISE_PRESETS)}")
-    if name in OPEN_LOOP:
+    if not isinstance(name, ClosedLoopScenario) and name in OPEN_LOOP:
         if controller not in (None, "open-loop"):
             raise ValueError(f"scenario '{name}' is open loop; it takes no controller "
                              f"(got '{controller}')")
@@ -77,8 +79,9 @@ def run(name: str, out_dir: Path, controller: str | None = None, duration: float
                                  f"{', '.join(sorted(CLOSED_LOOP))}")
         return run_open_loop(OPEN_LOOP[name], out_dir, seed=seed, duration=duration,
                              progress=progress)
-    if name in CLOSED_LOOP:
-        return run_closed_loop(CLOSED_LOOP[name], out_dir, controller or DEFAULT_CONTROLLER,
+    if isinstance(name, ClosedLoopScenario) or name in CLOSED_LOOP:
+        scenario = name if isinstance(name, ClosedLoopScenario) else CLOSED_LOOP[name]
+        return run_closed_loop(scenario, out_dir, controller or DEFAULT_CONTROLLER,
                                seed=seed, duration=duration, progress=progress,
                                noise=NOISE_PRESETS[noise], delay_periods=delay_periods,
                                threshold_n=threshold_n)

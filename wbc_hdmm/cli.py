@@ -96,8 +96,23 @@ def list_cmd() -> None:
                "--noise)")
 
 
+def _scenario_argument(scenario, scenario_file):
+    """The scenario name, or the validated scenario of ``scenario_file`` (exactly one)."""
+    if (scenario is None) == (scenario_file is None):
+        raise ValueError("give a SCENARIO name or --scenario-file FILE (exactly one); "
+                         "`wbc list` shows the names")
+    if scenario_file is None:
+        return scenario
+    from scenarios.scenario_file import load_scenario_file
+
+    return load_scenario_file(scenario_file)
+
+
 @cli.command("run", cls=_ScenarioHelp)
-@click.argument("scenario")
+@click.argument("scenario", required=False)
+@click.option("--scenario-file", type=click.Path(dir_okay=False), default=None,
+              help="A closed-loop scenario in TOML (format: scenarios/scenario_file.py; "
+                   "example: examples/heavy-swing.toml) instead of SCENARIO.")
 @click.option("--controller", type=click.Choice(CONTROLLERS), default=None,
               help="Closed-loop controller  [default: mpc-full; open-loop scenarios take "
                    "none]")
@@ -116,23 +131,27 @@ def list_cmd() -> None:
 @_out_option("out/run")
 @_force_option
 @_progress_option
-def run_cmd(scenario, controller, duration, seed, threshold, noise, delay, out, force,
-            no_progress) -> int:
-    """Run one scenario; write log.npz and metrics.json to --out."""
+def run_cmd(scenario, scenario_file, controller, duration, seed, threshold, noise, delay, out,
+            force, no_progress) -> int:
+    """Run one scenario (by name or from --scenario-file); write log.npz and metrics.json."""
+    scenario = _scenario_argument(scenario, scenario_file)
     out = prepare_out_dir(out, force)
     from scenarios import registry
 
     metrics = registry.run(scenario, out_dir=out, controller=controller, duration=duration,
                            seed=seed, progress=not no_progress, noise=noise,
                            delay_periods=delay, threshold_n=threshold)
-    title = f"{scenario} ({metrics.get('controller', 'open-loop')})"
+    label = getattr(scenario, "name", scenario)
+    title = f"{label} ({metrics.get('controller', 'open-loop')})"
     click.echo("\n".join(metrics_lines(title, metrics)))
     click.echo(f"   wrote {out / 'log.npz'}, {out / 'metrics.json'}")
     return 0
 
 
 @cli.command("compare", cls=_ScenarioHelp)
-@click.argument("scenario", default="swing-out")
+@click.argument("scenario", required=False)
+@click.option("--scenario-file", type=click.Path(dir_okay=False), default=None,
+              help="A closed-loop scenario in TOML instead of SCENARIO.")
 @click.option("--duration", type=float, default=None,
               help="Simulated time [s]  [default: the scenario's]")
 @click.option("--seed", type=int, default=0, show_default=True,
@@ -140,15 +159,18 @@ def run_cmd(scenario, controller, duration, seed, threshold, noise, delay, out, 
 @_out_option("out/compare")
 @_force_option
 @_progress_option
-def compare_cmd(scenario, duration, seed, out, force, no_progress) -> int:
+def compare_cmd(scenario, scenario_file, duration, seed, out, force, no_progress) -> int:
     """Run the three controllers on one closed-loop scenario (same terrain and seed).
 
-    Prints a table; writes each controller's log and metrics, forces.png and
-    comparison.json to --out.
+    SCENARIO defaults to swing-out. Prints a table; writes each controller's log and metrics,
+    forces.png and comparison.json to --out.
     """
     from scenarios import registry
 
-    if not registry.is_closed_loop(scenario):
+    if scenario is None and scenario_file is None:
+        scenario = "swing-out"
+    scenario = _scenario_argument(scenario, scenario_file)
+    if isinstance(scenario, str) and not registry.is_closed_loop(scenario):
         raise ValueError(f"'{scenario}' is not a closed-loop scenario; valid: "
                          f"{', '.join(registry.describe()['closed-loop'])}")
     from scenarios.run_args import check_seed
@@ -159,7 +181,7 @@ def compare_cmd(scenario, duration, seed, out, force, no_progress) -> int:
 
     result = run_comparison(scenario, out, duration=duration, seed=seed,
                             progress=not no_progress)
-    click.echo(f"== {scenario}: the three controllers, seed {seed}")
+    click.echo(f"== {result['scenario']}: the three controllers, seed {seed}")
     click.echo("\n".join(comparison_table(result["metrics"])))
     click.echo("acceptance:")
     click.echo("\n".join(acceptance_lines(result["acceptance"])))
