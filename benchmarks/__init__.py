@@ -52,5 +52,12 @@ def main(argv: list[str] | None = None) -> dict:
         for k, v in results[name].items():
             if k != "host":
                 print(f"   {k:40s} {v}")
+    if not args.only:
+        from benchmarks.targets import format_table, targets
+
+        rows = targets(results)
+        (out / "targets.json").write_text(json.dumps(rows, indent=2, default=float))
+        print("== real-time targets (ratios to anchors measured in this run)")
+        print("\n".join(format_table(rows)))
     print(f"wrote {out}/*.json")
     return results

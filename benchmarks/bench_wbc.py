@@ -41,11 +41,14 @@ def _time_loop(controller, machine, steps: int = STEPS) -> dict:
     plant = KinematicPlant(st, DT, servo_time_constant=0.02)
     times, iters, solve = [], [], []
     fallbacks = 0
+    first = None
     for k in range(WARMUP + steps):
         t0 = time.perf_counter()
         cmd = controller.step(plant.state)
         elapsed = time.perf_counter() - t0
         plant.apply(cmd)
+        if k == 0:
+            first = elapsed
         if k >= WARMUP:
             times.append(elapsed)
             iters.append(cmd.info.get("iterations", -1))
@@ -56,7 +59,7 @@ def _time_loop(controller, machine, steps: int = STEPS) -> dict:
             "max_ms": float(t.max()), "mean_ms": float(t.mean()),
             "solver_median_ms": float(1e3 * np.nanmedian(solve)),
             "iterations_median": float(np.median(iters)), "fallbacks": fallbacks,
-            "steps": steps}
+            "steps": steps, "first_ms": float(1e3 * first)}
 
 
 def run(out_dir: Path | None = None) -> dict:
@@ -103,6 +106,23 @@ def run(out_dir: Path | None = None) -> dict:
 
 
 CLOSED_LOOP_SECONDS = 8.0  # [s] of the default scenario with mpc-full
+MEMORY_RUN_SECONDS = 20.0  # [s] of the closed-loop run whose peak memory is recorded
+
+
+def peak_memory_mb(seconds: float = MEMORY_RUN_SECONDS) -> float:
+    """Peak resident memory [MB] of a fresh process running ``seconds`` of the default
+    closed-loop scenario with mpc-full (its own process: this one's imports don't count)."""
+    import subprocess
+    import sys
+
+    code = ("import resource, tempfile\n"
+            "from scenarios.closed_loop import DEFAULT_SCENARIO, run_closed_loop\n"
+            f"run_closed_loop(DEFAULT_SCENARIO, tempfile.mkdtemp(), 'mpc-full', "
+            f"duration={float(seconds)!r}, progress=False)\n"
+            "print(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss)\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=True, cwd=str(Path(__file__).resolve().parents[1]), timeout=1800)
+    return round(int(out.stdout.strip().splitlines()[-1]) / 1024.0, 1)  # Linux: KB
 
 
 def closed_loop_real_time_factor(out_dir: Path | None = None) -> dict:
@@ -117,7 +137,9 @@ def closed_loop_real_time_factor(out_dir: Path | None = None) -> dict:
     figures = {"scenario": DEFAULT_SCENARIO, "controller": "mpc-full",
                "sim_seconds": m["sim_seconds"], "wall_seconds": m["wall_seconds"],
                "real_time_factor": m["real_time_factor"],
-               "control_step_ms": m["control_step_ms"], "fallbacks": m["fallbacks"]}
+               "control_step_ms": m["control_step_ms"], "fallbacks": m["fallbacks"],
+               "max_tick_after_first_ms": m["control_step_ms"]["max_after_first"],
+               "peak_memory_mb": peak_memory_mb(MEMORY_RUN_SECONDS)}
     print(f"   closed loop {DEFAULT_SCENARIO} mpc-full: {m['real_time_factor']:.2f}x real time "
           f"({m['sim_seconds']:.1f} s in {m['wall_seconds']:.1f} s)")
     return figures

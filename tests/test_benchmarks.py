@@ -27,3 +27,32 @@ def test_unknown_benchmark_is_refused(tmp_path):
 
     with pytest.raises(ValueError, match="valid: " + ", ".join(BENCHES)):
         _run_one("foo", tmp_path)
+
+
+def test_targets_are_ratios_to_anchors_of_the_same_run():
+    from benchmarks.targets import TARGETS, format_table, targets
+
+    results = {
+        "estimator": {"pin_rnea_median_us": 4.0, "estimate_d_beta_median_us": 16.0,
+                      "constraint_median_us": 6.0, "linearize_median_us": 80.0,
+                      "estimate_batch_2_thread_states_per_s": 1.2e6},
+        "controller": {"qp_tracking": {"median_ms": 0.3, "solver_median_ms": 0.05},
+                       "mpc_full": {"median_ms": 2.5, "solver_median_ms": 0.5,
+                                    "p99_ms": 4.0, "first_ms": 30.0},
+                       "closed_loop": {"real_time_factor": 1.6, "peak_memory_mb": 250.0,
+                                       "max_tick_after_first_ms": 9.0}},
+        "simulator": {"bare_stepping_real_time_factor": 40.0},
+    }
+    rows = targets(results)
+    assert set(rows) == set(TARGETS)
+    assert rows["estimate_over_rnea"]["value"] == 4.0 and not rows["estimate_over_rnea"]["met"]
+    assert rows["constraint_over_rnea"]["value"] == 1.5 and rows["constraint_over_rnea"]["met"]
+    assert rows["estimate_batch_states_per_s"]["met"]
+    assert rows["qp_step_over_solver"]["value"] == 6.0
+    assert rows["mpc_first_tick_over_median"]["value"] == 12.0
+    assert rows["closed_loop_rtf_over_bare"]["value"] == 0.04
+    assert rows["closed_loop_peak_memory_mb"]["met"] and rows["closed_loop_max_tick_ms"]["met"]
+    assert len(format_table(rows)) == len(TARGETS)
+    partial = targets({"estimator": results["estimator"]})
+    assert partial["mpc_step_median_ms"]["value"] is None
+    assert partial["mpc_step_median_ms"]["met"] is None
