@@ -41,6 +41,7 @@ from scenarios.metrics import closed_loop_metrics
 from scenarios.noise import MeasurementNoise
 from scenarios.progress import Progress
 from scenarios.run_args import check_delay, check_duration, check_seed, check_threshold
+from scenarios.scenario_file import scenario_to_toml
 from scenarios.simulator import Simulator
 from wbc import (
     CONTROLLER_NAMES,
@@ -173,7 +174,7 @@ def run_closed_loop(scenario: ClosedLoopScenario | str, out_dir: Path | None = N
     log = ScenarioLog(scenario=scenario.name, controller=controller, seed=seed,
                       payload_mass=scenario.payload_mass, timestep=sim.timestep,
                       control_period=CONTROL_PERIOD, terrain=terrain.name, threshold=thr,
-                      delay_periods=delay_periods)
+                      delay_periods=delay_periods, scenario_toml=scenario_to_toml(scenario))
     history: deque = deque(maxlen=delay_periods + 1)
     n_ticks = int(round(duration / CONTROL_PERIOD))
     step_s = np.zeros(n_ticks)
@@ -209,8 +210,9 @@ def run_closed_loop(scenario: ClosedLoopScenario | str, out_dir: Path | None = N
                 wheels = cmd.wheel_speeds(w, w)
                 sim.set_command(cmd.cylinder_rates, cmd.wrist_rates, wheels)
                 info = cmd.info
+                qpos, qvel, _ = sim.measured_instant
                 log.append(state, truth, np.concatenate([cmd.rates, wheels]),
-                           sim.closure_violation(),
+                           sim.closure_violation(), qpos=qpos, qvel=qvel,
                            tcp_error=tcp_err, goal_index=goals.index,
                            last_goal_given=goals.last_given,
                            distance=float((state.base_position - x0) @ heading),

@@ -157,8 +157,9 @@ def run_open_loop(scenario: OpenLoopScenario, out_dir: Path, seed: int = 0,
                 sim.set_command(rates[:6], rates[6:], (left, right))
                 sim.step(every)
                 state, contacts = sim.measure()
+                qpos, qvel, _ = sim.measured_instant
                 log.append(state, contacts, np.concatenate([rates, (left, right)]),
-                           sim.closure_violation())
+                           sim.closure_violation(), qpos=qpos, qvel=qvel)
                 if k % 50 == 0:
                     bar.update(sim.time)
         except KeyboardInterrupt:

@@ -271,6 +271,65 @@ def machine_cmd(write_mjcf, doc) -> int:
     return 0
 
 
+@cli.command("render")
+@click.argument("run_dir", type=click.Path(path_type=Path))
+@click.option("--out", "out_file", type=click.Path(path_type=Path), default=None,
+              help="The mp4 to write  [default: RUN_DIR/run.mp4]")
+@click.option("--fps", type=int, default=30, show_default=True, help="Frames per second.")
+@click.option("--width", type=int, default=640, show_default=True, help="3-D view [px].")
+@click.option("--height", type=int, default=360, show_default=True, help="3-D view [px].")
+@click.option("--force", is_flag=True, help="Overwrite an existing file.")
+@_progress_option
+def render_cmd(run_dir, out_file, fps, width, height, force, no_progress) -> int:
+    """Render a run (a folder written by wbc run) to an mp4.
+
+    A chase camera, force arrows coloured by their margin to the threshold, the forces
+    plotted beside.
+    """
+    from scenarios.progress import Progress
+    from wbc_hdmm.render import render_run
+
+    out_file = out_file or Path(run_dir) / "run.mp4"
+    if out_file.exists() and not force:
+        raise OutputError(f"--out '{out_file}' exists; use --force to overwrite it")
+    if out_file.suffix.lower() != ".mp4":
+        raise OutputError(f"--out '{out_file}' must end in .mp4")
+    prepare_out_dir(out_file.parent, force=True)
+    with Progress(1.0, "render", enabled=None if not no_progress else False,
+                  unit="") as bar:
+        path = render_run(run_dir, out_file, fps=fps, width=width, height=height,
+                          progress=bar.update)
+    click.echo(f"wrote {path}")
+    return 0
+
+
+@cli.command("export")
+@click.argument("run_dir", type=click.Path(path_type=Path))
+@click.option("--format", "fmt", type=click.Choice(("csv", "parquet")), default="csv",
+              show_default=True, help="Table format.")
+@click.option("--out", type=click.Path(path_type=Path), default=None,
+              help="Output folder  [default: RUN_DIR]")
+def export_cmd(run_dir, fmt, out) -> int:
+    """Write a run's log as a table (samples.csv or .parquet) with units.json and meta.json."""
+    from wbc_hdmm.export import export_run
+
+    if out is not None:
+        out = prepare_out_dir(out, force=True)
+    for path in export_run(run_dir, fmt, out):
+        click.echo(f"wrote {path}")
+    return 0
+
+
+@cli.command("view")
+@click.argument("run_dir", type=click.Path(path_type=Path))
+def view_cmd(run_dir) -> int:
+    """Replay a run in MuJoCo's viewer (needs a display; headless, use wbc render)."""
+    from wbc_hdmm.view import view_run
+
+    view_run(run_dir)
+    return 0
+
+
 def _project_errors() -> tuple[type[Exception], ...]:
     """The packages' error bases (typed errors with messages for the user)."""
     from estimators.errors import EstimatorError
