@@ -9,8 +9,11 @@ from scenarios import registry
 from scenarios.closed_loop_scenarios import DEFAULT_SCENARIO
 from scenarios.comparison import run_comparison
 from wbc_hdmm.report import acceptance_lines
+from wbc_hdmm.strip import frame_strip
 
-__all__ = ["demo"]
+__all__ = ["STRIP_TIMES", "demo"]
+
+STRIP_TIMES = (4.0, 10.0, 15.0)  # [s] instants of the default scenario shown side by side
 
 
 def demo(out: Path, progress: bool = True) -> int:
@@ -18,7 +21,8 @@ def demo(out: Path, progress: bool = True) -> int:
 
     1. Open-loop flat and rough traversals in MuJoCo (logs and metrics under ``out/``).
     2. Every estimator method on both logs (``estimation.json`` and the paper's figures).
-    3. The default closed-loop scenario with the three controllers and their comparison plot.
+    3. The default closed-loop scenario with the three controllers, their comparison plot
+       and a strip of frames of the three runs.
 
     A summary of each step is printed.
 
@@ -52,4 +56,8 @@ def demo(out: Path, progress: bool = True) -> int:
                   + f"; below threshold {sum(metrics['time_below_threshold_s'].values()):.2f} s"
                   f"; tipped {'yes' if metrics.get('tipped') else 'no'}; task time "
                   + ("not completed" if task is None else f"{task:.1f} s"))
+    strip = frame_strip({c: out / "closed_loop" / c for c in result["metrics"]},
+                        STRIP_TIMES, out / "closed_loop" / "frames.png")
+    print(f"    frames of the three runs at {', '.join(f'{t:g}' for t in STRIP_TIMES)} s: "
+          f"{strip} (wbc render RUN_DIR for a video)")
     return 0

@@ -19,7 +19,7 @@ import numpy as np
 from models.description import WHEEL_ORDER
 from wbc_hdmm.replay import replay_scene
 
-__all__ = ["FORCE_SCALE", "MARGIN_WARN", "RenderError", "render_run"]
+__all__ = ["FORCE_SCALE", "MARGIN_WARN", "RenderError", "frame_at", "render_run"]
 
 FORCE_SCALE = 10e3  # [N] per metre of arrow
 MARGIN_WARN = 1.5e3  # [N] above the threshold: amber below this margin
@@ -84,6 +84,85 @@ def _arrow(scene, start, end, rgba) -> None:
     scene.ngeom += 1
 
 
+class _Replayer:
+    """The 3-D view of a logged run, one sample at a time (see the module docstring)."""
+
+    def __init__(self, run_dir, width: int, height: int):
+        os.environ.setdefault("MUJOCO_GL", "egl")
+        import mujoco
+
+        from models.mujoco import build_model
+
+        self.log, machine, terrain, self.threshold = replay_scene(run_dir)
+        self.model = build_model(machine, terrain)
+        if self.log["qpos"].shape[1] != self.model.nq:
+            raise RenderError(f"the log's qpos has {self.log['qpos'].shape[1]} entries, the "
+                              f"rebuilt model {self.model.nq}: another model version")
+        self.data = mujoco.MjData(self.model)
+        try:
+            self.renderer = mujoco.Renderer(self.model, height=height, width=width)
+        except (RuntimeError, ImportError, OSError, mujoco.FatalError) as exc:
+            raise RenderError(f"no OpenGL context for rendering ({exc}); headless, set "
+                              f"MUJOCO_GL=egl") from exc
+        self.camera = mujoco.MjvCamera()
+        self.camera.type = mujoco.mjtCamera.mjCAMERA_FREE
+        self.camera.distance, self.camera.elevation = 8.0, -18.0
+        self.time = np.asarray(self.log["time"], float)
+        self.forces = np.asarray(self.log["normal_force"], float)
+        self.lift = 2.0 * machine.wheel_radius + 0.05  # [m] arrows start above the tyre
+
+    def frame(self, i: int) -> np.ndarray:
+        """The view of sample ``i``, (height, width, 3) uint8, red-bordered below threshold."""
+        import mujoco
+
+        log = self.log
+        self.data.qpos[:] = log["qpos"][i]
+        mujoco.mj_kinematics(self.model, self.data)
+        rot, pos = log["base_rotation"][i], log["base_position"][i]
+        self.camera.lookat[:] = pos
+        self.camera.azimuth = float(np.degrees(np.arctan2(rot[1, 0], rot[0, 0]))) + 30.0
+        self.renderer.update_scene(self.data, camera=self.camera)
+        low = False
+        for k in range(4):
+            f = self.forces[i, k]
+            normal = rot @ log["normal_in_fb"][i, k]
+            start = pos + rot @ log["point_in_fb"][i, k] + normal * self.lift
+            kind = "ok"
+            if self.threshold is not None and f < self.threshold + MARGIN_WARN:
+                kind = "warn" if f >= self.threshold else "low"
+                low |= kind == "low"
+            if f > 0:
+                _arrow(self.renderer.scene, start, start + normal * f / FORCE_SCALE,
+                       _COLORS[kind])
+        image = self.renderer.render().copy()
+        if low:
+            image[:6], image[-6:], image[:, :6], image[:, -6:] = 230, 230, 230, 230
+            image[:6, :, 1:] = image[-6:, :, 1:] = 30
+            image[:, :6, 1:] = image[:, -6:, 1:] = 30
+        return image
+
+    def close(self) -> None:
+        """Release the GL context."""
+        self.renderer.close()
+
+
+def frame_at(run_dir, time: float, width: int = 640, height: int = 360) -> np.ndarray:
+    """The 3-D view of a run at ``time`` [s] (the nearest logged sample), (h, w, 3) uint8.
+
+    Raises:
+        RenderError: A size out of range, or no GL context.
+        LogError: The log cannot be read or replayed.
+    """
+    width = _check("width", width, 160, 1920) // 8 * 8
+    height = _check("height", height, 120, 1080) // 8 * 8
+    replay = _Replayer(run_dir, width, height)
+    try:
+        i = min(int(np.searchsorted(replay.time, time)), len(replay.time) - 1)
+        return replay.frame(i)
+    finally:
+        replay.close()
+
+
 def render_run(run_dir, out, fps: int = 30, width: int = 640, height: int = 360,
                plot_width: int = 320, progress=None) -> Path:
     """Render the run in ``run_dir`` (folder or log.npz) to the mp4 ``out``.
@@ -108,64 +187,21 @@ def render_run(run_dir, out, fps: int = 30, width: int = 640, height: int = 360,
     width = _check("width", width, 160, 1920) // 8 * 8
     height = _check("height", height, 120, 1080) // 8 * 8
     plot_width = _check("plot_width", plot_width, 0, 960) // 8 * 8
-    os.environ.setdefault("MUJOCO_GL", "egl")
     import imageio.v2 as imageio
-    import mujoco
 
-    from models.mujoco import build_model
-
-    log, machine, terrain, threshold = replay_scene(run_dir)
-    model = build_model(machine, terrain)
-    if log["qpos"].shape[1] != model.nq:
-        raise RenderError(f"the log's qpos has {log['qpos'].shape[1]} entries, the rebuilt "
-                          f"model {model.nq}: the log is from another model version")
-    data = mujoco.MjData(model)
-    try:
-        renderer = mujoco.Renderer(model, height=height, width=width)
-    except (RuntimeError, ImportError, OSError, mujoco.FatalError) as exc:
-        raise RenderError(f"no OpenGL context for rendering ({exc}); headless, set "
-                          f"MUJOCO_GL=egl") from exc
-    cam = mujoco.MjvCamera()
-    cam.type = mujoco.mjtCamera.mjCAMERA_FREE
-    cam.distance, cam.elevation = 9.0, -20.0
-    t = np.asarray(log["time"], float)
-    frames = np.arange(t[0], t[-1] + 1e-9, 1.0 / fps)
-    samples = np.minimum(np.searchsorted(t, frames), len(t) - 1)
-    panel = _plot_panel(log, threshold, plot_width, height) if plot_width else None
+    replay = _Replayer(run_dir, width, height)
+    t = replay.time
+    samples = np.minimum(np.searchsorted(t, np.arange(t[0], t[-1] + 1e-9, 1.0 / fps)),
+                         len(t) - 1)
+    panel = _plot_panel(replay.log, replay.threshold, plot_width, height) if plot_width \
+        else None
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    forces = np.asarray(log["normal_force"], float)
-    lift = 2.0 * machine.wheel_radius + 0.05  # [m]
     try:
-        writer = imageio.get_writer(out, fps=fps, codec="libx264", quality=7,
-                                    macro_block_size=8)
-        with writer:
+        with imageio.get_writer(out, fps=fps, codec="libx264", quality=7,
+                                macro_block_size=8) as writer:
             for n, i in enumerate(samples):
-                data.qpos[:] = log["qpos"][i]
-                mujoco.mj_kinematics(model, data)
-                rot = log["base_rotation"][i]
-                pos = log["base_position"][i]
-                cam.lookat[:] = pos
-                cam.azimuth = float(np.degrees(np.arctan2(rot[1, 0], rot[0, 0]))) + 215.0
-                renderer.update_scene(data, camera=cam)
-                low = False
-                for k in range(4):
-                    f = forces[i, k]
-                    normal = rot @ log["normal_in_fb"][i, k]
-                    # Drawn from just above the tyre, along the terrain normal at the contact.
-                    start = pos + rot @ log["point_in_fb"][i, k] + normal * lift
-                    kind = "ok"
-                    if threshold is not None and f < threshold + MARGIN_WARN:
-                        kind = "warn" if f >= threshold else "low"
-                        low |= kind == "low"
-                    if f > 0:
-                        _arrow(renderer.scene, start, start + normal * f / FORCE_SCALE,
-                               _COLORS[kind])
-                frame = renderer.render().copy()
-                if low:
-                    frame[:6], frame[-6:], frame[:, :6], frame[:, -6:] = 230, 230, 230, 230
-                    frame[:6, :, 1:] = frame[-6:, :, 1:] = 30
-                    frame[:, :6, 1:] = frame[:, -6:, 1:] = 30
+                frame = replay.frame(i)
                 if panel is not None:
                     image, column, (top, bottom) = panel
                     side = image.copy()
@@ -176,5 +212,5 @@ def render_run(run_dir, out, fps: int = 30, width: int = 640, height: int = 360,
                 if progress is not None:
                     progress((n + 1) / len(samples))
     finally:
-        renderer.close()
+        replay.close()
     return out
