@@ -14,6 +14,8 @@ missing, truncated or foreign file and a newer schema with one clear `LogError`.
 from __future__ import annotations
 
 import functools
+import os
+import pickle
 import subprocess
 import zipfile
 from dataclasses import dataclass
@@ -26,7 +28,7 @@ from models.errors import ModelError
 from models.state import MachineState, WheelContacts
 
 __all__ = ["COLUMNS", "META", "SCHEMA_VERSION", "SETTLE_SECONDS", "Column", "LogError",
-           "ScenarioLog", "load_log", "state_at"]
+           "ScenarioLog", "check_log", "load_log", "state_at"]
 
 SCHEMA_VERSION = 2  # 1: the unversioned logs before the schema; 2: this table, qpos/qvel
 
@@ -194,15 +196,69 @@ class ScenarioLog:
         return path
 
 
+def _shape_tokens(column: Column) -> tuple[str, ...]:
+    """The documented shape as tokens, e.g. ``("N", "4", "3")`` for ``"(N, 4, 3)"``."""
+    return tuple(t.strip() for t in column.shape.strip("()").split(",") if t.strip())
+
+
+def check_log(log: dict[str, np.ndarray], source: str = "log") -> int:
+    """Check a log's arrays against the schema; returns the number of samples N.
+
+    Every key of `COLUMNS` present must be a numeric or boolean array of its documented
+    shape (``nq``, ``nv``: any size); `REQUIRED` keys must be present; ``time`` must be
+    finite and hold at least one sample. Keys the schema does not know are left alone (a
+    newer minor writer may add columns).
+
+    Args:
+        log: Arrays by key, as `load_log` returns them.
+        source: What to call the log in messages (its path).
+
+    Returns:
+        N, the number of samples.
+
+    Raises:
+        LogError: A required key missing, a column of the wrong shape or type, or no samples.
+    """
+    missing = [k for k in REQUIRED if k not in log]
+    if missing:
+        raise LogError(f"'{source}' is not a scenario log: it lacks {missing}")
+    time = np.asarray(log["time"])
+    if time.ndim != 1 or time.shape[0] == 0:
+        raise LogError(f"'{source}': key 'time' must have shape (N,) with N >= 1, got "
+                       f"{time.shape}")
+    n = time.shape[0]
+    for key, column in COLUMNS.items():
+        if key not in log:
+            continue
+        a = np.asarray(log[key])
+        tokens = _shape_tokens(column)
+        ok = a.dtype.kind in "biuf" and a.ndim == len(tokens) and a.shape[0] == n and all(
+            t in ("nq", "nv") or int(t) == d for t, d in zip(tokens[1:], a.shape[1:]))
+        if not ok:
+            raise LogError(f"'{source}': key '{key}' must be a numeric array of shape "
+                           f"{column.shape} with N = {n}, got shape {a.shape} of "
+                           f"{a.dtype}")
+    if not np.all(np.isfinite(time.astype(float))):
+        raise LogError(f"'{source}': key 'time' holds NaN or inf")
+    return n
+
+
 def load_log(path: str | Path) -> dict[str, np.ndarray]:
     """Load a log written by `ScenarioLog.save` into a dict of arrays.
 
-    Logs without a schema version (written before it) load as version 1.
+    Logs without a schema version (written before it) load as version 1. The arrays are
+    checked against the schema (`check_log`).
+
+    Args:
+        path: A ``log.npz`` or the run folder holding it.
 
     Raises:
-        LogError: No file, not a readable ``.npz`` (truncated, foreign, pickled objects), a
-            required key missing, or a schema newer than `SCHEMA_VERSION`.
+        LogError: ``path`` not a path, no file, not a readable ``.npz`` (truncated, foreign,
+            pickled objects), a schema version that is not an integer or is newer than
+            `SCHEMA_VERSION`, a required key missing or a column of the wrong shape.
     """
+    if not isinstance(path, (str, os.PathLike)):
+        raise LogError(f"log path must be a str or os.PathLike, got {type(path).__name__}")
     path = Path(path)
     if path.is_dir():
         path = path / "log.npz"
@@ -211,18 +267,25 @@ def load_log(path: str | Path) -> dict[str, np.ndarray]:
     try:
         with np.load(path, allow_pickle=False) as f:
             log = {k: f[k] for k in f.files}
-    except (zipfile.BadZipFile, ValueError, OSError, EOFError, KeyError) as exc:
+    except (zipfile.BadZipFile, ValueError, OSError, EOFError, KeyError,
+            pickle.UnpicklingError) as exc:
         raise LogError(f"'{path}' is not a readable scenario log ({type(exc).__name__}: "
                        f"{exc})") from None
-    if not isinstance(log, dict):  # np.load of a plain .npy gives an array
-        raise LogError(f"'{path}' is not a scenario log (an .npz archive of named arrays)")
-    version = int(log.get("meta_schema_version", 1))
+    except (TypeError, AttributeError):  # np.load of a plain .npy gives a bare array
+        raise LogError(f"'{path}' is not a scenario log (an .npz archive of named arrays)"
+                       ) from None
+    raw = log.get("meta_schema_version", np.asarray(1))
+    if raw.ndim != 0 or raw.dtype.kind not in "iu":
+        raise LogError(f"'{path}': meta_schema_version must be an integer in [1, "
+                       f"{SCHEMA_VERSION}], got {raw!r}")
+    version = int(raw)
     if version > SCHEMA_VERSION:
         raise LogError(f"'{path}' was written with log schema {version}; this version reads "
                        f"up to {SCHEMA_VERSION}")
-    missing = [k for k in REQUIRED if k not in log]
-    if missing:
-        raise LogError(f"'{path}' is not a scenario log: it lacks {missing}")
+    if version < 1:
+        raise LogError(f"'{path}': meta_schema_version must be an integer in [1, "
+                       f"{SCHEMA_VERSION}], got {version}")
+    check_log(log, str(path))
     return log
 
 
