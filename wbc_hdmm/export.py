@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import csv
 import json
+import os
 from pathlib import Path
 
 import numpy as np
@@ -26,7 +27,7 @@ _AXES = ("x", "y", "z")
 
 
 class ExportError(ValueError):
-    """An unknown format, or a format whose library is not installed."""
+    """An unknown format, a format whose library is not installed, or an unusable output."""
 
 
 def _names(key: str, shape: tuple[int, ...], coordinates: tuple[str, ...]) -> list[str]:
@@ -86,15 +87,30 @@ def export_run(run_dir, fmt: str, out=None) -> list[Path]:
         The files written.
 
     Raises:
-        ExportError: Unknown format, or ``parquet`` without ``pyarrow``.
+        ExportError: Unknown format, ``parquet`` without ``pyarrow``, ``out`` not a path,
+            a file, or not a writable folder.
         LogError: The log cannot be read.
     """
-    if fmt not in FORMATS:
+    if not isinstance(fmt, str) or fmt not in FORMATS:
         raise ExportError(f"format {fmt!r} is not one of {', '.join(FORMATS)}")
-    run_dir = Path(run_dir)
+    if out is not None and not isinstance(out, (str, os.PathLike)):
+        raise ExportError(f"out must be a folder path (str or os.PathLike), got "
+                          f"{type(out).__name__}")
     log = load_log(run_dir)
+    run_dir = Path(run_dir)
     out = Path(out) if out is not None else (run_dir if run_dir.is_dir() else run_dir.parent)
     columns, units = table_of_log(log)
+    if out.exists() and not out.is_dir():
+        raise ExportError(f"out '{out}' is a file; give a folder")
+    try:
+        return _write(out, fmt, columns, units, _meta(log))
+    except OSError as exc:
+        raise ExportError(f"cannot write the export to '{out}' ({exc.strerror or exc})"
+                          ) from exc
+
+
+def _write(out: Path, fmt: str, columns: dict, units: dict, meta: dict) -> list[Path]:
+    """Write the table and the sidecars into ``out``; returns the files written."""
     out.mkdir(parents=True, exist_ok=True)
     written = []
     if fmt == "csv":
@@ -115,7 +131,7 @@ def export_run(run_dir, fmt: str, out=None) -> list[Path]:
         path = out / "samples.parquet"
         pq.write_table(table, path)
     written.append(path)
-    for name, content in (("units.json", units), ("meta.json", _meta(log))):
+    for name, content in (("units.json", units), ("meta.json", meta)):
         p = out / name
         p.write_text(json.dumps(content, indent=2))
         written.append(p)

@@ -12,6 +12,7 @@ MuJoCo's EGL context (``MUJOCO_GL=egl``), imageio with its bundled ffmpeg.
 from __future__ import annotations
 
 import os
+import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -163,6 +164,30 @@ def frame_at(run_dir, time: float, width: int = 640, height: int = 360) -> np.nd
         replay.close()
 
 
+def _check_out(out) -> Path:
+    """The mp4 path ``out``, checked before any rendering.
+
+    It must end in .mp4, not be a folder, and lie in a folder that exists or can be made and
+    is writable.
+    """
+    if not isinstance(out, (str, os.PathLike)):
+        raise RenderError(f"out must be an .mp4 file path (str or os.PathLike), got "
+                          f"{type(out).__name__}")
+    out = Path(out)
+    if out.suffix.lower() != ".mp4":
+        raise RenderError(f"out '{out}' must end in .mp4")
+    if out.is_dir():
+        raise RenderError(f"out '{out}' is a folder; give an .mp4 file path")
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryFile(dir=out.parent):
+            pass
+    except OSError as exc:
+        raise RenderError(f"out '{out}': its folder is not writable ({exc.strerror or exc})"
+                          ) from exc
+    return out
+
+
 def render_run(run_dir, out, fps: int = 30, width: int = 640, height: int = 360,
                plot_width: int = 320, progress=None) -> Path:
     """Render the run in ``run_dir`` (folder or log.npz) to the mp4 ``out``.
@@ -180,9 +205,11 @@ def render_run(run_dir, out, fps: int = 30, width: int = 640, height: int = 360,
         The written file.
 
     Raises:
-        RenderError: A setting out of range, or no GL context (set ``MUJOCO_GL=egl``).
+        RenderError: A setting out of range, ``out`` not an .mp4 path in a writable folder,
+            the video cannot be written, or no GL context (set ``MUJOCO_GL=egl``).
         LogError: The log cannot be read or replayed.
     """
+    out = _check_out(out)
     fps = _check("fps", fps, 5, 60)
     width = _check("width", width, 160, 1920) // 8 * 8
     height = _check("height", height, 120, 1080) // 8 * 8
@@ -195,8 +222,6 @@ def render_run(run_dir, out, fps: int = 30, width: int = 640, height: int = 360,
                          len(t) - 1)
     panel = _plot_panel(replay.log, replay.threshold, plot_width, height) if plot_width \
         else None
-    out = Path(out)
-    out.parent.mkdir(parents=True, exist_ok=True)
     try:
         with imageio.get_writer(out, fps=fps, codec="libx264", quality=7,
                                 macro_block_size=8) as writer:
@@ -211,6 +236,8 @@ def render_run(run_dir, out, fps: int = 30, width: int = 640, height: int = 360,
                 writer.append_data(frame)
                 if progress is not None:
                     progress((n + 1) / len(samples))
+    except OSError as exc:  # ffmpeg gone, disk full: imageio reports a broken pipe
+        raise RenderError(f"cannot write the video '{out}' ({exc.strerror or exc})") from exc
     finally:
         replay.close()
     return out
