@@ -30,6 +30,10 @@ DEFAULT_X_RANGE = (-10.0, 45.0)  # [m] 35 m drive in +x from the origin plus cra
 DEFAULT_Y_RANGE = (-10.0, 10.0)  # [m] room for skid-steer drift and side slopes
 _MAX_ANGLE_DEG = 60.0  # steeper terrain is not drivable and only breeds bad placements
 _INSIDE_TOL = 1e-9  # [m] queries this far outside the grid are still accepted
+# Bounds that keep every height, slope and normal finite and every grid in memory:
+MAX_COORDINATE = 1e6  # [m] largest |x|, |y| of a grid corner and |height|
+MIN_SPACING = 1e-3  # [m] smallest grid spacing (slopes up to 2e9 stay finite)
+MAX_NODES = 4_000_000  # grid nodes (32 MB of heights)
 
 
 def _finite(name: str, value: float) -> float:
@@ -56,6 +60,9 @@ def _interval(name: str, value) -> tuple[float, float]:
         raise TerrainError(f"{name} must be a pair (min, max) [m], got {value!r}") from exc
     if not (math.isfinite(lo) and math.isfinite(hi) and hi > lo):
         raise TerrainError(f"{name} must be a finite interval with max > min, got {(lo, hi)}")
+    if max(abs(lo), abs(hi)) > MAX_COORDINATE:
+        raise TerrainError(f"{name} {(lo, hi)} m outside [-{MAX_COORDINATE:g}, "
+                           f"{MAX_COORDINATE:g}] m")
     return lo, hi
 
 
@@ -98,11 +105,19 @@ class Terrain:
                                f"got {heights.shape}")
         if not np.all(np.isfinite(heights)):
             raise TerrainError("terrain heights contain NaN or inf")
+        if np.abs(heights).max() > MAX_COORDINATE:
+            raise TerrainError(f"terrain heights must lie in [-{MAX_COORDINATE:g}, "
+                               f"{MAX_COORDINATE:g}] m, got up to {np.abs(heights).max():g}")
         heights.setflags(write=False)
         object.__setattr__(self, "heights", heights)
         object.__setattr__(self, "x_range", _interval("x_range", self.x_range))
         object.__setattr__(self, "y_range", _interval("y_range", self.y_range))
         object.__setattr__(self, "friction", _positive("friction", self.friction))
+        dx, dy = self.spacing
+        if min(dx, dy) < MIN_SPACING:
+            raise TerrainError(f"terrain grid spacing ({dx:g}, {dy:g}) m below the minimum "
+                               f"{MIN_SPACING:g} m (ranges {self.x_range}, {self.y_range} m "
+                               f"over {heights.shape[1]} x {heights.shape[0]} nodes)")
 
     # ------------------------------------------------------------------ geometry
     @property
@@ -269,6 +284,10 @@ def _grid(x_range, y_range, spacing: float) -> tuple[np.ndarray, np.ndarray, tup
     spacing = _positive("spacing", spacing)
     n_x = max(2, int(round((x_range[1] - x_range[0]) / spacing)) + 1)
     n_y = max(2, int(round((y_range[1] - y_range[0]) / spacing)) + 1)
+    if n_x * n_y > MAX_NODES:
+        raise TerrainError(f"spacing {spacing:g} m over x_range {x_range} m and y_range "
+                           f"{y_range} m makes {n_x} x {n_y} grid nodes, more than "
+                           f"{MAX_NODES:,}; use a coarser spacing or smaller ranges")
     return np.linspace(*x_range, n_x), np.linspace(*y_range, n_y), x_range, y_range
 
 
@@ -383,5 +402,8 @@ def rough(seed: int, max_slope_deg: float = 26.7, feature_length: float = 1.0,
     heights = field * (t * t * (3.0 - 2.0 * t))  # smooth step: level at the start
     unscaled = Terrain("rough", heights, x_range, y_range, friction)
     grad_max = math.tan(math.radians(unscaled.max_slope_deg))
+    if not grad_max > 0:
+        raise TerrainError(f"start_radius {start_radius:g} m leaves no rough area in x_range "
+                           f"{x_range} m and y_range {y_range} m")
     scale = math.tan(math.radians(max_slope_deg)) / grad_max
     return Terrain("rough", heights * scale, x_range, y_range, friction)
