@@ -173,10 +173,11 @@ class Terrain:
 
     def _triangle(self, x, y):
         """Height and gradient of the triangle under each point (broadcast shapes)."""
-        if np.ndim(x) == 0 and np.ndim(y) == 0:
-            z, gx, gy = self._triangle_at(float(x), float(y))
+        xy = _scalars(x, y)
+        if xy is not None:
+            z, gx, gy = self._triangle_at(*xy)
             return np.asarray(z), np.asarray(gx), np.asarray(gy)
-        x, y = np.broadcast_arrays(np.asarray(x, float), np.asarray(y, float))
+        x, y = _points(x, y)
         if not (np.isfinite(x).all() and np.isfinite(y).all()):
             raise TerrainError("terrain query points must be finite")
         inside = self.contains(x, y)
@@ -236,8 +237,9 @@ class Terrain:
         Raises:
             TerrainError: A point is outside the grid or not finite.
         """
-        if np.ndim(x) == 0 and np.ndim(y) == 0:
-            return self._triangle_at(float(x), float(y))[0]
+        xy = _scalars(x, y)
+        if xy is not None:
+            return self._triangle_at(*xy)[0]
         z, _, _ = self._triangle(x, y)
         return z
 
@@ -254,8 +256,9 @@ class Terrain:
 
         ``n = (-dh/dx, -dh/dy, 1) / |(-dh/dx, -dh/dy, 1)|``.
         """
-        if np.ndim(x) == 0 and np.ndim(y) == 0:
-            _, gx, gy = self._triangle_at(float(x), float(y))
+        xy = _scalars(x, y)
+        if xy is not None:
+            _, gx, gy = self._triangle_at(*xy)
             scale = 1.0 / math.sqrt(1.0 + gx * gx + gy * gy)
             return np.array([-gx * scale, -gy * scale, scale])
         _, gx, gy = self._triangle(x, y)
@@ -274,6 +277,31 @@ class Terrain:
         below = np.hypot((h[:-1, 1:] - h[:-1, :-1]) / dx, (h[1:, 1:] - h[:-1, 1:]) / dy)
         above = np.hypot((h[1:, 1:] - h[1:, :-1]) / dx, (h[1:, :-1] - h[:-1, :-1]) / dy)
         return float(np.degrees(np.arctan(max(below.max(), above.max()))))
+
+
+def _scalars(x, y) -> tuple[float, float] | None:
+    """``(float(x), float(y))`` for a scalar query point, None for arrays."""
+    try:
+        if np.ndim(x) == 0 and np.ndim(y) == 0:
+            if np.iscomplexobj(x) or np.iscomplexobj(y):
+                raise TypeError("complex")
+            return float(x), float(y)
+    except (TypeError, ValueError) as exc:
+        raise TerrainError(f"terrain query point must be real numbers [m], got {x!r}, "
+                           f"{y!r}") from exc
+    return None
+
+
+def _points(x, y) -> tuple[np.ndarray, np.ndarray]:
+    """Query points as broadcast float arrays; `TerrainError` for anything else."""
+    try:
+        if np.iscomplexobj(x) or np.iscomplexobj(y):
+            raise TypeError("complex")
+        x, y = np.broadcast_arrays(np.asarray(x, float), np.asarray(y, float))
+    except (TypeError, ValueError) as exc:
+        raise TerrainError(f"terrain query points must be real numbers or arrays of "
+                           f"broadcastable shapes [m], got {x!r}, {y!r}") from exc
+    return x, y
 
 
 # ---------------------------------------------------------------------- constructors
