@@ -28,12 +28,12 @@ ROTATION_TOLERANCE = 1e-6  # max |R R^T - I| entry of a valid rotation matrix
 
 def shaped_array(name: str, value, shape: tuple[int, ...], dtype=float) -> np.ndarray:
     """``value`` as a new array of ``shape``; `StateError` naming the field otherwise."""
-    if np.iscomplexobj(value):
-        raise StateError(f"'{name}' must be real with shape {shape}, got complex values")
     try:
+        if np.iscomplexobj(value):
+            raise TypeError("complex values")
         a = np.array(value, dtype=dtype)
     except (TypeError, ValueError) as exc:
-        raise StateError(f"'{name}' must be numeric with shape {shape}: {exc}") from None
+        raise StateError(f"'{name}' must be real numbers with shape {shape}: {exc}") from None
     if a.shape != shape:
         raise StateError(f"'{name}' must have shape {shape}, got {a.shape}")
     return a

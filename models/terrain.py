@@ -97,6 +97,8 @@ class Terrain:
         if not isinstance(self.name, str) or not self.name.isidentifier():
             raise TerrainError(f"terrain name must be an identifier string, got {self.name!r}")
         try:
+            if np.iscomplexobj(self.heights):
+                raise TypeError("complex heights")
             heights = np.array(self.heights, dtype=float)
         except (TypeError, ValueError) as exc:
             raise TerrainError("terrain heights must be a 2-D array of numbers [m]") from exc
