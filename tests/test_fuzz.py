@@ -231,7 +231,7 @@ def test_fuzz_state_constructors(base):
                                 st.just(["yes", "no", "yes", "no"])),
         **{k: bad_array(s) for k, s in CONTACT_FIELDS.items()}})
 
-    @fuzz(3000)
+    @fuzz(2000)
     @given(state_bad, contact_bad, st.booleans())
     @tally.counted
     def run(bad_state, bad_contacts, with_contacts):
@@ -242,7 +242,7 @@ def test_fuzz_state_constructors(base):
         tally.call("MachineState", MachineState, **kw)
 
     run()
-    tally.finish(3000)
+    tally.finish(2000)
 
 
 def test_fuzz_state_batch(base):
@@ -250,7 +250,7 @@ def test_fuzz_state_batch(base):
     tally = Tally("batch")
     state_kw, contact_kw = base
 
-    @fuzz(1500)
+    @fuzz(600)
     @given(st.integers(0, 4), st.data())
     @tally.counted
     def run(n, data):
@@ -269,7 +269,7 @@ def test_fuzz_state_batch(base):
         tally.call("StateBatch", StateBatch, **kw)
 
     run()
-    tally.finish(1500)
+    tally.finish(600)
 
 
 def test_fuzz_terrain():
@@ -301,7 +301,7 @@ def test_fuzz_terrain():
                                                  "blend_length": number}),
     }
 
-    @fuzz(1500)
+    @fuzz(2000)
     @given(st.sampled_from(sorted(makers)), st.data(), st.tuples(number, number))
     @tally.counted
     def run(kind, data, point):
@@ -316,7 +316,7 @@ def test_fuzz_terrain():
             tally.call(f"{kind}.normal(array)", t.normal, np.array([0.0, 1.0]), point[1])
 
     run()
-    tally.finish(1500)
+    tally.finish(2000)
 
 
 # ---------------------------------------------------------------------- estimators
@@ -366,7 +366,7 @@ def test_fuzz_estimator_methods(machine, base, estimators):
     """`estimate`, `constraint`, `linearize` on states the estimator must refuse or solve."""
     tally = Tally("estimator")
 
-    @fuzz(1500)
+    @fuzz(500)
     @given(bad_state_values(base, machine), st.sampled_from(sorted(estimators)))
     @tally.counted
     def run(kw, which):
@@ -379,7 +379,7 @@ def test_fuzz_estimator_methods(machine, base, estimators):
 
     run()
     tally.call("estimate(not a state)", estimators["raise"].estimate, {"q": np.zeros(13)})
-    tally.finish(1500)
+    tally.finish(500)
 
 
 def test_fuzz_estimate_batch(machine, base, estimators):
@@ -387,7 +387,7 @@ def test_fuzz_estimate_batch(machine, base, estimators):
     tally = Tally("estimator_batch")
     state_kw, _ = base
 
-    @fuzz(800)
+    @fuzz(300)
     @given(st.lists(bad_state_values(base, machine), min_size=0, max_size=3),
            st.sampled_from(sorted(estimators)), st.booleans(), st.data())
     @tally.counted
@@ -410,7 +410,7 @@ def test_fuzz_estimate_batch(machine, base, estimators):
                    data.draw(junk()), strict=strict)
 
     run()
-    tally.finish(800)
+    tally.finish(300)
 
 
 def test_fuzz_estimator_options(machine):
@@ -418,7 +418,7 @@ def test_fuzz_estimator_options(machine):
     tally = Tally("estimator_options")
     option = st.one_of(junk(), ANY_FLOAT)
 
-    @fuzz(500)
+    @fuzz(1000)
     @given(st.fixed_dictionaries({}, optional={
         "method": st.one_of(st.sampled_from(["full", "quasi-static"]), option),
         "fourth": st.one_of(st.sampled_from(["d-beta", "cylinder-force"]), option),
@@ -431,7 +431,7 @@ def test_fuzz_estimator_options(machine):
         tally.call("NormalForceEstimator", NormalForceEstimator, mach, **kw)
 
     run()
-    tally.finish(500)
+    tally.finish(1000)
 
 
 # ---------------------------------------------------------------------- wbc
@@ -451,7 +451,7 @@ def test_fuzz_goals(machine, controllers):
     suspension = st.one_of(st.none(), bad_array((2,)), hnp.arrays(float, (2,),
                                                                   elements=st.floats(-1, 1)))
 
-    @fuzz(1200)
+    @fuzz(3000)
     @given(crane, suspension, bad_array((3,)), st.sampled_from(sorted(controllers)),
            st.one_of(st.none(), junk()))
     @tally.counted
@@ -469,7 +469,7 @@ def test_fuzz_goals(machine, controllers):
         ctrl.reset()
 
     run()
-    tally.finish(1200)
+    tally.finish(3000)
 
 
 def test_fuzz_controller_step(machine, base, controllers):
@@ -477,7 +477,7 @@ def test_fuzz_controller_step(machine, base, controllers):
     tally = Tally("step")
     home = machine.coordinates.home()
 
-    @fuzz(240)
+    @fuzz(200)
     @given(bad_state_values(base, machine), st.sampled_from(sorted(controllers)),
            st.one_of(st.none(), hnp.arrays(float, (7,), elements=st.floats(-1, 2))),
            st.one_of(st.none(), junk()))
@@ -498,7 +498,7 @@ def test_fuzz_controller_step(machine, base, controllers):
             **{**base[0], "q": home, "time": 0.01}))
 
     run()
-    tally.finish(240)
+    tally.finish(200)
 
 
 def test_fuzz_config(machine):
@@ -514,7 +514,7 @@ def test_fuzz_config(machine):
                ControllerConfig: ("dt", "solver", "eps_abs", "eps_rel", "max_iter",
                                   "position_margin", "reference", "qp", "mpc", "force")}
 
-    @fuzz(1500)
+    @fuzz(2000)
     @given(st.sampled_from([AxisLimits, "from_machine", *configs]), st.data())
     @tally.counted
     def run(kind, data):
@@ -533,7 +533,7 @@ def test_fuzz_config(machine):
             tally.call(kind.__name__, kind, **{n: data.draw(number) for n in names})
 
     run()
-    tally.finish(1500)
+    tally.finish(2000)
 
 
 def test_fuzz_figures():
