@@ -515,7 +515,7 @@ def test_fuzz_config(machine):
                                   "position_margin", "reference", "qp", "mpc", "force")}
 
     @fuzz(2000)
-    @given(st.sampled_from([AxisLimits, "from_machine", *configs]), st.data())
+    @given(st.sampled_from([AxisLimits, "from_machine", "payload", *configs]), st.data())
     @tally.counted
     def run(kind, data):
         if kind is AxisLimits:
@@ -525,6 +525,11 @@ def test_fuzz_config(machine):
                 kw[name] = data.draw(st.one_of(bad_array((9,)), st.just(-kw[name])
                                                if name != "names" else junk()))
             tally.call("AxisLimits", AxisLimits, **kw)
+        elif kind == "payload":  # bad masses only: a valid one builds a machine (0.6 s)
+            mass = data.draw(st.one_of(SPECIAL, HUGE, st.floats(max_value=0.0), junk(),
+                                       st.floats(min_value=1.0001e4)).filter(
+                lambda m: not isinstance(m, int) or isinstance(m, bool)))
+            tally.call("build_reference_machine", build_reference_machine, mass)
         elif kind == "from_machine":
             tally.call("AxisLimits.from_machine", AxisLimits.from_machine, machine,
                        data.draw(number))
