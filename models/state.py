@@ -75,6 +75,9 @@ def contact_flags(name: str, value, shape: tuple[int, ...]) -> np.ndarray:
 
 def check_rotation(name: str, r: np.ndarray) -> None:
     """Raise `StateError` unless ``r`` (3, 3) is a proper rotation (orthonormal, det +1)."""
+    if np.abs(r).max() > 1.0 + ROTATION_TOLERANCE:  # also keeps R R^T from overflowing
+        raise StateError(f"'{name}' is not a rotation matrix (an entry of magnitude "
+                         f"{np.abs(r).max():.3g} > 1; valid: orthonormal with det +1): {r}")
     err = np.abs(r @ r.T - np.eye(3)).max()
     if err > ROTATION_TOLERANCE or np.linalg.det(r) < 0:
         raise StateError(f"'{name}' is not a rotation matrix (|R R^T - I| = {err:.3g}, "

@@ -80,9 +80,11 @@ class StateBatch:
                                contact_flags("in_contact", self.in_contact, (n, 4)))
         r = self.base_rotation
         if n:
+            big = np.abs(r).max(axis=(1, 2)) > 1.0 + ROTATION_TOLERANCE
+            r = np.where(big[:, None, None], 0.0, r)  # no overflow below; flagged anyway
             err = np.abs(r @ r.transpose(0, 2, 1) - np.eye(3)).max(axis=(1, 2))
             det = np.einsum("ni,ni->n", np.cross(r[:, 0], r[:, 1]), r[:, 2])
-            bad = (err > ROTATION_TOLERANCE) | (det < 0)
+            bad = big | (err > ROTATION_TOLERANCE) | (det < 0)
             if bad.any():
                 k = int(np.flatnonzero(bad)[0])
                 raise StateError(f"'base_rotation' row {k} is not a rotation matrix "

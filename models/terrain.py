@@ -255,6 +255,8 @@ def _grid(x_range, y_range, spacing: float) -> tuple[np.ndarray, np.ndarray, tup
     x_range = check_interval("x_range", x_range)
     y_range = check_interval("y_range", y_range)
     spacing = check_positive("spacing", spacing)
+    if spacing < MIN_SPACING:
+        raise TerrainError(f"spacing {spacing:g} m below the minimum {MIN_SPACING:g} m")
     n_x = max(2, int(round((x_range[1] - x_range[0]) / spacing)) + 1)
     n_y = max(2, int(round((y_range[1] - y_range[0]) / spacing)) + 1)
     if n_x * n_y > MAX_NODES:

@@ -26,7 +26,7 @@ MAX_SMOOTHING_WORK = 2e9  # operations of the Gaussian smoothing of `rough` (a f
 def check_finite(name: str, value: float) -> float:
     """``value`` as a finite float; `TerrainError` naming ``name`` otherwise."""
     try:
-        if isinstance(value, (str, bytes, bool, np.bool_)):
+        if isinstance(value, (str, bytes, bool, np.bool_)) or np.iscomplexobj(value):
             raise TypeError("not a number")
         value = float(value)
     except (TypeError, ValueError, OverflowError) as exc:
@@ -50,7 +50,8 @@ def check_interval(name: str, value) -> tuple[float, float]:
         if isinstance(value, (str, bytes)):
             raise TypeError("not numbers")
         value = tuple(value)
-        if any(isinstance(v, (str, bytes, bool, np.bool_)) for v in value):
+        if any(isinstance(v, (str, bytes, bool, np.bool_)) or np.iscomplexobj(v)
+               for v in value):
             raise TypeError("not numbers")
         lo, hi = (float(v) for v in value)
     except (TypeError, ValueError, OverflowError) as exc:
