@@ -12,6 +12,7 @@ import numpy as np
 
 from estimators import full_dynamics as fd
 from estimators._symbolic import LAYOUT
+from estimators.checks import check_finite_result
 from estimators.errors import EstimatorInputError, SingularSystemError, range_message
 from estimators.results import BatchEstimate
 from estimators.tipping import least_squares
@@ -26,6 +27,9 @@ SINGULAR_CONDITION = 1e12  # 1-norm condition number above which a system counts
 def estimate_batch(est, states, *, strict: bool = True, chunk: int = 4096,
                    threads: int = 2) -> BatchEstimate:
     """`NormalForceEstimator.estimate_batch` (see there) of the estimator ``est``."""
+    for name, value in (("chunk", chunk), ("threads", threads)):
+        if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
+            raise EstimatorInputError(f"{name} must be an integer >= 1, got {value!r}")
     sb = as_batch(states)
     validate_batch(est, sb)
     lay = LAYOUT
@@ -64,6 +68,7 @@ def estimate_batch(est, states, *, strict: bool = True, chunk: int = 4096,
     else:
         for lo in starts:
             run(lo)
+    check_finite_result("the normal-force systems", sb, a, b, xi)
     tip = systems.tipping
     mode = systems.mode.astype(object)
     singular = ~tip & ~(cond < SINGULAR_CONDITION)
@@ -75,6 +80,7 @@ def estimate_batch(est, states, *, strict: bool = True, chunk: int = 4096,
     for i in np.flatnonzero(tip | singular):
         x[i], cond[i] = least_squares(a[i], b[i], ic[i].astype(float))
         residual[i] = a[i] @ x[i] - b[i]
+    check_finite_result("the normal forces", sb, x, residual, points)
     normals = sb.normal_in_fb if sb.normal_in_fb is not None else np.repeat(
         sb.base_rotation[:, 2][:, None, :], 4, axis=1)
     friction = sb.force_in_fb if sb.force_in_fb is not None else np.zeros((n, 4, 3))
@@ -87,14 +93,14 @@ def validate_batch(est, sb: StateBatch) -> None:
 
     Shapes, finiteness and the rotations were checked when the `StateBatch` was built.
     """
-    for name, i, lo, hi in est._ranges:
+    for name, unit, i, lo, hi in est._ranges:
         x = sb.q[:, i]
         bad = ~((x >= lo - 1e-12) & (x <= hi + 1e-12))
         if bad.any():
             k = int(np.flatnonzero(bad)[0])
             raise EstimatorInputError(
                 f"row {k} ({int(bad.sum())} rows in all): "
-                + range_message(name, i, float(x[k]), (lo, hi)))
+                + range_message(name, unit, i, float(x[k]), (lo, hi)))
 
 
 def pack_rows(est, sb: StateBatch, sl: slice, systems: fd.Selectors):
@@ -143,7 +149,7 @@ def as_batch(states) -> StateBatch:
             return StateBatch(**states)
         if isinstance(states, Sequence) or hasattr(states, "__iter__"):
             return StateBatch.from_states(list(states))
-    except TypeError as exc:
+    except (TypeError, ValueError) as exc:
         raise EstimatorInputError(f"bad state log fields: {exc}") from exc
     except StateError as exc:
         raise EstimatorInputError(str(exc)) from exc

@@ -26,7 +26,11 @@ class SingularSystemError(EstimatorError, ArithmeticError):
         self.condition = condition
 
 
-def range_message(name: str, index: int, value: float, rng: tuple[float, float]) -> str:
-    """The message of a coordinate outside its chain's stroke range."""
-    return (f"q[{index}] (stroke of cylinder chain '{name}') = {value:.6g} m outside "
-            f"[{rng[0]:.6g}, {rng[1]:.6g}] m")
+def range_message(name: str, unit: str, index: int, value: float,
+                  rng: tuple[float, float]) -> str:
+    """The message of a coordinate outside its range (a chain's stroke or a joint's)."""
+    what = (f"stroke of cylinder chain '{name}'" if unit == "m stroke"
+            else f"position of joint '{name}'")
+    unit = unit.split()[0]
+    return (f"q[{index}] ({what}) = {value:.6g} {unit} outside [{rng[0]:.6g}, "
+            f"{rng[1]:.6g}] {unit}")

@@ -23,6 +23,7 @@ from estimators import batch
 from estimators import full_dynamics as fd
 from estimators._symbolic import LAYOUT, Kernels
 from estimators.batch import SINGULAR_CONDITION
+from estimators.checks import check_finite_result, check_options, coordinate_ranges
 from estimators.errors import EstimatorInputError, SingularSystemError, range_message
 from estimators.linearization import ForceLinearization
 from estimators.quasi_static import QuasiStaticMask
@@ -34,18 +35,7 @@ from models.state import MachineState
 
 __all__ = ["NormalForceEstimator"]
 
-STROKE_POLICIES = ("raise", "clip")
 _FD_STEP = 1e-6  # [m, rad], [m/s, rad/s]: central-difference step where no exact column exists
-
-METHODS = ("full", "quasi-static")
-FOURTH = ("d-beta", "cylinder-force")
-BACKENDS = ("auto", "compiled", "casadi", "reference")
-
-
-
-
-
-
 
 
 class NormalForceEstimator:
@@ -78,19 +68,10 @@ class NormalForceEstimator:
                  strokes: str = "raise"):
         if not isinstance(machine, Machine):
             raise EstimatorInputError(f"machine must be a Machine, got {type(machine).__name__}")
-        for name, value, valid in (("method", method, METHODS), ("fourth", fourth, FOURTH),
-                                   ("backend", backend, BACKENDS),
-                                   ("strokes", strokes, STROKE_POLICIES)):
-            if value not in valid:
-                raise EstimatorInputError(f"{name}={value!r} is not one of {valid}")
-        for name, value in (("D", D), ("beta", beta)):
-            if not np.isfinite(value):
-                raise EstimatorInputError(f"{name} must be finite, got {value}")
+        self.D, self.beta = check_options(method, fourth, D, beta, backend, strokes)
         self.machine = machine
         self.method = method
         self.fourth = fourth
-        self.D = float(D)
-        self.beta = float(beta)
         self.strokes = strokes
         self.n_clipped = 0
         self.tree = _tree_for(machine)
@@ -104,8 +85,7 @@ class NormalForceEstimator:
             self.backend = "compiled" if self._kernels.compiled else "casadi"
         else:
             self.backend = "reference"
-        self._ranges = tuple((c.name, c.coordinate, c.stroke_range[0], c.stroke_range[1])
-                             for c in self.tree.chains)
+        self._ranges = coordinate_ranges(machine)
         self._selector_cache: dict = {}
         self._no_contacts = np.zeros(LAYOUT.force.stop - LAYOUT.points.start)
         self._all_in = np.ones(4, bool)
@@ -138,15 +118,15 @@ class NormalForceEstimator:
         if not isinstance(state, MachineState):
             raise EstimatorInputError(f"state must be a MachineState, got {type(state).__name__}")
         q = state.q
-        bad = [(name, i, lo, hi) for name, i, lo, hi in self._ranges
+        bad = [(name, unit, i, lo, hi) for name, unit, i, lo, hi in self._ranges
                if not lo - 1e-12 <= q[i] <= hi + 1e-12]
         if not bad:
             return state, ()
         if self.strokes == "raise":
-            name, i, lo, hi = bad[0]
-            raise EstimatorInputError(range_message(name, i, float(q[i]), (lo, hi)))
+            name, unit, i, lo, hi = bad[0]
+            raise EstimatorInputError(range_message(name, unit, i, float(q[i]), (lo, hi)))
         q = q.copy()
-        for name, i, lo, hi in bad:
+        for name, _, i, lo, hi in bad:
             q[i] = min(max(q[i], lo), hi)
         self.n_clipped += 1
         return replace(state, q=q), tuple(name for name, *_ in bad)
@@ -216,8 +196,9 @@ class NormalForceEstimator:
             The `Estimate`.
 
         Raises:
-            EstimatorInputError: NaN/inf, a wrong shape, a non-rotation base orientation or a
-                stroke outside its chain's range (the message names the field and range).
+            EstimatorInputError: Not a `MachineState`, a stroke (or telescope or wrist joint)
+                outside its range under ``strokes="raise"`` (the message names the coordinate
+                and the range), or inputs so large that the result overflows.
             SingularSystemError: The system is singular (condition number above 1e12).
         """
         state, _ = self._checked(state)
@@ -235,19 +216,43 @@ class NormalForceEstimator:
         b = out[lay.out_b].copy()
         cond = float(out[lay.out_cond])
         residual = out[lay.out_residual].copy()
+        check_finite_result("the normal-force system", state, a, b, out[lay.out_xi])
         if sel.tipping:
             x, cond = least_squares(a, b, sel.mask)
             residual = a @ x - b
-        elif not cond < SINGULAR_CONDITION:
-            raise SingularSystemError(
-                f"{sel.mode} system is singular (1-norm condition {cond:.3g} >= "
-                f"{SINGULAR_CONDITION:.0e}); check D (={self.D}) and the contact geometry",
-                cond)
+        else:
+            self._check_condition(sel, cond)
+        check_finite_result("the normal forces", state, x, residual, out[lay.out_points])
         c = state.contacts
         friction = c.force_in_fb if c is not None else self._no_contacts[:12].reshape(4, 3)
         return Estimate(x, sel.mask > 0, out[lay.out_xi].copy(), cond, sel.mode, sel.tipping,
                         residual, out[lay.out_points].reshape(4, 3).copy(), a, b, self.backend,
                         self._normals(state), friction)
+
+    def _check_condition(self, sel: fd.Selectors, cond: float) -> None:
+        """Raise `SingularSystemError` for a non-tipping system above `SINGULAR_CONDITION`."""
+        if not sel.tipping and not cond < SINGULAR_CONDITION:
+            raise SingularSystemError(
+                f"{sel.mode} system is singular (1-norm condition {cond:.3g} >= "
+                f"{SINGULAR_CONDITION:.0e}); check D (={self.D}) and the contact geometry",
+                cond)
+
+    def _estimate_kernel(self, inp: np.ndarray, sel: fd.Selectors,
+                         state: MachineState) -> np.ndarray:
+        """The ``nf_estimate`` output row of the packed input ``inp``, after the checks.
+
+        Raises:
+            EstimatorInputError: The system overflows (huge finite inputs).
+            SingularSystemError: The (non-tipping) system is singular, as in `estimate`.
+        """
+        ein, eout, ecall = self._kernels.single("nf_estimate")
+        ein[:] = inp
+        ecall()
+        lay = LAYOUT
+        check_finite_result("the normal-force system", state, eout[lay.out_a],
+                            eout[lay.out_b])
+        self._check_condition(sel, float(eout[lay.out_cond]))
+        return eout
 
     def constraint(self, state: MachineState) -> tuple[np.ndarray, np.ndarray]:
         """Affine map of the normal forces in the generalised accelerations.
@@ -258,6 +263,11 @@ class NormalForceEstimator:
 
         Returns:
             ``(G, g0)``: shapes (4, 19) and (4,) [N per unit acceleration, N].
+
+        Raises:
+            EstimatorInputError: As for `estimate` (not a state, a coordinate out of range
+                under ``strokes="raise"``, inputs so large that the result overflows).
+            SingularSystemError: The system is singular (the same test as `estimate`).
         """
         state, _ = self._checked(state)
         lay = LAYOUT
@@ -265,13 +275,11 @@ class NormalForceEstimator:
             return self._constraint_reference(state)
         inp, out, call = self._kernels.single("nf_constraint")
         sel = self._fill(inp, state)
+        eout = self._estimate_kernel(inp, sel, state)
         call()
         g = out[lay.con_g].reshape(4, 19).copy()
         x = out[lay.con_x].copy()
         if sel.tipping:
-            ein, eout, ecall = self._kernels.single("nf_estimate")
-            ein[:] = inp
-            ecall()
             a = eout[lay.out_a].reshape(3, 4)
             pinv = masked_pinv(a, sel.mask)
             x = pinv @ eout[lay.out_b]
@@ -279,7 +287,9 @@ class NormalForceEstimator:
         if self._qs is not None:
             g = g * self._qs.accelerations
         acc = np.concatenate([state.base_acceleration, state.qdd])
-        return g, x - g @ acc
+        g0 = x - g @ acc
+        check_finite_result("the force constraint (G, g0)", state, g, g0)
+        return g, g0
 
     def _constraint_reference(self, state: MachineState):
         base = self.estimate(state).normal_forces
@@ -306,9 +316,9 @@ class NormalForceEstimator:
         `ForceLinearization.clipped`).
 
         Raises:
-            EstimatorInputError: Not a state, or (``strokes="raise"``) a stroke out of range.
-            SingularSystemError: The system is singular.
-            EstimatorError: A derivative is not finite (a bug; never returned as NaN).
+            EstimatorInputError: Not a state, (``strokes="raise"``) a stroke or joint out of
+                range, or inputs so large that a result overflows.
+            SingularSystemError: The system is singular (as in `estimate`).
         """
         state, clipped = self._checked(state)
         sel = None
@@ -324,6 +334,7 @@ class NormalForceEstimator:
                                     for j in range(13)])
         else:
             lay = LAYOUT
+            self._estimate_kernel(inp, sel, state)
             call()
             in_contact, mode = sel.mask > 0, sel.mode
             forces = out[lay.der_x].copy()
@@ -333,8 +344,10 @@ class NormalForceEstimator:
             if self._qs is not None:
                 G *= self._qs.accelerations
                 d_qd *= self._qs.coordinates
-        return ForceLinearization(forces, G, forces - G @ state.acceleration, d_q, d_qd,
-                                  in_contact, mode, clipped, state.time)
+        g0 = forces - G @ state.acceleration
+        check_finite_result("the linearization", state, forces, G, g0, d_q, d_qd)
+        return ForceLinearization(forces, G, g0, d_q, d_qd, in_contact, mode, clipped,
+                                  state.time)
 
     def _central_difference(self, state: MachineState, name: str, j: int) -> np.ndarray:
         """``df_z/d(name)[j]`` by central differences, staying inside the stroke range."""
@@ -373,7 +386,6 @@ class NormalForceEstimator:
             SingularSystemError: With ``strict``, a row's system is singular.
         """
         return batch.estimate_batch(self, states, strict=strict, chunk=chunk, threads=threads)
-
 
 
     # ------------------------------------------------------------------ calibration
@@ -417,11 +429,5 @@ def _tree_for(machine: Machine) -> TreeModel:
     if tree is None:
         tree = _TREES[machine.fingerprint] = TreeModel(machine)
     return tree
-
-
-
-
-
-
 
 

@@ -39,6 +39,7 @@ from models.description import (
     box_inertia,
     cylinder_inertia,
 )
+from models.errors import ModelError
 
 BAR = 1e5
 LPM = 1e-3 / 60  # [m^3/s] per litre/minute
@@ -119,12 +120,23 @@ def _cylinder_bodies(prefix: str, parent: str, chain: CylinderChain, origin: np.
     return barrel, piston
 
 
+MAX_PAYLOAD_MASS = 10_000.0  # [kg] far above the crane's capacity; heavier is a typo
+
+
 def build_reference_machine(payload_mass: float = 150.0) -> Machine:
     """Build the reference machine.
 
     Args:
-        payload_mass: Mass of the payload held by the tool [kg].
+        payload_mass: Mass of the payload held by the tool [kg], in (0, `MAX_PAYLOAD_MASS`].
+
+    Raises:
+        ModelError: ``payload_mass`` not a real number in (0, `MAX_PAYLOAD_MASS`] kg.
     """
+    ok = isinstance(payload_mass, (int, float, np.integer, np.floating)) and not isinstance(
+        payload_mass, (bool, np.bool_))
+    if not ok or not 0.0 < payload_mass <= MAX_PAYLOAD_MASS:
+        raise ModelError(f"payload_mass must be a number in (0, {MAX_PAYLOAD_MASS:g}] kg, got "
+                         f"{payload_mass!r}")
     src: list[tuple[str, str, str]] = []
     supply = SUPPLY_PRESSURE
 

@@ -20,7 +20,7 @@ from models.description import WHEEL_ORDER
 from models.errors import StateError
 
 __all__ = ["MachineState", "WheelContacts", "WHEEL_ORDER", "N_SERVO_AXES",
-           "ROTATION_TOLERANCE", "frozen_array", "shaped_array"]
+           "ROTATION_TOLERANCE", "contact_flags", "frozen_array", "shaped_array"]
 
 N_SERVO_AXES = 9  # the servo-driven axes: 2 suspension strokes, 7 crane coordinates
 ROTATION_TOLERANCE = 1e-6  # max |R R^T - I| entry of a valid rotation matrix
@@ -29,9 +29,11 @@ ROTATION_TOLERANCE = 1e-6  # max |R R^T - I| entry of a valid rotation matrix
 def shaped_array(name: str, value, shape: tuple[int, ...], dtype=float) -> np.ndarray:
     """``value`` as a new array of ``shape``; `StateError` naming the field otherwise."""
     try:
+        if np.iscomplexobj(value):
+            raise TypeError("complex values")
         a = np.array(value, dtype=dtype)
     except (TypeError, ValueError) as exc:
-        raise StateError(f"'{name}' must be numeric with shape {shape}: {exc}") from None
+        raise StateError(f"'{name}' must be real numbers with shape {shape}: {exc}") from None
     if a.shape != shape:
         raise StateError(f"'{name}' must have shape {shape}, got {a.shape}")
     return a
@@ -50,8 +52,32 @@ def frozen_array(name: str, value, shape: tuple[int, ...], dtype=float) -> np.nd
     return a
 
 
+def contact_flags(name: str, value, shape: tuple[int, ...]) -> np.ndarray:
+    """``value`` as a read-only bool array of ``shape``; only booleans or 0/1 are accepted.
+
+    Raises:
+        StateError: Wrong shape, or an entry that is not a boolean, 0 or 1 (a string, 0.5, 2).
+    """
+    try:
+        flags = np.asarray(value)
+    except (TypeError, ValueError) as exc:
+        raise StateError(f"'{name}' must hold booleans (or 0/1) with shape {shape}: "
+                         f"{exc}") from None
+    if flags.shape != shape:
+        raise StateError(f"'{name}' must have shape {shape}, got {flags.shape}")
+    if flags.dtype != bool and (flags.dtype.kind not in "iuf"
+                                or not np.all((flags == 0) | (flags == 1))):
+        raise StateError(f"'{name}' must hold booleans (or 0/1), got {flags}")
+    flags = flags.astype(bool)
+    flags.flags.writeable = False
+    return flags
+
+
 def check_rotation(name: str, r: np.ndarray) -> None:
     """Raise `StateError` unless ``r`` (3, 3) is a proper rotation (orthonormal, det +1)."""
+    if np.abs(r).max() > 1.0 + ROTATION_TOLERANCE:  # also keeps R R^T from overflowing
+        raise StateError(f"'{name}' is not a rotation matrix (an entry of magnitude "
+                         f"{np.abs(r).max():.3g} > 1; valid: orthonormal with det +1): {r}")
     err = np.abs(r @ r.T - np.eye(3)).max()
     if err > ROTATION_TOLERANCE or np.linalg.det(r) < 0:
         raise StateError(f"'{name}' is not a rotation matrix (|R R^T - I| = {err:.3g}, "
@@ -80,12 +106,7 @@ class WheelContacts:
     normal_in_fb: np.ndarray
 
     def __post_init__(self):
-        flags = np.asarray(self.in_contact)
-        if flags.shape != (4,):
-            raise StateError(f"'in_contact' must have shape (4,), got {flags.shape}")
-        if flags.dtype != bool and not np.all(np.isin(flags, (0, 1))):
-            raise StateError(f"'in_contact' must hold booleans (or 0/1), got {flags}")
-        _set(self, "in_contact", frozen_array("in_contact", flags, (4,), bool))
+        _set(self, "in_contact", contact_flags("in_contact", self.in_contact, (4,)))
         for name in ("force_in_fb", "point_in_fb", "normal_in_fb"):
             _set(self, name, frozen_array(name, getattr(self, name), (4, 3)))
 

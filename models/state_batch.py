@@ -13,9 +13,11 @@ import numpy as np
 
 from models.coordinates import N_INDEPENDENT
 from models.errors import StateError
-from models.state import ROTATION_TOLERANCE, MachineState, shaped_array
+from models.state import ROTATION_TOLERANCE, MachineState, contact_flags, shaped_array
 
 __all__ = ["StateBatch"]
+
+REQUIRED = ("base_rotation", "base_twist", "base_acceleration", "q", "qd", "qdd")
 
 
 @dataclass(frozen=True, eq=False)
@@ -48,9 +50,16 @@ class StateBatch:
     time: np.ndarray | None = None
 
     def __post_init__(self):
-        n = np.shape(self.q)[0] if np.ndim(self.q) == 2 else -1
+        for name in REQUIRED:
+            if getattr(self, name) is None:
+                raise StateError(f"'{name}' is required (an array of N rows), got None")
+        try:
+            q_shape = np.shape(self.q)
+        except ValueError:  # a ragged sequence
+            q_shape = "a ragged sequence"
+        n = q_shape[0] if isinstance(q_shape, tuple) and len(q_shape) == 2 else -1
         if n < 0:
-            raise StateError(f"'q' must have shape (N, {N_INDEPENDENT}), got {np.shape(self.q)}")
+            raise StateError(f"'q' must have shape (N, {N_INDEPENDENT}), got {q_shape}")
         shapes = dict(base_rotation=(n, 3, 3), base_twist=(n, 6), base_acceleration=(n, 6),
                       q=(n, N_INDEPENDENT), qd=(n, N_INDEPENDENT), qdd=(n, N_INDEPENDENT),
                       force_in_fb=(n, 4, 3), point_in_fb=(n, 4, 3), normal_in_fb=(n, 4, 3),
@@ -67,17 +76,15 @@ class StateBatch:
             a.flags.writeable = False
             object.__setattr__(self, name, a)
         if self.in_contact is not None:
-            ic = np.array(self.in_contact)
-            if ic.shape != (n, 4):
-                raise StateError(f"'in_contact' must have shape {(n, 4)}, got {ic.shape}")
-            ic = ic.astype(bool)
-            ic.flags.writeable = False
-            object.__setattr__(self, "in_contact", ic)
+            object.__setattr__(self, "in_contact",
+                               contact_flags("in_contact", self.in_contact, (n, 4)))
         r = self.base_rotation
         if n:
+            big = np.abs(r).max(axis=(1, 2)) > 1.0 + ROTATION_TOLERANCE
+            r = np.where(big[:, None, None], 0.0, r)  # no overflow below; flagged anyway
             err = np.abs(r @ r.transpose(0, 2, 1) - np.eye(3)).max(axis=(1, 2))
             det = np.einsum("ni,ni->n", np.cross(r[:, 0], r[:, 1]), r[:, 2])
-            bad = (err > ROTATION_TOLERANCE) | (det < 0)
+            bad = big | (err > ROTATION_TOLERANCE) | (det < 0)
             if bad.any():
                 k = int(np.flatnonzero(bad)[0])
                 raise StateError(f"'base_rotation' row {k} is not a rotation matrix "

@@ -23,48 +23,24 @@ import numpy as np
 from scipy.ndimage import gaussian_filter
 
 from models.errors import TerrainError
+from models.terrain_checks import (
+    MAX_COORDINATE,
+    MAX_NODES,
+    MAX_SMOOTHING_WORK,
+    MIN_SPACING,
+    check_angle,
+    check_finite,
+    check_interval,
+    check_points,
+    check_positive,
+    check_scalars,
+)
 
 __all__ = ["DEFAULT_X_RANGE", "DEFAULT_Y_RANGE", "Terrain", "flat", "ramp", "rough", "side_slope"]
 
 DEFAULT_X_RANGE = (-10.0, 45.0)  # [m] 35 m drive in +x from the origin plus crane reach
 DEFAULT_Y_RANGE = (-10.0, 10.0)  # [m] room for skid-steer drift and side slopes
-_MAX_ANGLE_DEG = 60.0  # steeper terrain is not drivable and only breeds bad placements
 _INSIDE_TOL = 1e-9  # [m] queries this far outside the grid are still accepted
-
-
-def _finite(name: str, value: float) -> float:
-    try:
-        value = float(value)
-    except (TypeError, ValueError) as exc:
-        raise TerrainError(f"{name} must be a real number, got {value!r}") from exc
-    if not math.isfinite(value):
-        raise TerrainError(f"{name} must be finite, got {value}")
-    return value
-
-
-def _positive(name: str, value: float) -> float:
-    value = _finite(name, value)
-    if value <= 0:
-        raise TerrainError(f"{name} must be positive, got {value}")
-    return value
-
-
-def _interval(name: str, value) -> tuple[float, float]:
-    try:
-        lo, hi = (float(v) for v in value)
-    except (TypeError, ValueError) as exc:
-        raise TerrainError(f"{name} must be a pair (min, max) [m], got {value!r}") from exc
-    if not (math.isfinite(lo) and math.isfinite(hi) and hi > lo):
-        raise TerrainError(f"{name} must be a finite interval with max > min, got {(lo, hi)}")
-    return lo, hi
-
-
-def _angle(name: str, value: float, allow_zero: bool = True) -> float:
-    value = _finite(name, value)
-    if not (-_MAX_ANGLE_DEG < value < _MAX_ANGLE_DEG) or (not allow_zero and value <= 0):
-        lo = "0" if not allow_zero else f"-{_MAX_ANGLE_DEG:g}"
-        raise TerrainError(f"{name} {value:g} deg outside ({lo}, {_MAX_ANGLE_DEG:g}) deg")
-    return value
 
 
 @dataclass(frozen=True, eq=False)
@@ -90,6 +66,8 @@ class Terrain:
         if not isinstance(self.name, str) or not self.name.isidentifier():
             raise TerrainError(f"terrain name must be an identifier string, got {self.name!r}")
         try:
+            if np.iscomplexobj(self.heights):
+                raise TypeError("complex heights")
             heights = np.array(self.heights, dtype=float)
         except (TypeError, ValueError) as exc:
             raise TerrainError("terrain heights must be a 2-D array of numbers [m]") from exc
@@ -98,11 +76,19 @@ class Terrain:
                                f"got {heights.shape}")
         if not np.all(np.isfinite(heights)):
             raise TerrainError("terrain heights contain NaN or inf")
+        if np.abs(heights).max() > MAX_COORDINATE:
+            raise TerrainError(f"terrain heights must lie in [-{MAX_COORDINATE:g}, "
+                               f"{MAX_COORDINATE:g}] m, got up to {np.abs(heights).max():g}")
         heights.setflags(write=False)
         object.__setattr__(self, "heights", heights)
-        object.__setattr__(self, "x_range", _interval("x_range", self.x_range))
-        object.__setattr__(self, "y_range", _interval("y_range", self.y_range))
-        object.__setattr__(self, "friction", _positive("friction", self.friction))
+        object.__setattr__(self, "x_range", check_interval("x_range", self.x_range))
+        object.__setattr__(self, "y_range", check_interval("y_range", self.y_range))
+        object.__setattr__(self, "friction", check_positive("friction", self.friction))
+        dx, dy = self.spacing
+        if min(dx, dy) < MIN_SPACING:
+            raise TerrainError(f"terrain grid spacing ({dx:g}, {dy:g}) m below the minimum "
+                               f"{MIN_SPACING:g} m (ranges {self.x_range}, {self.y_range} m "
+                               f"over {heights.shape[1]} x {heights.shape[0]} nodes)")
 
     # ------------------------------------------------------------------ geometry
     @property
@@ -158,10 +144,11 @@ class Terrain:
 
     def _triangle(self, x, y):
         """Height and gradient of the triangle under each point (broadcast shapes)."""
-        if np.ndim(x) == 0 and np.ndim(y) == 0:
-            z, gx, gy = self._triangle_at(float(x), float(y))
+        xy = check_scalars(x, y)
+        if xy is not None:
+            z, gx, gy = self._triangle_at(*xy)
             return np.asarray(z), np.asarray(gx), np.asarray(gy)
-        x, y = np.broadcast_arrays(np.asarray(x, float), np.asarray(y, float))
+        x, y = check_points(x, y)
         if not (np.isfinite(x).all() and np.isfinite(y).all()):
             raise TerrainError("terrain query points must be finite")
         inside = self.contains(x, y)
@@ -221,8 +208,9 @@ class Terrain:
         Raises:
             TerrainError: A point is outside the grid or not finite.
         """
-        if np.ndim(x) == 0 and np.ndim(y) == 0:
-            return self._triangle_at(float(x), float(y))[0]
+        xy = check_scalars(x, y)
+        if xy is not None:
+            return self._triangle_at(*xy)[0]
         z, _, _ = self._triangle(x, y)
         return z
 
@@ -239,8 +227,9 @@ class Terrain:
 
         ``n = (-dh/dx, -dh/dy, 1) / |(-dh/dx, -dh/dy, 1)|``.
         """
-        if np.ndim(x) == 0 and np.ndim(y) == 0:
-            _, gx, gy = self._triangle_at(float(x), float(y))
+        xy = check_scalars(x, y)
+        if xy is not None:
+            _, gx, gy = self._triangle_at(*xy)
             scale = 1.0 / math.sqrt(1.0 + gx * gx + gy * gy)
             return np.array([-gx * scale, -gy * scale, scale])
         _, gx, gy = self._triangle(x, y)
@@ -261,14 +250,19 @@ class Terrain:
         return float(np.degrees(np.arctan(max(below.max(), above.max()))))
 
 
-# ---------------------------------------------------------------------- constructors
 def _grid(x_range, y_range, spacing: float) -> tuple[np.ndarray, np.ndarray, tuple, tuple]:
     """Grid axes with about ``spacing`` between nodes that fit the ranges exactly."""
-    x_range = _interval("x_range", x_range)
-    y_range = _interval("y_range", y_range)
-    spacing = _positive("spacing", spacing)
+    x_range = check_interval("x_range", x_range)
+    y_range = check_interval("y_range", y_range)
+    spacing = check_positive("spacing", spacing)
+    if spacing < MIN_SPACING:
+        raise TerrainError(f"spacing {spacing:g} m below the minimum {MIN_SPACING:g} m")
     n_x = max(2, int(round((x_range[1] - x_range[0]) / spacing)) + 1)
     n_y = max(2, int(round((y_range[1] - y_range[0]) / spacing)) + 1)
+    if n_x * n_y > MAX_NODES:
+        raise TerrainError(f"spacing {spacing:g} m over x_range {x_range} m and y_range "
+                           f"{y_range} m makes {n_x} x {n_y} grid nodes, more than "
+                           f"{MAX_NODES:,}; use a coarser spacing or smaller ranges")
     return np.linspace(*x_range, n_x), np.linspace(*y_range, n_y), x_range, y_range
 
 
@@ -282,7 +276,7 @@ def flat(height: float = 0.0, x_range=DEFAULT_X_RANGE, y_range=DEFAULT_Y_RANGE,
         y_range: Extent along world y [m].
         friction: Sliding friction coefficient [-].
     """
-    height = _finite("height", height)
+    height = check_finite("height", height)
     return Terrain("flat", np.full((2, 2), height), x_range, y_range, friction)
 
 
@@ -303,9 +297,9 @@ def ramp(angle_deg: float, start_x: float = 4.0, transition_length: float = 2.0,
         y_range: Extent along world y [m].
         friction: Sliding friction coefficient [-].
     """
-    angle_deg = _angle("ramp angle", angle_deg)
-    start_x = _finite("start_x", start_x)
-    transition_length = _finite("transition_length", transition_length)
+    angle_deg = check_angle("ramp angle", angle_deg)
+    start_x = check_finite("start_x", start_x)
+    transition_length = check_finite("transition_length", transition_length)
     if transition_length < 0:
         raise TerrainError(f"transition_length must be >= 0 m, got {transition_length}")
     xs, ys, x_range, y_range = _grid(x_range, y_range, spacing)
@@ -332,7 +326,7 @@ def side_slope(angle_deg: float, spacing: float = 1.0, x_range=DEFAULT_X_RANGE,
         y_range: Extent along world y [m].
         friction: Sliding friction coefficient [-].
     """
-    angle_deg = _angle("side slope angle", angle_deg)
+    angle_deg = check_angle("side slope angle", angle_deg)
     xs, ys, x_range, y_range = _grid(x_range, y_range, spacing)
     h = np.outer(ys * math.tan(math.radians(angle_deg)), np.ones(xs.size))
     return Terrain("side_slope", h, x_range, y_range, friction)
@@ -363,10 +357,10 @@ def rough(seed: int, max_slope_deg: float = 26.7, feature_length: float = 1.0,
     """
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
         raise TerrainError(f"seed must be a non-negative integer, got {seed!r}")
-    max_slope_deg = _angle("max_slope_deg", max_slope_deg, allow_zero=False)
-    feature_length = _positive("feature_length", feature_length)
-    start_radius = _finite("start_radius", start_radius)
-    blend_length = _positive("blend_length", blend_length)
+    max_slope_deg = check_angle("max_slope_deg", max_slope_deg, allow_zero=False)
+    feature_length = check_positive("feature_length", feature_length)
+    start_radius = check_finite("start_radius", start_radius)
+    blend_length = check_positive("blend_length", blend_length)
     if start_radius < 0:
         raise TerrainError(f"start_radius must be >= 0 m, got {start_radius}")
     xs, ys, x_range, y_range = _grid(x_range, y_range, spacing)
@@ -374,6 +368,13 @@ def rough(seed: int, max_slope_deg: float = 26.7, feature_length: float = 1.0,
     if feature_length < 2 * max(dx, dy):
         raise TerrainError(f"feature_length {feature_length:g} m must be at least twice the grid "
                            f"spacing ({max(dx, dy):g} m) to be resolved")
+    # The smoothing costs about 8 sigma operations per node and axis; bound it (a hang else).
+    work = xs.size * ys.size * 8.0 * (feature_length / dx + feature_length / dy)
+    if work > MAX_SMOOTHING_WORK:
+        raise TerrainError(f"feature_length {feature_length:g} m is too long for a "
+                           f"{xs.size} x {ys.size} grid of spacing {max(dx, dy):g} m (smoothing "
+                           f"work {work:.3g} > {MAX_SMOOTHING_WORK:.0e}); use a shorter "
+                           f"feature_length, a coarser spacing or smaller ranges")
     noise = np.random.default_rng(int(seed)).standard_normal((ys.size, xs.size))
     field = gaussian_filter(noise, sigma=(feature_length / dy, feature_length / dx),
                             mode="reflect")
@@ -383,5 +384,8 @@ def rough(seed: int, max_slope_deg: float = 26.7, feature_length: float = 1.0,
     heights = field * (t * t * (3.0 - 2.0 * t))  # smooth step: level at the start
     unscaled = Terrain("rough", heights, x_range, y_range, friction)
     grad_max = math.tan(math.radians(unscaled.max_slope_deg))
+    if not grad_max > 0:
+        raise TerrainError(f"start_radius {start_radius:g} m leaves no rough area in x_range "
+                           f"{x_range} m and y_range {y_range} m")
     scale = math.tan(math.radians(max_slope_deg)) / grad_max
     return Terrain("rough", heights * scale, x_range, y_range, friction)

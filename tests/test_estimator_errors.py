@@ -93,3 +93,44 @@ def test_batch_errors_name_field_and_rows(est, machine):
                    sb.qdd)
     with pytest.raises(EstimatorInputError, match=r"states\[1\]"):
         est.estimate_batch([states[0], "not a state"])
+
+
+def _singular(state):
+    """``state`` with all four contact points coincident: the 3x4 system is singular."""
+    from models import WheelContacts
+    c = WheelContacts(np.ones(4, bool), np.zeros((4, 3)), np.tile([1.0, 0.0, -0.5], (4, 1)),
+                      np.tile([0.0, 0.0, 1.0], (4, 1)))
+    return replace(state, contacts=c)
+
+
+@pytest.mark.parametrize("method", ["estimate", "constraint", "linearize"])
+def test_singular_geometry_raises_in_every_method(est, state, method):
+    with pytest.raises(SingularSystemError, match="singular"):
+        getattr(est, method)(_singular(state))
+
+
+@pytest.mark.parametrize("method", ["estimate", "constraint", "linearize"])
+def test_overflow_is_a_typed_error(est, state, method):
+    qd = state.qd.copy()
+    qd[3] = 1e300
+    with pytest.raises(EstimatorInputError, match=r"overflow.*'?qd'?"):
+        getattr(est, method)(replace(state, qd=qd))
+
+
+@pytest.mark.parametrize("index,value,name", [(5, 101.0, "telescope"),
+                                              (7, 2.0, "wrist_roll")])
+def test_joint_out_of_range_names_joint_and_range(est, state, index, value, name):
+    q = state.q.copy()
+    q[index] = value
+    with pytest.raises(EstimatorInputError, match=f"joint '{name}'.*outside"):
+        est.estimate(replace(state, q=q))
+    with pytest.raises(EstimatorInputError, match=f"joint '{name}'"):
+        est.estimate_batch([replace(state, q=q)])
+
+
+@pytest.mark.parametrize("value", [np.array(["full"]), None, 3])
+def test_options_of_the_wrong_type(machine, value):
+    with pytest.raises(EstimatorInputError, match="method"):
+        NormalForceEstimator(machine, method=value)
+    with pytest.raises(EstimatorInputError, match="D must be a finite real number"):
+        NormalForceEstimator(machine, D="0.5")

@@ -187,3 +187,15 @@ def test_bad_input_raises_terrain_error(call):
 def test_out_of_range_message_names_the_valid_extent():
     with pytest.raises(TerrainError, match=r"x in \[-10, 45\] m"):
         T.rough(0).height(50.0, 0.0)
+
+
+@pytest.mark.parametrize("make", [
+    lambda: T.ramp(10.0, spacing=1e-5),  # billions of grid nodes
+    lambda: T.Terrain("t", np.array([[0.0, 1e300], [0.0, 0.0]])),  # slopes overflow
+    lambda: T.Terrain("t", np.zeros((2, 2)), x_range=(0.0, 1e-9)),  # spacing too small
+    lambda: T.flat().height("a", 0.0),
+    lambda: T.flat().normal([[0.0, 1.0], [2.0]], 0.0),
+])
+def test_extreme_terrains_and_queries_are_refused(make):
+    with pytest.raises(TerrainError):
+        make()

@@ -216,3 +216,37 @@ def test_no_goal_and_met_goal_give_zero_motion(machine, name):
     for _ in range(3):
         cmd = ctrl.step(st)
         np.testing.assert_allclose(cmd.rates, 0.0, atol=1e-7)
+
+
+def test_telescope_goal_at_101_m_is_refused(tracking, machine):
+    crane = machine.coordinates.home()[2:9].copy()
+    crane[3] = 101.0
+    with pytest.raises(WbcInputError, match="telescope"):
+        tracking.set_goal(JointGoal(crane=crane))
+
+
+@pytest.mark.parametrize("field,value", [("qd", 1e300), ("base_twist", 1e200)])
+def test_step_refuses_a_state_that_would_overflow(tracking, machine, field, value):
+    state = make_state(machine)
+    x = getattr(state, field).copy()
+    x[0] = value
+    with pytest.raises(WbcInputError, match=field):
+        tracking.step(dataclasses.replace(state, **{field: x}))
+
+
+@pytest.mark.parametrize("kw", [dict(dt="0.01"), dict(max_iter=2.5), dict(eps_abs=10**400),
+                                dict(solver=3)])
+def test_config_values_of_the_wrong_type(kw):
+    with pytest.raises(ConfigurationError):
+        ControllerConfig(**kw)
+
+
+def test_force_thresholds_of_the_wrong_type():
+    with pytest.raises(ConfigurationError, match="thresholds"):
+        ForceConfig(thresholds=["a"] * 4)
+
+
+@pytest.mark.parametrize("name", [np.array(["tracking"]), None, 3])
+def test_controller_name_of_the_wrong_type(machine, name):
+    with pytest.raises(UnknownControllerError):
+        make_controller(name, machine)

@@ -27,8 +27,15 @@ SUSPENSION_AXES = np.arange(SUSPENSION.start, SUSPENSION.stop)  # (0, 1)
 CRANE_AXES = np.arange(CRANE.start, CRANE.stop)  # (2, ..., 8)
 
 
-def _frozen(x) -> np.ndarray:
-    a = np.array(x, dtype=float)
+def _frozen(name: str, x) -> np.ndarray:
+    """``x`` as a read-only finite float array of shape (9,); `ConfigurationError` else."""
+    try:
+        a = np.array(x, dtype=float) if not np.iscomplexobj(x) else None
+    except (TypeError, ValueError):
+        a = None
+    if a is None or a.shape != (N_AXES,) or not np.all(np.isfinite(a)):
+        raise ConfigurationError(f"AxisLimits.{name} must be finite with shape ({N_AXES},), "
+                                 f"got {x!r}")
     a.setflags(write=False)
     return a
 
@@ -54,13 +61,15 @@ class AxisLimits:
     acceleration: np.ndarray
 
     def __post_init__(self):
+        names = self.names
+        if (not isinstance(names, (tuple, list)) or len(names) != N_AXES
+                or not all(isinstance(n, str) for n in names)):
+            raise ConfigurationError(f"AxisLimits.names must be {N_AXES} strings, got "
+                                     f"{names!r}")
+        object.__setattr__(self, "names", tuple(names))
         for f in ("position_lower", "position_upper", "velocity_lower", "velocity_upper",
                   "acceleration"):
-            a = _frozen(getattr(self, f))
-            if a.shape != (N_AXES,) or not np.all(np.isfinite(a)):
-                raise ConfigurationError(f"AxisLimits.{f} must be finite with shape "
-                                         f"({N_AXES},), got {a}")
-            object.__setattr__(self, f, a)
+            object.__setattr__(self, f, _frozen(f, getattr(self, f)))
         bad = ((self.position_lower >= self.position_upper) | (self.velocity_lower >= 0)
                | (self.velocity_upper <= 0) | (self.acceleration <= 0))
         if np.any(bad):
@@ -86,7 +95,9 @@ class AxisLimits:
             position_margin: Fraction of each position range kept free at both ends, in
                 [0, 0.25).
         """
-        if not 0.0 <= position_margin < 0.25:
+        if (isinstance(position_margin, (bool, np.bool_))
+                or not isinstance(position_margin, (int, float, np.integer, np.floating))
+                or not 0.0 <= position_margin < 0.25):
             raise ConfigurationError(f"position_margin {position_margin} outside [0, 0.25)")
         coordinates = machine.coordinates
         table = coordinates.table[:N_AXES]

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -12,11 +13,47 @@ from wbc.force_models.feedback import WARP_STIFFNESS
 __all__ = ["ControllerConfig", "ForceConfig", "MpcConfig", "QPConfig", "ReferenceConfig"]
 
 
+def _real(v) -> bool:
+    """True for a finite real number (Python or numpy scalar; not a bool, string, complex)."""
+    if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, float, np.integer,
+                                                            np.floating)):
+        return False
+    try:
+        return math.isfinite(float(v))
+    except OverflowError:  # an int beyond the float range
+        return False
+
+
+def _flags(obj, *names):
+    for n in names:
+        if not isinstance(getattr(obj, n), (bool, np.bool_)):
+            raise ConfigurationError(f"{type(obj).__name__}.{n} must be True or False, got "
+                                     f"{getattr(obj, n)!r}")
+
+
+def _integers(obj, *names):
+    for n in names:
+        v = getattr(obj, n)
+        if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, np.integer)) or v < 1:
+            raise ConfigurationError(f"{type(obj).__name__}.{n} must be an integer >= 1, "
+                                     f"got {v!r}")
+
+
+def _numbers(obj, name: str, value, n: int) -> np.ndarray:
+    try:
+        a = np.asarray(value, float) if not np.iscomplexobj(value) else None
+    except (TypeError, ValueError):
+        a = None
+    if a is None or a.shape != (n,) or not np.all(np.isfinite(a)):
+        raise ConfigurationError(f"{type(obj).__name__}.{name} must be {n} finite numbers, "
+                                 f"got {value!r}")
+    return a
+
+
 def _positive(obj, *names, allow_zero=False):
     for n in names:
         v = getattr(obj, n)
-        ok = np.all(np.isfinite(v)) and (np.all(np.asarray(v) >= 0) if allow_zero
-                                         else np.all(np.asarray(v) > 0))
+        ok = _real(v) and (v >= 0 if allow_zero else v > 0)
         if not ok:
             raise ConfigurationError(f"{type(obj).__name__}.{n} must be "
                                      f"{'>= 0' if allow_zero else '> 0'} and finite, got {v}")
@@ -79,6 +116,8 @@ class QPConfig:
                   "suspension_kd", "suspension_weight", "damping_weight", "damping_time",
                   "braking_fraction")
         _positive(self, "force_lookahead", allow_zero=True)
+        if self.position_horizon is not None:
+            _positive(self, "position_horizon")
 
 
 @dataclass(frozen=True)
@@ -140,14 +179,19 @@ class MpcConfig:
         _positive(self, "step", "n_steps", "crane_position_weight", "crane_velocity_weight",
                   "suspension_position_weight", "suspension_velocity_weight", "input_weight",
                   "n_linearizations")
-        _positive(self, "smoothness_weight", allow_zero=True)
-        f = np.asarray(self.crane_axis_factors, float)
-        if f.shape != (7,) or not np.all(np.isfinite(f)) or np.any(f <= 0):
+        _integers(self, "n_steps", "n_linearizations")
+        _positive(self, "smoothness_weight", "force_constraint_start",
+                  "deflection_time_constant", allow_zero=True)
+        _flags(self, "setpoint_state")
+        f = _numbers(self, "crane_axis_factors", self.crane_axis_factors, 7)
+        if np.any(f <= 0):
             raise ConfigurationError(f"crane_axis_factors must be 7 positive numbers, got "
                                      f"{self.crane_axis_factors}")
         object.__setattr__(self, "crane_axis_factors", tuple(float(x) for x in f))
-        if self.first_step is not None:
-            _positive(self, "first_step")
+        for name in ("first_step", "terminal_brake_time"):
+            if getattr(self, name) is not None:
+                _positive(self, name)
+        _positive(self, "terminal_factor")
         if self.terminal_factor < 1:
             raise ConfigurationError(f"terminal_factor must be >= 1, got {self.terminal_factor}")
 
@@ -218,11 +262,10 @@ class ForceConfig:
         _positive(self, "margin", "warp_stiffness", "leveling_weight", "drift_horizon",
                   allow_zero=True)
         _positive(self, "drift_time_constant")
+        _positive(self, "threshold_fraction", "speed_scale_min", allow_zero=True)
+        _flags(self, "soft", "speed_scale", "feedback")
         if self.thresholds is not None:
-            t = np.asarray(self.thresholds, float)
-            if t.shape != (4,) or not np.all(np.isfinite(t)):
-                raise ConfigurationError(f"thresholds must be 4 finite forces [N], got "
-                                         f"{self.thresholds}")
+            t = _numbers(self, "thresholds", self.thresholds, 4)
             object.__setattr__(self, "thresholds", tuple(float(x) for x in t))
         if not 0 <= self.speed_scale_min < 1:
             raise ConfigurationError(f"speed_scale_min must be in [0, 1), got "
@@ -266,7 +309,8 @@ class ControllerConfig:
     force: ForceConfig = field(default_factory=ForceConfig)
 
     def __post_init__(self):
-        _positive(self, "dt", "eps_abs", "max_iter")
+        _positive(self, "dt", "eps_abs")
+        _integers(self, "max_iter")
         _positive(self, "eps_rel", "position_margin", allow_zero=True)
         for f, cls in (("reference", ReferenceConfig), ("qp", QPConfig), ("mpc", MpcConfig),
                        ("force", ForceConfig)):

@@ -42,7 +42,11 @@ from wbc.kinematics.tcp_kinematics import TcpKinematics
 from wbc.references.goals import JointGoal, TcpGoal
 from wbc.references.ruckig_reference import RuckigReference
 
-__all__ = ["Controller"]
+__all__ = ["Controller", "MAX_STATE_MAGNITUDE", "MAX_STATE_TIME"]
+
+# Bounds of a measured state: far beyond any real machine, well inside double precision.
+MAX_STATE_MAGNITUDE = 1e6  # [m, rad, m/s, rad/s, m/s^2, rad/s^2]
+MAX_STATE_TIME = 1e9  # [s], about 30 years
 
 
 class Controller(abc.ABC):
@@ -212,9 +216,21 @@ class Controller(abc.ABC):
 
     # ------------------------------------------------------------------ loop
     def _check_state(self, state) -> None:
-        # shapes, finiteness and the rotation were checked when the state was built
+        """`WbcInputError` unless ``state`` is a `MachineState` of bounded magnitudes.
+
+        Shapes, finiteness and the rotation were checked when the state was built; the
+        magnitudes that would overflow the control arithmetic are checked here.
+        """
         if not isinstance(state, MachineState):
             raise WbcInputError(f"state must be a models.MachineState, got {type(state)!r}")
+        for name in ("base_twist", "base_acceleration", "q", "qd", "qdd"):
+            big = float(np.abs(getattr(state, name)).max())
+            if big > MAX_STATE_MAGNITUDE:
+                raise WbcInputError(f"state.{name} has an entry of magnitude {big:.3g}; valid: "
+                                    f"|{name}| <= {MAX_STATE_MAGNITUDE:g} (a sensor fault?)")
+        if abs(state.time) > MAX_STATE_TIME:
+            raise WbcInputError(f"state.time {state.time:.6g} s outside "
+                                f"[-{MAX_STATE_TIME:g}, {MAX_STATE_TIME:g}] s")
 
     @abc.abstractmethod
     def context(self, state: MachineState) -> ControlContext:
@@ -242,7 +258,9 @@ class Controller(abc.ABC):
         """One control tick: measured state in, rate commands out.
 
         Raises:
-            WbcInputError: ``state`` is not a `MachineState`.
+            WbcInputError: ``state`` is not a `MachineState`, or an entry of its twist,
+                accelerations, coordinates or rates exceeds `MAX_STATE_MAGNITUDE` (or its time
+                `MAX_STATE_TIME`): a sensor fault that would overflow the arithmetic.
         """
         self._check_state(state)
         try:

@@ -34,8 +34,9 @@ def make_controller(name: str, machine: Machine, config: ControllerConfig | None
         UnknownControllerError: ``name`` is not in `CONTROLLER_NAMES`.
         ConfigurationError: A force model given to ``tracking``.
     """
-    if name not in CONTROLLER_NAMES:
-        raise UnknownControllerError(str(name), CONTROLLER_NAMES)
+    if not isinstance(name, str) or name not in CONTROLLER_NAMES:
+        raise UnknownControllerError(repr(name) if not isinstance(name, str) else name,
+                                     CONTROLLER_NAMES)
     if name == "tracking":
         if force_model is not None:
             raise ConfigurationError("the 'tracking' controller uses no force model; use "

@@ -12,7 +12,7 @@ ESTIMATOR_METHODS = ("full", "quasi-static")
 
 
 def _checked_method(method: str) -> str:
-    if method not in ESTIMATOR_METHODS:
+    if not isinstance(method, str) or method not in ESTIMATOR_METHODS:
         raise ForceModelError(f"unknown estimator method '{method}'; valid: "
                               f"{', '.join(ESTIMATOR_METHODS)}")
     return method

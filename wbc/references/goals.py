@@ -15,7 +15,9 @@ def _vec(name: str, value, n: int) -> np.ndarray | None:
     if value is None:
         return None
     try:
-        a = np.asarray(value, dtype=float)
+        if np.iscomplexobj(value):
+            raise TypeError("complex values")
+        a = np.array(value, dtype=float)
     except (TypeError, ValueError) as exc:
         raise WbcInputError(f"{name} must be numeric: {exc}") from exc
     if a.shape != (n,) or not np.all(np.isfinite(a)):

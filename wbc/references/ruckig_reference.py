@@ -128,7 +128,7 @@ class RuckigReference:
             inp.max_jerk = (factor * self.max_jerk).tolist()
             try:
                 result = self._otg.calculate(inp, self._traj)
-            except ruckig.RuckigError as exc:
+            except (ruckig.RuckigError, ValueError) as exc:  # ValueError: an unknown code
                 result = exc
                 continue
             if result in _OK:
