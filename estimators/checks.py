@@ -85,7 +85,10 @@ def check_finite_result(what: str, state, *arrays) -> None:
         state: The `MachineState` (or `StateBatch`) evaluated.
         arrays: The outputs.
     """
-    if all(np.all(np.isfinite(a)) for a in arrays):
+    for a in arrays:  # the common case, fast: one ufunc and one reduction per array
+        if not np.isfinite(a).all():
+            break
+    else:
         return
     sizes = {name: float(np.max(np.abs(getattr(state, name)), initial=0.0))
              for name in _STATE_FIELDS}
