@@ -46,6 +46,7 @@ from __future__ import annotations
 
 import json
 import math
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -175,7 +176,8 @@ def _equilibrium_rows(res: BatchEstimate, gt: np.ndarray, rows: np.ndarray,
 
 def evaluate_log(log_path, out_dir=None, plots: bool = True, *, machine: Machine | None = None,
                  settle: float = SETTLE_SECONDS, window_seconds: float = SLIDING_WINDOW_SECONDS,
-                 D: float = 0.5, beta: float = 0.0) -> dict:  # noqa: N803
+                 D: float = 0.5, beta: float = 0.0,  # noqa: N803
+                 progress: Callable[[float], None] | None = None) -> dict:
     """Evaluate every normal-force method on a scenario log; write ``estimation.json``.
 
     Args:
@@ -187,6 +189,7 @@ def evaluate_log(log_path, out_dir=None, plots: bool = True, *, machine: Machine
         window_seconds: Window of the sliding (D, beta) calibration [s].
         D: Default D of eq. (29) for ``full/d-beta`` and ``quasi-static/d-beta`` [-].
         beta: Default beta of eq. (29) [N].
+        progress: Called with the fraction done (0 to 1) after each stage, or None.
 
     Returns:
         The report (also written as JSON): ``summary`` (a short table, what the CLI prints),
@@ -227,6 +230,8 @@ def evaluate_log(log_path, out_dir=None, plots: bool = True, *, machine: Machine
         for fourth in ("d-beta",) + (("cylinder-force",) if has_cyl else ()):
             est = NormalForceEstimator(machine, method=method, fourth=fourth, D=D, beta=beta)
             results[f"{method}/{fourth}"] = est.estimate_batch(sb, strict=False)
+    tick = progress if progress is not None else (lambda fraction: None)
+    tick(0.3)
     base = results["full/d-beta"]
     a, b = base.system_matrix, base.system_rhs
     nc = base.in_contact.sum(axis=1)
@@ -296,6 +301,7 @@ def evaluate_log(log_path, out_dir=None, plots: bool = True, *, machine: Machine
                        "D_range": [float(np.nanmin(sl.D)), float(np.nanmax(sl.D))],
                        "beta_range": [float(np.nanmin(sl.beta)), float(np.nanmax(sl.beta))]}
     calib["sliding_window"] = sliding
+    tick(0.6)
 
     lost_any = bool((~base.in_contact[rows]).any())
     if lost_any:
@@ -303,6 +309,7 @@ def evaluate_log(log_path, out_dir=None, plots: bool = True, *, machine: Machine
         results["full/d-beta/no-contact-flags"] = NormalForceEstimator(
             machine, D=D, beta=beta).estimate_batch(flags, strict=False)
 
+    tick(0.7)
     methods = {}
     for name, res in results.items():
         score = holdout_rows.get("first_to_second") if name == "full/calibrated-holdout" \
@@ -358,6 +365,7 @@ def evaluate_log(log_path, out_dir=None, plots: bool = True, *, machine: Machine
     }
     report["summary"] = _summary(report)
     figures = []
+    tick(0.8)
     if plots:
         from estimators import plots as plotting
 
@@ -367,6 +375,7 @@ def evaluate_log(log_path, out_dir=None, plots: bool = True, *, machine: Machine
             scenario=scenario)
     report["figures"] = [str(p) for p in figures]
     (out_dir / "estimation.json").write_text(json.dumps(_jsonable(report), indent=2))
+    tick(1.0)
     return report
 
 

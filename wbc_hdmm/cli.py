@@ -194,7 +194,8 @@ def compare_cmd(scenario, scenario_file, duration, seed, out, force, no_progress
 @click.option("--out", type=click.Path(path_type=Path), default=None,
               help="Output folder  [default: the log's folder]")
 @click.option("--no-plots", is_flag=True, help="Skip the figures.")
-def estimate_cmd(log, out, no_plots) -> int:
+@_progress_option
+def estimate_cmd(log, out, no_plots, no_progress) -> int:
     """Evaluate every estimator method on a scenario log (log.npz or its folder)."""
     import json
 
@@ -207,7 +208,13 @@ def estimate_cmd(log, out, no_plots) -> int:
         raise ValueError(f"'{log_file}' is not a readable scenario log (a log.npz written by "
                          f"wbc run): not an npz archive, or truncated")
     try:
-        report = evaluate_log(log, out, plots=not no_plots)
+        from models.log import load_log
+        from scenarios.progress import Progress
+
+        load_log(log)  # a bad file is one line before the progress bar starts
+        with Progress(1.0, "estimate", enabled=False if no_progress else None,
+                      unit="") as bar:
+            report = evaluate_log(log, out, plots=not no_plots, progress=bar.update)
     except (zipfile.BadZipFile, EOFError, pickle.UnpicklingError) as exc:
         raise ValueError(f"'{log}' is not a readable scenario log (a log.npz written by "
                          f"wbc run): {exc}") from exc
