@@ -286,8 +286,9 @@ class NormalForceEstimator:
         if sel.tipping:
             a = eout[lay.out_a].reshape(3, 4)
             pinv = masked_pinv(a, sel.mask)
-            x = pinv @ eout[lay.out_b]
-            g = pinv @ out[lay.con_jb].reshape(3, 19)
+            with np.errstate(invalid="ignore", over="ignore"):  # overflow: checked below
+                x = pinv @ eout[lay.out_b]
+                g = pinv @ out[lay.con_jb].reshape(3, 19)
         if self._qs is not None:
             g = g * self._qs.accelerations
         acc = np.concatenate([state.base_acceleration, state.qdd])
