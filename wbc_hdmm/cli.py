@@ -294,14 +294,12 @@ def render_cmd(run_dir, out_file, fps, width, height, force, no_progress) -> int
     plotted beside.
     """
     from scenarios.progress import Progress
-    from wbc_hdmm.render import render_run
+    from wbc_hdmm.render import check_out, render_run
 
     out_file = out_file or Path(run_dir) / "run.mp4"
     if out_file.exists() and not force:
         raise OutputError(f"--out '{out_file}' exists; use --force to overwrite it")
-    if out_file.suffix.lower() != ".mp4":
-        raise OutputError(f"--out '{out_file}' must end in .mp4")
-    prepare_out_dir(out_file.parent, force=True)
+    check_out(out_file)  # refused in one line before the progress bar starts
     with Progress(1.0, "render", enabled=None if not no_progress else False,
                   unit="") as bar:
         path = render_run(run_dir, out_file, fps=fps, width=width, height=height,

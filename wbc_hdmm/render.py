@@ -20,7 +20,8 @@ import numpy as np
 from models.description import WHEEL_ORDER
 from wbc_hdmm.replay import replay_scene
 
-__all__ = ["FORCE_SCALE", "MARGIN_WARN", "RenderError", "frame_at", "render_run"]
+__all__ = ["FORCE_SCALE", "MARGIN_WARN", "RenderError", "check_out", "frame_at",
+           "render_run"]
 
 FORCE_SCALE = 10e3  # [N] per metre of arrow
 MARGIN_WARN = 1.5e3  # [N] above the threshold: amber below this margin
@@ -164,7 +165,7 @@ def frame_at(run_dir, time: float, width: int = 640, height: int = 360) -> np.nd
         replay.close()
 
 
-def _check_out(out) -> Path:
+def check_out(out) -> Path:
     """The mp4 path ``out``, checked before any rendering.
 
     It must end in .mp4, not be a folder, and lie in a folder that exists or can be made and
@@ -209,7 +210,7 @@ def render_run(run_dir, out, fps: int = 30, width: int = 640, height: int = 360,
             the video cannot be written, or no GL context (set ``MUJOCO_GL=egl``).
         LogError: The log cannot be read or replayed.
     """
-    out = _check_out(out)
+    out = check_out(out)
     fps = _check("fps", fps, 5, 60)
     width = _check("width", width, 160, 1920) // 8 * 8
     height = _check("height", height, 120, 1080) // 8 * 8
