@@ -112,6 +112,7 @@ class Simulator:
         self._snapshot = (self.data.qpos.copy(), self.data.qvel.copy(), 0.0)
         self._snapshot_setpoint = self._setpoint.copy()
         self._settled: dict = {}  # reset() arguments -> (settled MjData, servo setpoints)
+        self._listeners: list = []
         self.reset()
 
     # ------------------------------------------------------------------ commands
@@ -259,11 +260,41 @@ class Simulator:
                 # Servo force kp (u - x) with u = setpoint - (kv / kp) x_dot: the damping is
                 # explicit, outside MuJoCo's implicit integration (see `models.mujoco`).
                 np.subtract(path[k], lead * d.qvel[servo_dof], out=servo_ctrl)
-                mujoco.mj_step(m, d)
+                if self._listeners:
+                    self._step_with_listeners()
+                else:
+                    mujoco.mj_step(m, d)
             x = d.qpos[ix.servo_qpos]
             self._setpoint = np.minimum(np.maximum(path[chunk], x - band), x + band)
             done += chunk
         self._check_warnings()
+
+    def add_step_listener(self, listener) -> None:
+        """Call ``listener(sim, qpos, qvel, t)`` after every physics step.
+
+        ``qpos``, ``qvel`` (read-only; copy to keep) and ``t`` are the state the step started
+        from: every derived quantity in `data` (accelerations, contact and actuator forces,
+        poses, MuJoCo sensors) belongs to that instant (see the module docstring). Listeners
+        sample sensors and count physics-rate metrics; they must not change the simulation.
+        Settling (`reset`) calls them too; remove them with `remove_step_listener`.
+        """
+        if not callable(listener):
+            raise SimulatorError(f"a step listener must be callable, got {listener!r}")
+        self._listeners.append(listener)
+
+    def remove_step_listener(self, listener) -> None:
+        """Stop calling ``listener`` (no error if it was not added)."""
+        if listener in self._listeners:
+            self._listeners.remove(listener)
+
+    def _step_with_listeners(self) -> None:
+        d = self.data
+        qpos, qvel, t = d.qpos.copy(), d.qvel.copy(), float(d.time)
+        qpos.flags.writeable = False
+        qvel.flags.writeable = False
+        mujoco.mj_step(self.model, d)
+        for listener in self._listeners:
+            listener(self, qpos, qvel, t)
 
     def _take_snapshot(self) -> None:
         d = self.data
