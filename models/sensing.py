@@ -35,8 +35,9 @@ from models.errors import ModelError, StateError
 from models.state import N_SERVO_AXES, frozen_array, shaped_array
 
 __all__ = [
-    "ChannelSpec", "ImuSpec", "N_PRESSURE", "POSITION_AXES", "PRESSURE_CYLINDERS", "Samples",
-    "SensorReadings", "SensorSpec", "cylinder_force",
+    "ChannelSpec", "ImuSpec", "N_LINEAR_AXES", "N_PRESSURE", "POSITION_AXES",
+    "PRESSURE_CYLINDERS", "Samples", "SensorReadings", "SensorSpec", "cylinder_areas",
+    "cylinder_force",
 ]
 
 # The nine servo axes (q[:9]) carry a position sensor each; the first six are linear [m].
@@ -99,8 +100,7 @@ class ChannelSpec:
 
     @property
     def sample_std(self) -> float:
-        """Standard deviation of one reading's error at a fixed bias [unit]: noise and
-        quantization (``resolution / sqrt(12)``)."""
+        """Std of one reading's error at a fixed bias [unit]: noise and quantization."""
         return math.sqrt(self.noise ** 2 + self.resolution ** 2 / 12.0)
 
 
