@@ -27,10 +27,11 @@ import numpy as np
 from models.errors import ModelError
 from models.state import MachineState, WheelContacts
 
-__all__ = ["COLUMNS", "META", "SCHEMA_VERSION", "SETTLE_SECONDS", "Column", "LogError",
-           "ScenarioLog", "check_log", "load_log", "state_at"]
+__all__ = ["COLUMNS", "META", "PHYSICS_COLUMNS", "SCHEMA_VERSION", "SETTLE_SECONDS", "Column",
+           "LogError", "ScenarioLog", "check_log", "load_log", "state_at"]
 
-SCHEMA_VERSION = 2  # 1: the unversioned logs before the schema; 2: this table, qpos/qvel
+# 1: the unversioned logs before the schema; 2: this table, qpos/qvel; 3: `PHYSICS_COLUMNS`
+SCHEMA_VERSION = 3
 
 
 class LogError(ModelError, ValueError):
@@ -85,6 +86,14 @@ COLUMNS = {
     "measured_forces": Column("(N, 4)", "N", "the MPC's measured load split (NaN if none)",
                               True),
     "payload_now": Column("(N,)", "kg", "payload mass held by the machine", True),
+}
+
+# Sampled at every physics step (M samples, M >= N): what a control-rate sample misses (a
+# 2-4 ms drop of a wheel's force to 0 N). Written by runs that count metrics at that rate.
+PHYSICS_COLUMNS = {
+    "physics_time": Column("(M,)", "s", "time of every physics step's starting instant"),
+    "physics_normal_force": Column("(M, 4)", "N", "ground truth: each wheel's normal contact "
+                                                  "force summed over its contacts"),
 }
 
 META = {
@@ -143,6 +152,7 @@ class ScenarioLog:
             raise LogError(f"unknown log metadata {unknown}; valid: {sorted(META)}")
         self.meta = meta
         self._rows: dict[str, list] = {}
+        self.physics: dict[str, np.ndarray] = {}
 
     def __len__(self) -> int:
         return len(self._rows.get("time", []))
@@ -179,9 +189,22 @@ class ScenarioLog:
         for k, v in row.items():
             self._rows.setdefault(k, []).append(np.array(v, copy=True))
 
+    def set_physics(self, **columns) -> None:
+        """Attach the physics-rate arrays (names from `PHYSICS_COLUMNS`).
+
+        Raises:
+            LogError: A name `PHYSICS_COLUMNS` does not know.
+        """
+        unknown = sorted(set(columns) - set(PHYSICS_COLUMNS))
+        if unknown:
+            raise LogError(f"unknown physics-rate column(s) {unknown}; valid: "
+                           f"{sorted(PHYSICS_COLUMNS)}")
+        self.physics.update({k: np.asarray(v) for k, v in columns.items()})
+
     def arrays(self) -> dict[str, np.ndarray]:
-        """The samples stacked along a leading time axis."""
+        """The samples stacked along a leading time axis (and the physics-rate arrays)."""
         out = {k: np.stack(v) for k, v in self._rows.items()}
+        out.update(self.physics)
         version, commit = _provenance()
         meta = {"schema_version": SCHEMA_VERSION, "package_version": version,
                 "git_commit": commit, **self.meta}
@@ -240,6 +263,15 @@ def check_log(log: dict[str, np.ndarray], source: str = "log") -> int:
                            f"{a.dtype}")
     if not np.all(np.isfinite(time.astype(float))):
         raise LogError(f"'{source}': key 'time' holds NaN or inf")
+    if "physics_time" in log:
+        m = np.asarray(log["physics_time"]).shape[0] if np.ndim(log["physics_time"]) else -1
+        for key, column in PHYSICS_COLUMNS.items():
+            a = np.asarray(log.get(key, np.zeros(0)))
+            tokens = _shape_tokens(column)
+            if not (a.dtype.kind in "biuf" and a.ndim == len(tokens) and a.shape[0] == m
+                    and all(int(t) == d for t, d in zip(tokens[1:], a.shape[1:]))):
+                raise LogError(f"'{source}': key '{key}' must be a numeric array of shape "
+                               f"{column.shape} with M = {m}, got shape {a.shape}")
     return n
 
 

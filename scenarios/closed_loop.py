@@ -39,6 +39,7 @@ from scenarios.json_io import write_json
 from scenarios.kernels import warm_estimator_kernels
 from scenarios.metrics import closed_loop_metrics
 from scenarios.noise import MeasurementNoise
+from scenarios.physics_rate import NormalForceRecorder
 from scenarios.progress import Progress
 from scenarios.run_args import check_delay, check_duration, check_seed, check_threshold
 from scenarios.scenario_file import scenario_to_toml
@@ -175,6 +176,7 @@ def run_closed_loop(scenario: ClosedLoopScenario | str, out_dir: Path | None = N
                       payload_mass=scenario.payload_mass, timestep=sim.timestep,
                       control_period=CONTROL_PERIOD, terrain=terrain.name, threshold=thr,
                       delay_periods=delay_periods, scenario_toml=scenario_to_toml(scenario))
+    recorder = NormalForceRecorder(sim)
     history: deque = deque(maxlen=delay_periods + 1)
     n_ticks = int(round(duration / CONTROL_PERIOD))
     step_s = np.zeros(n_ticks)
@@ -229,9 +231,11 @@ def run_closed_loop(scenario: ClosedLoopScenario | str, out_dir: Path | None = N
         else:
             bar.update(duration)
     wall = time.perf_counter() - wall0
+    recorder.close()
     n_done = len(log) if interrupted else n_ticks
     if n_done == 0:  # nothing to save
         raise KeyboardInterrupt
+    log.set_physics(physics_time=recorder.time, physics_normal_force=recorder.normal_force)
     arrays = log.arrays()
     step_s = step_s[:n_done]
     metrics = {

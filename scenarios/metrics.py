@@ -2,11 +2,13 @@
 
 All after `models.log.SETTLE_SECONDS`:
 
-* ``min_normal_force_N``, ``time_below_threshold_s``: per wheel (FL, RL, FR, RR), ground
-  truth along the terrain normal, sampled at the control rate; ``threshold_N`` = 10 % of the
+* ``min_normal_force_N``, ``time_below_threshold_s``, ``longest_below_threshold_s``: per
+  wheel (FL, RL, FR, RR), ground truth along the terrain normal, counted at every physics
+  step when the log has the physics-rate arrays (`models.log.PHYSICS_COLUMNS`; the
+  ``metrics_rate`` says which), else at the control rate; ``threshold_N`` = 10 % of the
   static wheel load of the reference machine (150 kg payload).
-* ``tipped``: fewer than three wheels in contact for more than `TIP_CONTACT_SECONDS`
-  without a break, or base roll or pitch beyond `TIP_ANGLE_DEG`.
+* ``tipped``: fewer than three wheels in contact for `TIP_CONTACT_SECONDS` or longer without
+  a break (at the same rate), or base roll or pitch beyond `TIP_ANGLE_DEG`.
 * ``task_error_final``: distance of the tool point from the last goal's [m] at the end;
   ``task_completion_time_s``: first time every goal has been given, the tool point is
   within `TASK_TOLERANCE` of the last one and the base has driven its distance (None if
@@ -29,7 +31,8 @@ from scenarios.closed_loop_scenarios import CONTROL_PERIOD, TASK_TOLERANCE, Clos
 
 __all__ = ["TIP_ANGLE_DEG", "TIP_CONTACT_SECONDS", "closed_loop_metrics", "json_default"]
 
-TIP_CONTACT_SECONDS = 0.5  # fewer than three wheels in contact this long: tipped
+TIP_CONTACT_SECONDS = 0.2  # fewer than three wheels in contact this long: tipped
+CONTACT_FORCE_N = 1.0  # a wheel with more normal force than this is in contact
 TIP_ANGLE_DEG = 30.0  # base roll or pitch beyond this: tipped
 
 
@@ -40,11 +43,10 @@ def _roll_pitch(rotation: np.ndarray) -> tuple[float, float]:
 
 
 def _longest_run(mask: np.ndarray) -> int:
-    best = run = 0
-    for v in mask:
-        run = run + 1 if v else 0
-        best = max(best, run)
-    return best
+    """Length of the longest run of True in a 1-D boolean array."""
+    m = np.concatenate([[False], np.asarray(mask, bool), [False]])
+    edges = np.flatnonzero(np.diff(m.astype(np.int8)))
+    return int((edges[1::2] - edges[::2]).max()) if edges.size else 0
 
 
 def json_default(o):
@@ -73,15 +75,22 @@ def closed_loop_metrics(log: dict, scenario: ClosedLoopScenario, threshold_n: fl
         The metrics by name.
     """
     t = log["time"]
-    dt = float(np.median(np.diff(t))) if t.size > 1 else CONTROL_PERIOD
-    keep = t >= SETTLE_SECONDS - 1e-9
+    physics = "physics_time" in log and np.size(log["physics_time"]) > 1
+    if physics:
+        ts, fz_all = log["physics_time"], log["physics_normal_force"]
+        n_contact = (fz_all > CONTACT_FORCE_N).sum(axis=1)
+    else:
+        ts, fz_all = t, log["normal_force"]
+        n_contact = log["in_contact"].sum(axis=1)
+    dt = float(np.median(np.diff(ts))) if ts.size > 1 else CONTROL_PERIOD
+    keep = ts >= SETTLE_SECONDS - 1e-9
     if not keep.any():  # a run shorter than the settling: judge all of it
         keep = np.ones_like(keep)
-    fz = log["normal_force"][keep]
+    fz = fz_all[keep]
+    below = fz < threshold_n
     per_wheel = lambda a: {w: float(v) for w, v in zip(WHEEL_ORDER, a)}  # noqa: E731
-    n_contact = log["in_contact"].sum(axis=1)
     roll_pitch = np.array([_roll_pitch(r) for r in log["base_rotation"]])
-    tipped_contact = _longest_run(n_contact[keep] < 3) * dt > TIP_CONTACT_SECONDS
+    tipped_contact = _longest_run(n_contact[keep] < 3) * dt >= TIP_CONTACT_SECONDS - 1e-9
     tipped_angle = bool(np.any(np.abs(roll_pitch) > math.radians(TIP_ANGLE_DEG)))
     err = log["tcp_error"]
     done = (log["last_goal_given"].astype(bool) & (err < TASK_TOLERANCE)
@@ -90,7 +99,10 @@ def closed_loop_metrics(log: dict, scenario: ClosedLoopScenario, threshold_n: fl
     completion = float(t[first[0]]) if first.size else None
     return {
         "min_normal_force_N": per_wheel(fz.min(axis=0)),
-        "time_below_threshold_s": per_wheel((fz < threshold_n).sum(axis=0) * dt),
+        "time_below_threshold_s": per_wheel(below.sum(axis=0) * dt),
+        "longest_below_threshold_s": per_wheel([_longest_run(b) * dt for b in below.T]),
+        "any_below_threshold_s": float(below.any(axis=1).sum() * dt),
+        "metrics_rate_hz": float(1.0 / dt),
         "tipped": bool(tipped_contact or tipped_angle),
         "max_roll_deg": float(np.degrees(np.abs(roll_pitch[:, 0]).max())),
         "max_pitch_deg": float(np.degrees(np.abs(roll_pitch[:, 1]).max())),

@@ -7,7 +7,15 @@ import imageio.v2 as imageio
 import numpy as np
 import pytest
 
-from models.log import COLUMNS, META, SCHEMA_VERSION, LogError, ScenarioLog, load_log
+from models.log import (
+    COLUMNS,
+    META,
+    PHYSICS_COLUMNS,
+    SCHEMA_VERSION,
+    LogError,
+    ScenarioLog,
+    load_log,
+)
 from scenarios import registry
 from wbc_hdmm.cli import main
 from wbc_hdmm.export import ExportError, export_run
@@ -32,6 +40,10 @@ def test_every_written_key_is_documented_with_its_shape(runs, name):
             assert key[5:] in META, key
             assert value.ndim == 0, key
             continue
+        if key in PHYSICS_COLUMNS:
+            m = len(log["physics_time"])
+            assert m >= n and value.shape[0] == m, key
+            continue
         assert key in COLUMNS, f"undocumented log key {key}"
         shape = COLUMNS[key].shape.strip("()").replace(" ", "").split(",")
         shape = [s for s in shape if s]
@@ -40,7 +52,7 @@ def test_every_written_key_is_documented_with_its_shape(runs, name):
             assert spec in ("nq", "nv") or int(spec) == dim, (key, value.shape, spec)
     assert int(log["meta_schema_version"]) == SCHEMA_VERSION
     assert str(log["meta_package_version"]) != "" and str(log["meta_git_commit"]) != ""
-    closed = [k for k, c in COLUMNS.items() if c.closed_loop]
+    closed = [k for k, c in COLUMNS.items() if c.closed_loop] + list(PHYSICS_COLUMNS)
     assert all((k in log) == (name == "closed") for k in closed)
 
 

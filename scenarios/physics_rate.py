@@ -1,0 +1,78 @@
+"""Ground truth at every physics step: each wheel's normal force, for physics-rate metrics.
+
+A control-rate sample (10 ms) misses a wheel's force dropping to 0 N for 2-4 ms; the safety
+metrics therefore count at every simulator step. `NormalForceRecorder` is a step listener
+(`Simulator.add_step_listener`) that reads, after each step, the normal rows of MuJoCo's
+contact forces (``efc_force`` at each contact's ``efc_address``: for the model's elliptic
+condim-3 contacts the first row is the force along the contact normal, >= 0) and sums them per
+wheel. That is the wheel's force along the terrain normal when it touches at one point, as in
+`scenarios.ground_truth` (which also forms the tangential parts, at the control rate).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from scenarios.simulator import Simulator
+
+__all__ = ["NormalForceRecorder"]
+
+_CHUNK = 4096  # samples per buffer growth
+
+
+class NormalForceRecorder:
+    """Records every physics step's four normal forces [N] (order FL, RL, FR, RR).
+
+    Args:
+        sim: The simulator; the recorder adds itself as a step listener (`close` removes it).
+    """
+
+    def __init__(self, sim: Simulator):
+        self._sim = sim
+        model = sim.model
+        self._wheel_of_geom = np.full(model.ngeom, -1)
+        self._wheel_of_geom[sim.index.wheel_geoms] = np.arange(4)
+        self._time = np.zeros(_CHUNK)
+        self._force = np.zeros((_CHUNK, 4))
+        self._n = 0
+        sim.add_step_listener(self)
+
+    def __call__(self, sim: Simulator, qpos, qvel, t: float) -> None:
+        """Record the step that started at ``t`` (a `Simulator` step listener)."""
+        if self._n == self._time.shape[0]:
+            self._time = np.concatenate([self._time, np.zeros(_CHUNK)])
+            self._force = np.concatenate([self._force, np.zeros((_CHUNK, 4))])
+        d = sim.data
+        f = self._force[self._n]
+        f[:] = 0.0
+        n = d.ncon
+        if n:
+            c = d.contact
+            geoms = c.geom
+            wheel = np.maximum(self._wheel_of_geom[geoms[:, 0]], self._wheel_of_geom[geoms[:, 1]])
+            rows = c.efc_address
+            keep = (wheel >= 0) & (rows >= 0)
+            np.add.at(f, wheel[keep], d.efc_force[rows[keep]])
+        self._time[self._n] = t
+        self._n += 1
+
+    def __len__(self) -> int:
+        return self._n
+
+    @property
+    def time(self) -> np.ndarray:
+        """Each sample's instant [s], shape (M,) (a copy)."""
+        return self._time[:self._n].copy()
+
+    @property
+    def normal_force(self) -> np.ndarray:
+        """Normal forces [N], shape (M, 4) (a copy)."""
+        return self._force[:self._n].copy()
+
+    def clear(self) -> None:
+        """Forget the samples so far (e.g. those of the settling)."""
+        self._n = 0
+
+    def close(self) -> None:
+        """Stop recording."""
+        self._sim.remove_step_listener(self)
