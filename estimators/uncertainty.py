@@ -1,0 +1,137 @@
+r"""How uncertain the normal forces are: the sensors' errors propagated through the model.
+
+The estimate reads a state made by the observer from real sensors. Its errors (documented by
+the observer from the sensors' datasheet figures and its filters' noise gains) reach the
+normal forces through the estimator's own first-order sensitivities:
+
+.. math::
+
+    \sigma_{f,i}^2 = \sum_k (G_{ik} \sigma_{a,k})^2 + \sum_j (\partial_{\dot q_j} f_i\,
+        \sigma_{\dot q,j})^2 + \sum_s (\partial_{F_s} f_i\, \sigma_{F,s})^2
+        + (\partial_m f_i\, \sigma_m)^2
+
+with ``a = [base acceleration (6), qdd (13)]`` (``G = df/da``, exact: the forces are affine in
+``a``), the joint velocities, the two suspension cylinder forces of the closure's fourth row
+and the payload mass. The base's linear acceleration enters only as the specific force the
+IMU measures (see `estimators.observer`), so its standard deviation is the specific force's.
+The errors are treated as independent (a diagonal covariance): their sources are separate
+sensors, and the payload error, which moves every wheel's force together, is kept whole.
+
+Left out, with their size on the reference machine: the attitude error (the dynamics see
+gravity only through the measured specific force; the attitude enters the contact points'
+geometry, 0.5 deg moves a force by < 0.1 % of the static load) and the angular-rate error
+(centripetal terms, < 1 N at the gyroscopes' 0.01 deg/s).
+
+The controller turns ``sigma`` into its per-wheel margin ``z sigma`` (`force_margin`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from statistics import NormalDist
+
+import numpy as np
+
+from estimators.errors import EstimatorError
+from estimators.linearization import N_GENERALIZED, ForceLinearization
+from models.coordinates import N_INDEPENDENT
+from models.state import MachineState, frozen_array
+
+__all__ = ["StateUncertainty", "force_margin", "normal_force_std", "suspension_sensitivity"]
+
+_SUSPENSION_STEP = 100.0  # [N] the forces are affine in the cylinder forces: any step works
+
+
+@dataclass(frozen=True, eq=False)
+class StateUncertainty:
+    """Standard deviations of the observer's errors at one tick (zero: exact).
+
+    Attributes:
+        acceleration: Of ``a = [specific force / base linear acceleration (3), base angular
+            acceleration (3), qdd (13)]`` [m/s^2, rad/s^2], shape (19,).
+        qd: Of the joint velocities [m/s, rad/s], shape (13,).
+        suspension_force: Of the two suspension cylinder forces [N], shape (2,), the
+            mechanism's force (the transducers' errors and the unknown seal friction).
+        payload_mass: Of the payload mass [kg].
+    """
+
+    acceleration: np.ndarray
+    qd: np.ndarray
+    suspension_force: np.ndarray
+    payload_mass: float = 0.0
+
+    def __post_init__(self):
+        for name, shape in (("acceleration", (N_GENERALIZED,)), ("qd", (N_INDEPENDENT,)),
+                            ("suspension_force", (2,))):
+            a = frozen_array(name, getattr(self, name), shape)
+            if (a < 0).any():
+                raise EstimatorError(f"StateUncertainty.{name} must be >= 0 (a standard "
+                                     f"deviation), got {a}")
+            object.__setattr__(self, name, a)
+        m = float(self.payload_mass)
+        if not (np.isfinite(m) and m >= 0):
+            raise EstimatorError(f"StateUncertainty.payload_mass must be a finite std >= 0 "
+                                 f"[kg], got {self.payload_mass!r}")
+        object.__setattr__(self, "payload_mass", m)
+
+    @classmethod
+    def exact(cls) -> StateUncertainty:
+        """No error at all (the simulator's oracle state)."""
+        return cls(np.zeros(N_GENERALIZED), np.zeros(N_INDEPENDENT), np.zeros(2))
+
+
+def suspension_sensitivity(estimator, state: MachineState) -> np.ndarray:
+    """``df/dF_s`` of the forces to the two suspension cylinder forces [N/N], shape (4, 2).
+
+    Zero when the state carries no cylinder forces or the estimator's fourth row does not
+    read them. The forces are affine in them, so one step per force is exact.
+    """
+    out = np.zeros((4, 2))
+    if state.suspension_force is None:
+        return out
+    f0 = np.asarray(estimator.estimate(state).normal_forces, float)
+    for s in range(2):
+        fs = np.array(state.suspension_force, float)
+        fs[s] += _SUSPENSION_STEP
+        f1 = estimator.estimate(replace(state, suspension_force=fs)).normal_forces
+        out[:, s] = (np.asarray(f1, float) - f0) / _SUSPENSION_STEP
+    return out
+
+
+def normal_force_std(lin: ForceLinearization, uncertainty: StateUncertainty,
+                     d_suspension: np.ndarray | None = None,
+                     d_payload: np.ndarray | None = None) -> np.ndarray:
+    """Standard deviation of each normal force [N], shape (4,) (module docstring).
+
+    Args:
+        lin: The estimator's linearization at the observed state.
+        uncertainty: The observer's error model at that state.
+        d_suspension: ``df/dF_s`` (4, 2) (`suspension_sensitivity`); None: zero.
+        d_payload: ``df/dm`` [N/kg] (4,); None: zero.
+    """
+    if not isinstance(uncertainty, StateUncertainty):
+        raise EstimatorError(f"uncertainty must be a StateUncertainty, got "
+                             f"{type(uncertainty).__name__}")
+    var = (lin.G * uncertainty.acceleration) ** 2
+    total = var.sum(axis=1) + ((lin.d_qd * uncertainty.qd) ** 2).sum(axis=1)
+    if d_suspension is not None:
+        total += ((np.asarray(d_suspension, float) * uncertainty.suspension_force) ** 2
+                  ).sum(axis=1)
+    if d_payload is not None:
+        total += (np.asarray(d_payload, float) * uncertainty.payload_mass) ** 2
+    std = np.sqrt(total)
+    std[~lin.in_contact] = 0.0  # a wheel off the ground has no force to be unsure of
+    return std
+
+
+def force_margin(std: np.ndarray, confidence: float) -> np.ndarray:
+    """Per-wheel margin ``z sigma`` [N] for a one-sided confidence (e.g. 0.99 -> z = 2.33).
+
+    Args:
+        std: Standard deviations [N], shape (4,).
+        confidence: Probability that the true force exceeds ``estimate - margin``, in
+            [0.5, 1).
+    """
+    if not (isinstance(confidence, (int, float)) and 0.5 <= confidence < 1.0):
+        raise EstimatorError(f"confidence must be in [0.5, 1), got {confidence!r}")
+    return NormalDist().inv_cdf(float(confidence)) * np.asarray(std, float)
