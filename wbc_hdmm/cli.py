@@ -148,6 +148,52 @@ def run_cmd(scenario, scenario_file, controller, duration, seed, threshold, nois
     return 0
 
 
+@cli.command("sweep")
+@click.option("--family", type=click.Choice(("random", "heavy-pick-downhill",
+                                             "fast-swing-steep", "standing-on-rough")),
+              default="random", show_default=True, help="Scenario family to draw from.")
+@click.option("--draws", type=click.IntRange(min=1), default=20, show_default=True,
+              help="Number of draws.")
+@click.option("--first", type=click.IntRange(min=0), default=0, show_default=True,
+              help="Index of the first draw.")
+@click.option("--controllers", default="tracking,mpc-full", show_default=True,
+              help="Comma-separated controllers.")
+@click.option("--master-seed", type=click.IntRange(min=0), default=0, show_default=True,
+              help="Master seed of the draws (the acceptance runs use one not tuned on).")
+@click.option("-j", "--jobs", type=click.IntRange(min=1), default=2, show_default=True,
+              help="Local worker processes.")
+@click.option("--ray", "ray_address", default=None,
+              help="Run on Ray: 'local' starts Ray here, else a cluster address.")
+@_out_option("out/sweep")
+@_force_option
+@_progress_option
+def sweep_cmd(family, draws, first, controllers, master_seed, jobs, ray_address, out, force,
+              no_progress) -> int:
+    """Run many random draws of a scenario family; write sweep.jsonl and summary.json."""
+    names = [c.strip() for c in controllers.split(",") if c.strip()]
+    unknown = [c for c in names if c not in CONTROLLERS]
+    if not names or unknown:
+        raise ValueError(f"--controllers: unknown {unknown or 'none given'}; valid: "
+                         f"{', '.join(CONTROLLERS)}")
+    out = prepare_out_dir(out, force)
+    from scenarios.progress import Progress
+    from scenarios.sweep import run_sweep
+
+    with Progress(draws * len(names), f"sweep {family}", enabled=None if not no_progress
+                  else False, unit="runs") as bar:
+        summary = run_sweep(family, draws, names, out, master_seed=master_seed, jobs=jobs,
+                            ray_address=ray_address, first=first,
+                            progress=lambda done, total: bar.update(done))
+    for name in names:
+        s = summary.get(name, {})
+        click.echo(f"   {name:18s} draws {s.get('draws', 0):4d}  below threshold "
+                   f"{s.get('draws_below_threshold', 0):4d}  safe {s.get('fraction_safe')}  "
+                   f"unsafe <= {s.get('unsafe_upper_95', 1.0):.3f} (95 %)  tip-overs "
+                   f"{s.get('tipovers', 0)}  exceptions {s.get('exceptions', 0)}")
+    click.echo(f"   wrote {out / 'sweep.jsonl'}, {out / 'summary.json'}")
+    return 0
+
+
 @cli.command("compare", cls=_ScenarioHelp)
 @click.argument("scenario", required=False)
 @click.option("--scenario-file", type=click.Path(dir_okay=False), default=None,

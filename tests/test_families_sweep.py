@@ -1,0 +1,82 @@
+"""Scenario families and sweeps: reproducible draws, reachable goals, bounds, failing runs."""
+
+import json
+import math
+
+import pytest
+
+from scenarios.errors import RunInputError, ScenarioFileError
+from scenarios.families import FAMILIES, check_reachable, draw
+from scenarios.scenario import CranePose
+from scenarios.sweep import clopper_pearson_upper, run_sweep, summarize
+
+
+@pytest.mark.parametrize("family", sorted(FAMILIES))
+def test_draws_are_reproducible_reachable_and_independent_of_order(family):
+    a = [draw(family, i, 7) for i in range(6)]
+    b = [draw(family, i, 7) for i in reversed(range(6))][::-1]
+    assert [d.scenario for d in a] == [d.scenario for d in b]
+    assert len({d.terrain_seed for d in a}) == 6 and min(d.terrain_seed for d in a) >= 100
+    assert draw(family, 0, 8).scenario != a[0].scenario  # another master seed, other draws
+    for d in a:
+        check_reachable(d.scenario)
+        assert d.scenario.name == f"{family}-{d.index:04d}"
+
+
+def test_family_ranges_hold_over_many_draws():
+    for i in range(40):
+        p = draw("random", i, 3).parameters
+        assert abs(p["side_slope_deg"]) <= 12 and 0 <= p["rough_slope_deg"] <= 20
+        assert 0 <= p["drive_speed"] <= 0.6 and 1 <= p["n_goals"] <= 3
+        h = draw("heavy-pick-downhill", i, 3)
+        assert h.scenario.side_slope_deg <= -5 and 230 <= h.parameters["payload_event_mass"]
+
+
+def test_an_unreachable_goal_is_a_typed_error_before_the_run():
+    sc = draw("random", 0, 0).scenario
+    bad = type(sc)(**{**sc.__dict__, "goals": (CranePose(0.0, 45.0, -90.0, 0.001),)})
+    with pytest.raises(ScenarioFileError, match="telescope"):
+        check_reachable(bad)
+    with pytest.raises(RunInputError, match="unknown scenario family"):
+        draw("nope", 0)
+    with pytest.raises(RunInputError, match="index"):
+        draw("random", -1)
+
+
+def test_clopper_pearson_upper_bound():
+    # 0 of n: 1 - 0.05^(1/n) (the rule of three's exact form).
+    assert clopper_pearson_upper(0, 200) == pytest.approx(1 - 0.05 ** (1 / 200), rel=1e-9)
+    assert clopper_pearson_upper(3, 10) == pytest.approx(0.6066, abs=1e-3)
+    assert clopper_pearson_upper(0, 0) == 1.0 and clopper_pearson_upper(5, 5) == 1.0
+
+
+def _row(index, controller, below, t_done, tipped=False):
+    return {"family": "random", "index": index, "controller": controller, "metrics": {
+        "threshold_N": 1000.0, "tipped": tipped, "fallbacks": 0, "task_completed": True,
+        "task_completion_time_s": t_done,
+        "min_normal_force_N": {"FL": 900.0 if below else 3000.0, "RL": 5e3, "FR": 5e3,
+                               "RR": 5e3},
+        "time_below_threshold_s": {"FL": below, "RL": 0.0, "FR": 0.0, "RR": 0.0}}}
+
+
+def test_summary_counts_and_ratios():
+    rows = [_row(0, "tracking", 0.5, 10.0), _row(1, "tracking", 0.0, 12.0),
+            _row(0, "mpc-full", 0.0, 11.0), _row(1, "mpc-full", 0.0, 12.0),
+            {"family": "random", "index": 2, "controller": "mpc-full", "error": "boom"}]
+    s = summarize(rows)
+    assert s["tracking"]["draws_below_threshold"] == 1
+    assert s["mpc-full"]["draws"] == 2 and s["mpc-full"]["exceptions"] == 1
+    assert s["mpc-full"]["fraction_safe"] == 1.0
+    assert s["mpc-full"]["task_time_ratio"]["median"] == pytest.approx(1.05)
+    assert s["tracking"]["min_margin_N"]["min"] == pytest.approx(-100.0)
+    assert s["mpc-full"]["failed_draws"] == [2]
+
+
+def test_a_failing_run_is_a_row_not_the_end_of_the_sweep(tmp_path):
+    summary = run_sweep("random", 2, ["tracking"], tmp_path, master_seed=1,
+                        options={"duration": -1.0})
+    rows = [json.loads(line) for line in (tmp_path / "sweep.jsonl").read_text().splitlines()]
+    assert len(rows) == 2 and all("duration" in r["error"] for r in rows)
+    assert summary["tracking"]["exceptions"] == 2 and summary["runs"] == 2
+    assert json.loads((tmp_path / "summary.json").read_text())["runs_planned"] == 2
+    assert math.isclose(summary["tracking"]["unsafe_upper_95"], 1.0)
