@@ -11,8 +11,8 @@ All after `models.log.SETTLE_SECONDS`:
   a break (at the same rate), or base roll or pitch beyond `TIP_ANGLE_DEG`.
 * ``task_error_final``: distance of the tool point from the last goal's [m] at the end;
   ``task_completion_time_s``: first time every goal has been given, the tool point is
-  within `TASK_TOLERANCE` of the last one and the base has driven its distance (None if
-  never); ``task_completed``.
+  within `TASK_TOLERANCE` of the last one and the base has driven its distance (standing
+  tasks: none) (None if never); ``task_completed``.
 
 `scenarios.closed_loop.run_closed_loop` adds ``control_step_ms`` (median and p99 of the
 controller's ``step`` wall time), ``fallbacks``, ``sim_seconds``, ``wall_seconds`` and
@@ -93,8 +93,10 @@ def closed_loop_metrics(log: dict, scenario: ClosedLoopScenario, threshold_n: fl
     tipped_contact = _longest_run(n_contact[keep] < 3) * dt >= TIP_CONTACT_SECONDS - 1e-9
     tipped_angle = bool(np.any(np.abs(roll_pitch) > math.radians(TIP_ANGLE_DEG)))
     err = log["tcp_error"]
-    done = (log["last_goal_given"].astype(bool) & (err < TASK_TOLERANCE)
-            & (log["distance"] >= scenario.drive_distance - 1e-9))
+    # A standing task has no distance to cover (a few mm of creep either way do not count).
+    drove = (log["distance"] >= scenario.drive_distance - 1e-9
+             if scenario.drive_distance > 0 else np.ones(t.shape, bool))
+    done = log["last_goal_given"].astype(bool) & (err < TASK_TOLERANCE) & drove
     first = np.flatnonzero(done)
     completion = float(t[first[0]]) if first.size else None
     return {

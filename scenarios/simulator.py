@@ -53,6 +53,12 @@ _SETTLE_DECAY_FRACTION = 2.0 / 3.0  # of the settling time spent with decaying v
 _SETTLE_DECAY_PER_STEP = 0.02  # velocity lost per step meanwhile
 _SETTLED_CACHE = 4  # settled states kept by reset()
 _WINDUP_STEPS = 5  # anti-windup applied every this many steps
+# With a zero drive command on both sides the hydrostatic drive holds the wheels where they
+# stand (zero swashplate angle, then the parking brake): each wheel's velocity servo is
+# given ``WHEEL_HOLD_GAIN (angle_held - angle)`` [rad/s], a stiff position hold within the
+# drive's torque. Without it a velocity servo lets the machine creep down a slope (0.66 m in
+# 10 s facing down a 12 deg slope).
+WHEEL_HOLD_GAIN = 20.0  # [1/s]
 _ANTI_WINDUP = 1.5  # servo setpoint kept within this many full-force deflections of the joint
 _FATAL_WARNINGS = tuple(int(w) for w in (
     mujoco.mjtWarning.mjWARN_BADQPOS, mujoco.mjtWarning.mjWARN_BADQVEL,
@@ -109,6 +115,9 @@ class Simulator:
         self._chain_rates = [(i, b.chain, self.index.dof_adr[b.driven_joint])
                              for i, b in bindings]
         self._command = ActuatorCommand.zero()
+        self._wheel_qpos = self.index.independent_qpos[9:13]
+        self._wheel_ctrl = self.index.wheel_actuators
+        self._hold: np.ndarray | None = None  # wheel angles held at a zero drive command
         self._snapshot = (self.data.qpos.copy(), self.data.qvel.copy(), 0.0)
         self._snapshot_setpoint = self._setpoint.copy()
         self._settled: dict = {}  # reset() arguments -> (settled MjData, servo setpoints)
@@ -151,6 +160,11 @@ class Simulator:
         lo, hi = self._wheel_range
         self.data.ctrl[self.index.wheel_actuators] = np.minimum(np.maximum(
             np.array((left, left, right, right)), lo), hi)  # FL, RL, FR, RR
+        if left == 0.0 and right == 0.0:
+            if self._hold is None:
+                self._hold = self.data.qpos[self._wheel_qpos].copy()
+        else:
+            self._hold = None
         self._command = command
 
     # ------------------------------------------------------------------ time stepping
@@ -198,12 +212,14 @@ class Simulator:
             settled, setpoint = self._settled[key]
             mujoco.mj_copyData(d, m, settled)
             self._setpoint = setpoint.copy()
+            self._hold = None
             self.apply(ActuatorCommand.zero())
             self._take_snapshot()
             return
         mujoco.mj_resetData(m, d)
         qpos, ctrl = home_keyframe(self.machine, self.terrain, q_ind, base_xy_yaw)
         d.qpos[:] = qpos
+        self._hold = None
         self.apply(ActuatorCommand.zero())
         for _ in range(5):  # MuJoCo's own distances: lift out of any residual penetration
             mujoco.mj_forward(m, d)
@@ -260,6 +276,8 @@ class Simulator:
                 # Servo force kp (u - x) with u = setpoint - (kv / kp) x_dot: the damping is
                 # explicit, outside MuJoCo's implicit integration (see `models.mujoco`).
                 np.subtract(path[k], lead * d.qvel[servo_dof], out=servo_ctrl)
+                if self._hold is not None:
+                    self._hold_wheels()
                 if self._listeners:
                     self._step_with_listeners()
                 else:
@@ -268,6 +286,12 @@ class Simulator:
             self._setpoint = np.minimum(np.maximum(path[chunk], x - band), x + band)
             done += chunk
         self._check_warnings()
+
+    def _hold_wheels(self) -> None:
+        d = self.data
+        lo, hi = self._wheel_range
+        d.ctrl[self._wheel_ctrl] = np.minimum(np.maximum(
+            WHEEL_HOLD_GAIN * (self._hold - d.qpos[self._wheel_qpos]), lo), hi)
 
     def add_step_listener(self, listener) -> None:
         """Call ``listener(sim, qpos, qvel, t)`` after every physics step.
