@@ -80,3 +80,24 @@ def test_a_failing_run_is_a_row_not_the_end_of_the_sweep(tmp_path):
     assert summary["tracking"]["exceptions"] == 2 and summary["runs"] == 2
     assert json.loads((tmp_path / "summary.json").read_text())["runs_planned"] == 2
     assert math.isclose(summary["tracking"]["unsafe_upper_95"], 1.0)
+
+
+def test_ray_gives_the_same_rows_as_the_process_pool(tmp_path):
+    pytest.importorskip("ray")
+    options = {"duration": 1.6}
+    pool = run_sweep("standing-on-rough", 2, ["tracking"], tmp_path / "pool", master_seed=5,
+                     jobs=2, options=options)
+    ray = run_sweep("standing-on-rough", 2, ["tracking"], tmp_path / "ray", master_seed=5,
+                    ray_address="local", options=options)
+
+    def rows(folder):
+        out = {}
+        for line in (tmp_path / folder / "sweep.jsonl").read_text().splitlines():
+            r = json.loads(line)
+            m = r["metrics"]
+            out[r["index"]] = (r["parameters"], m["min_normal_force_N"],
+                               m["time_below_threshold_s"], m["task_error_final"])
+        return out
+
+    assert rows("pool") == rows("ray") and len(rows("pool")) == 2
+    assert pool["tracking"]["draws"] == ray["tracking"]["draws"] == 2
