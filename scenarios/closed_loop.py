@@ -44,6 +44,7 @@ from scenarios.progress import Progress
 from scenarios.run_args import check_delay, check_duration, check_seed, check_threshold
 from scenarios.scenario_file import scenario_to_toml
 from scenarios.simulator import Simulator
+from scenarios.startup import READY_TIMEOUT_SECONDS, Readiness
 from wbc import (
     CONTROLLER_NAMES,
     ControllerConfig,
@@ -178,8 +179,10 @@ def run_closed_loop(scenario: ClosedLoopScenario | str, out_dir: Path | None = N
                       delay_periods=delay_periods, scenario_toml=scenario_to_toml(scenario))
     recorder = NormalForceRecorder(sim)
     history: deque = deque(maxlen=delay_periods + 1)
+    readiness = Readiness(machine, thr)
     n_ticks = int(round(duration / CONTROL_PERIOD))
-    step_s = np.zeros(n_ticks)
+    n_max = n_ticks + int(round(READY_TIMEOUT_SECONDS / CONTROL_PERIOD))
+    step_s = np.zeros(n_max)
     fallbacks = 0
     payload_done = scenario.payload_event is None
     interrupted = False
@@ -187,16 +190,22 @@ def run_closed_loop(scenario: ClosedLoopScenario | str, out_dir: Path | None = N
     with Progress(duration, f"{scenario.name}/{controller}",
                   enabled=None if progress else False) as bar:
         try:
-            for k in range(n_ticks):
+            for k in range(n_max):
                 state, truth = sim.measure()
                 t = state.time
-                if not payload_done and t >= scenario.payload_event[0] - 1e-9:
+                ready = readiness.update(state)
+                tau = t - readiness.offset  # the scenario's clock
+                if ready and tau >= duration - 1e-9:
+                    break
+                if not ready:
+                    tau = -1.0  # the operator waits: no goal, no driving, no event yet
+                if not payload_done and tau >= scenario.payload_event[0] - 1e-9:
                     _set_payload(sim, scenario.payload_event[1])
                     if new_models is not None:
                         ctrl.set_force_model(*new_models)
                     payload_done = True
                 tcp_err = float(np.linalg.norm(kin.position(_true_q(sim, state)) - tcp_goal))
-                new_goal = goals.update(t, tcp_err)
+                new_goal = goals.update(tau, tcp_err)
                 if new_goal is not None:
                     ctrl.set_goal(new_goal)
                     goal_q_full = _true_q(sim, state).copy()
@@ -208,7 +217,9 @@ def run_closed_loop(scenario: ClosedLoopScenario | str, out_dir: Path | None = N
                 cmd = ctrl.step(history[0])
                 step_s[k] = time.perf_counter() - t0
                 fallbacks += int(cmd.fallback)
-                w = scenario.wheel_speed(t, machine.wheel_radius)
+                # Driving ramps up from the ready time (not before: the machine stands still).
+                w = scenario.wheel_speed(t - readiness.time, machine.wheel_radius) if ready \
+                    else 0.0
                 wheels = cmd.wheel_speeds(w, w)
                 sim.set_command(cmd.cylinder_rates, cmd.wrist_rates, wheels)
                 info = cmd.info
@@ -225,14 +236,14 @@ def run_closed_loop(scenario: ClosedLoopScenario | str, out_dir: Path | None = N
                                         and payload_done else scenario.payload_mass))
                 sim.step(n_sub)
                 if k % 50 == 0:
-                    bar.update(sim.time)
+                    bar.update(min(sim.time - readiness.offset, duration))
         except KeyboardInterrupt:
             interrupted = True
         else:
             bar.update(duration)
     wall = time.perf_counter() - wall0
     recorder.close()
-    n_done = len(log) if interrupted else n_ticks
+    n_done = len(log)
     if n_done == 0:  # nothing to save
         raise KeyboardInterrupt
     log.set_physics(physics_time=recorder.time, physics_normal_force=recorder.normal_force)
@@ -249,7 +260,10 @@ def run_closed_loop(scenario: ClosedLoopScenario | str, out_dir: Path | None = N
         "wall_seconds": wall,
         "real_time_factor": float(n_done * CONTROL_PERIOD / wall),
         "threshold_N": thr,
-        **closed_loop_metrics(arrays, scenario, thr),
+        "time_to_ready_s": readiness.time,
+        "ready_timed_out": readiness.timed_out,
+        **closed_loop_metrics(arrays, scenario, thr, ready_time=readiness.time,
+                              clock_offset=readiness.offset),
         "control_step_ms": _tick_figures(step_s[:max(n_done, 1)]),
         "fallbacks": fallbacks,
     }

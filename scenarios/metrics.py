@@ -1,6 +1,7 @@
 """Metrics of a closed-loop run (``metrics.json``), computed from its log.
 
-All after `models.log.SETTLE_SECONDS`:
+All from the moment the machine was ready (`scenarios.startup`; at the earliest after
+`models.log.SETTLE_SECONDS`):
 
 * ``min_normal_force_N``, ``time_below_threshold_s``, ``longest_below_threshold_s``: per
   wheel (FL, RL, FR, RR), ground truth along the terrain normal, counted at every physics
@@ -62,7 +63,8 @@ def json_default(o):
     raise TypeError(f"not JSON serializable: {type(o)}")
 
 
-def closed_loop_metrics(log: dict, scenario: ClosedLoopScenario, threshold_n: float) -> dict:
+def closed_loop_metrics(log: dict, scenario: ClosedLoopScenario, threshold_n: float,
+                        ready_time: float | None = None, clock_offset: float = 0.0) -> dict:
     """The scenario metrics from a closed-loop log (see the module docstring).
 
     Args:
@@ -70,6 +72,11 @@ def closed_loop_metrics(log: dict, scenario: ClosedLoopScenario, threshold_n: fl
             columns ``tcp_error``, ``last_goal_given``, ``distance`` and ``speed_scale``.
         scenario: The scenario that was run.
         threshold_n: Normal-force threshold [N].
+        ready_time: When the machine was ready and the operator's commands began
+            (`scenarios.startup`) [s]; the safety metrics count from then. None: from
+            `SETTLE_SECONDS`.
+        clock_offset: How much later than planned the scenario's clock started [s]; the
+            task completion time is on the scenario's clock.
 
     Returns:
         The metrics by name.
@@ -83,7 +90,8 @@ def closed_loop_metrics(log: dict, scenario: ClosedLoopScenario, threshold_n: fl
         ts, fz_all = t, log["normal_force"]
         n_contact = log["in_contact"].sum(axis=1)
     dt = float(np.median(np.diff(ts))) if ts.size > 1 else CONTROL_PERIOD
-    keep = ts >= SETTLE_SECONDS - 1e-9
+    start = SETTLE_SECONDS if ready_time is None else max(ready_time, SETTLE_SECONDS)
+    keep = ts >= start - 1e-9
     if not keep.any():  # a run shorter than the settling: judge all of it
         keep = np.ones_like(keep)
     fz = fz_all[keep]
@@ -98,7 +106,7 @@ def closed_loop_metrics(log: dict, scenario: ClosedLoopScenario, threshold_n: fl
              if scenario.drive_distance > 0 else np.ones(t.shape, bool))
     done = log["last_goal_given"].astype(bool) & (err < TASK_TOLERANCE) & drove
     first = np.flatnonzero(done)
-    completion = float(t[first[0]]) if first.size else None
+    completion = float(t[first[0]] - clock_offset) if first.size else None
     return {
         "min_normal_force_N": per_wheel(fz.min(axis=0)),
         "time_below_threshold_s": per_wheel(below.sum(axis=0) * dt),

@@ -82,7 +82,11 @@ def test_metrics_have_the_documented_keys(runs):
         assert set(m[key]) == set(WHEEL_ORDER)
     assert set(m["control_step_ms"]) >= {"median", "p99"}
     assert m["threshold_N"] == pytest.approx(threshold())
-    assert m["sim_seconds"] == pytest.approx(SHORT["swing-out"]["duration"])
+    # The scenario's clock starts when the machine is ready (scenarios.startup).
+    assert m["time_to_ready_s"] >= SETTLE_SECONDS and not m["ready_timed_out"]
+    offset = m["time_to_ready_s"] - SETTLE_SECONDS
+    assert m["sim_seconds"] == pytest.approx(SHORT["swing-out"]["duration"] + offset,
+                                             abs=0.011)
     n = log["time"].size
     assert log["normal_force"].shape == (n, 4) and log["command"].shape == (n, 11)
     # The MPC drove the base (the scripted speeds, scaled by at most its own choice).
@@ -92,7 +96,8 @@ def test_metrics_have_the_documented_keys(runs):
 def test_payload_event_changes_mujoco_and_the_mpc_model(runs):
     m, log = runs["pick-in-motion", "mpc-full"]
     t_pick, mass = SCENARIOS["pick-in-motion"].payload_event
-    after = log["time"] >= t_pick
+    t_pick += m["time_to_ready_s"] - SETTLE_SECONDS  # on the scenario's clock
+    after = log["time"] >= t_pick - 1e-9
     assert np.all(log["payload_now"][after] == mass)
     assert np.all(log["payload_now"][~after] == SCENARIOS["pick-in-motion"].payload_mass)
     # The ground truth feels the log: the total normal load rises by its weight.
