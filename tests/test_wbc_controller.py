@@ -250,3 +250,14 @@ def test_force_thresholds_of_the_wrong_type():
 def test_controller_name_of_the_wrong_type(machine, name):
     with pytest.raises(UnknownControllerError):
         make_controller(name, machine)
+
+
+def test_a_goal_in_the_position_margin_is_clamped_and_reported(tracking, machine):
+    crane = machine.coordinates.home()[2:9].copy()
+    crane[3] = 0.001  # inside the telescope's range [0, 1.1] m, inside the 1 % margin
+    tracking.reset()
+    tracking.set_goal(JointGoal(crane=crane))
+    cmd = tracking.step(make_state(machine))
+    assert "goal clamped" in cmd.info["goal_error"] and "'telescope'" in cmd.info["goal_error"]
+    assert tracking.crane_reference.goal[3] == pytest.approx(0.011)
+    assert np.all(np.isfinite(cmd.rates))

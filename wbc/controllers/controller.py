@@ -116,19 +116,47 @@ class Controller(abc.ABC):
         target is then logged, reported in ``info['goal_error']`` and dropped).
 
         Raises:
-            WbcInputError: Wrong goal type or a joint goal outside the position limits.
+            WbcInputError: Wrong goal type, or a joint goal outside an axis's physical
+                range. A goal inside the physical range but in the margin the controller
+                keeps from each end (`ControllerConfig.position_margin`) is clamped to the
+                margin, logged and reported in ``info['goal_error']``: a running controller
+                does not stop on a goal a few millimetres off.
             IKError: Unreachable TCP target (only with ``state``).
         """
         if isinstance(goal, TcpGoal) and state is not None:
             goal = self.resolve_tcp_goal(goal, state)
         if isinstance(goal, JointGoal):
-            if goal.crane is not None:
-                self.crane_reference.check_goal(goal.crane)
-            if goal.suspension is not None:
-                self.suspension_reference.check_goal(goal.suspension)
+            self._goal_error = None
+            goal = self._clamped(goal)
         elif not isinstance(goal, TcpGoal):
             raise WbcInputError(f"goal must be a JointGoal or a TcpGoal, got {type(goal)!r}")
         self._pending = goal
+
+    def _clamped(self, goal: JointGoal) -> JointGoal:
+        """``goal`` within the margin-shrunk limits (see `set_goal`)."""
+        coords = self.machine.coordinates
+        parts, notes = {}, []
+        for key, ref, axes in (("crane", self.crane_reference, CRANE_AXES),
+                               ("suspension", self.suspension_reference, SUSPENSION_AXES)):
+            g = getattr(goal, key)
+            if g is None:
+                parts[key] = None
+                continue
+            lo, hi = coords.lower[axes], coords.upper[axes]
+            outside = (g < lo - 1e-12) | (g > hi + 1e-12)
+            if outside.any():
+                k = int(np.argmax(outside))
+                raise WbcInputError(f"goal {g[k]:.6g} outside [{lo[k]:.6g}, {hi[k]:.6g}] for "
+                                    f"axis '{ref.names[k]}' (its physical range)")
+            c = np.clip(g, ref.position_lower, ref.position_upper)
+            for k in np.flatnonzero(c != g):
+                notes.append(f"'{ref.names[k]}' {g[k]:.6g} -> {c[k]:.6g}")
+            parts[key] = c
+        if notes:
+            self._goal_error = "goal clamped into the position margin: " + ", ".join(notes)
+            self.logger.warning(self._goal_error)
+            return JointGoal(**parts)
+        return goal
 
     def reset(self) -> None:
         """Forget goals, references, the previous command and solver warm starts."""
@@ -179,7 +207,6 @@ class Controller(abc.ABC):
                 goal = None
         planned = set()
         if goal is not None:
-            self._goal_error = None
             for key, ref, g in (("crane", self.crane_reference, goal.crane),
                                 ("suspension", self.suspension_reference, goal.suspension)):
                 if g is not None:
