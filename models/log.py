@@ -86,6 +86,8 @@ COLUMNS = {
     "measured_forces": Column("(N, 4)", "N", "the MPC's measured load split (NaN if none)",
                               True),
     "payload_now": Column("(N,)", "kg", "payload mass held by the machine", True),
+    "com_world": Column("(N, 3)", "m", "ground truth: the machine's centre of mass in the world",
+                        True),
 }
 
 # Sampled at every physics step (M samples, M >= N): what a control-rate sample misses (a

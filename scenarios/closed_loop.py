@@ -232,6 +232,7 @@ def run_closed_loop(scenario: ClosedLoopScenario | str, out_dir: Path | None = N
                            speed_scale=cmd.wheel_speed_scale, fallback=cmd.fallback,
                            step_ms=1e3 * step_s[k],
                            measured_forces=info.get("measured_forces", np.full(4, np.nan)),
+                           com_world=sim.data.subtree_com[sim.index.base_body],
                            payload_now=(scenario.payload_event[1] if scenario.payload_event
                                         and payload_done else scenario.payload_mass))
                 sim.step(n_sub)

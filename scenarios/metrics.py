@@ -10,6 +10,9 @@ All from the moment the machine was ready (`scenarios.startup`; at the earliest 
   static wheel load of the reference machine (150 kg payload).
 * ``tipped``: fewer than three wheels in contact for `TIP_CONTACT_SECONDS` or longer without
   a break (at the same rate), or base roll or pitch beyond `TIP_ANGLE_DEG`.
+* ``min_force_angle_measure_Nm``, ``min_force_angle_deg``, ``min_zmp_margin_m``: the
+  force-angle stability measure and the zero-moment point's distance to the support
+  polygon's edge, smallest over the run (`scenarios.stability_margins`; control rate).
 * ``task_error_final``: distance of the tool point from the last goal's [m] at the end;
   ``task_completion_time_s``: first time every goal has been given, the tool point is
   within `TASK_TOLERANCE` of the last one and the base has driven its distance (standing
@@ -29,6 +32,7 @@ import numpy as np
 from models.description import WHEEL_ORDER
 from models.log import SETTLE_SECONDS
 from scenarios.closed_loop_scenarios import CONTROL_PERIOD, TASK_TOLERANCE, ClosedLoopScenario
+from scenarios.stability_margins import force_angle_and_zmp
 
 __all__ = ["TIP_ANGLE_DEG", "TIP_CONTACT_SECONDS", "closed_loop_metrics", "json_default"]
 
@@ -107,7 +111,18 @@ def closed_loop_metrics(log: dict, scenario: ClosedLoopScenario, threshold_n: fl
     done = log["last_goal_given"].astype(bool) & (err < TASK_TOLERANCE) & drove
     first = np.flatnonzero(done)
     completion = float(t[first[0]] - clock_offset) if first.size else None
+    margins = {}
+    if "com_world" in log:
+        keep_c = t >= start - 1e-9
+        sm = force_angle_and_zmp(log["base_position"][keep_c], log["base_rotation"][keep_c],
+                                 log["point_in_fb"][keep_c], log["force_in_fb"][keep_c],
+                                 log["in_contact"][keep_c], log["com_world"][keep_c])
+        if sm["beta_Nm"].size:
+            margins = {"min_force_angle_measure_Nm": float(sm["beta_Nm"].min()),
+                       "min_force_angle_deg": float(np.degrees(sm["theta_rad"].min())),
+                       "min_zmp_margin_m": float(sm["zmp_margin_m"].min())}
     return {
+        **margins,
         "min_normal_force_N": per_wheel(fz.min(axis=0)),
         "time_below_threshold_s": per_wheel(below.sum(axis=0) * dt),
         "longest_below_threshold_s": per_wheel([_longest_run(b) * dt for b in below.T]),

@@ -152,6 +152,36 @@ def _quantiles(values: list[float]) -> dict | None:
     return dict(zip(("min", "p05", "median", "p95", "max"), map(float, q)))
 
 
+def _auc(scores: list[float], positive: list[bool]) -> float | None:
+    """Area under the ROC curve of ``-score`` predicting ``positive`` (Mann-Whitney)."""
+    pos = [s for s, p in zip(scores, positive) if p]
+    neg = [s for s, p in zip(scores, positive) if not p]
+    if not pos or not neg:
+        return None
+    wins = sum((p < n) + 0.5 * (p == n) for p in pos for n in neg)
+    return float(wins / (len(pos) * len(neg)))
+
+
+def lift_off_prediction(rows: list[dict]) -> dict:
+    """How well each stability measure's minimum predicts a wheel lift-off, over all runs.
+
+    A run lifted a wheel when a wheel's smallest normal force was 0 N. Per measure (the
+    smallest normal force over the threshold, the force-angle measure, the ZMP margin): the
+    area under the ROC curve of a low minimum predicting a lift-off (1: perfect, 0.5: none).
+    """
+    ok = [r["metrics"] for r in rows if "metrics" in r]
+    lifted = [min(m["min_normal_force_N"].values()) <= 0.0 for m in ok]
+    out = {"runs": len(ok), "runs_with_lift_off": int(sum(lifted))}
+    for key, name in (("min_normal_force_N", "min_normal_force"),
+                      ("min_force_angle_measure_Nm", "force_angle_measure"),
+                      ("min_zmp_margin_m", "zmp_margin")):
+        if ok and all(key in m for m in ok):
+            scores = [min(m[key].values()) if isinstance(m[key], dict) else m[key]
+                      for m in ok]
+            out[name + "_auc"] = _auc(scores, lifted)
+    return out
+
+
 def summarize(rows: list[dict]) -> dict:
     """The per-controller summary of sweep rows (module docstring)."""
     by_controller: dict[str, list[dict]] = {}
@@ -192,4 +222,5 @@ def summarize(rows: list[dict]) -> dict:
             "unsafe_draws": sorted(r["index"] for r in unsafe),
             "failed_draws": sorted(r["index"] for r in rs if "error" in r),
         }
+    out["lift_off_prediction"] = lift_off_prediction(rows)
     return out
