@@ -301,11 +301,21 @@ def demo_cmd(out, force, no_progress) -> int:
               help="Folder to write the MJCF files to.")
 @click.option("--doc", type=click.Path(path_type=Path), default=None,
               help="Markdown file to write the figures to.")
-def machine_cmd(write_mjcf, doc) -> int:
-    """Print the machine's figures and their sources."""
+@click.option("--load-chart", "chart_file", type=click.Path(path_type=Path), default=None,
+              help="Print the load chart (rated payload by reach and slew) and plot it to "
+                   "this PNG file.")
+@click.option("--slope", type=float, default=0.0, show_default=True,
+              help="Side slope of the load chart [deg], the crane's side downhill.")
+def machine_cmd(write_mjcf, doc, chart_file, slope) -> int:
+    """Print the machine's figures and their sources (or its load chart)."""
     from models import build_reference_machine
 
     machine = build_reference_machine()
+    if chart_file is not None:
+        from wbc_hdmm.load_chart_plot import print_and_plot
+
+        click.echo(print_and_plot(machine, chart_file, slope))
+        return 0
     if doc:
         from models.report import machine_markdown
 

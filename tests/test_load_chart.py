@@ -1,0 +1,81 @@
+"""The load chart: affine efforts against MuJoCo's servo forces, limits, and bad input."""
+
+import numpy as np
+import pytest
+
+from models import build_reference_machine
+from models import terrain as T
+from models.errors import ModelError
+from models.load_chart import _efforts_and_wrench, _models, load_chart, rated_payload
+from models.state import MachineState
+from scenarios.simulator import Simulator
+
+MACHINE = build_reference_machine()
+THRESHOLD = 1262.0
+
+
+def _pose(telescope: float) -> np.ndarray:
+    chart = {(r["slew_deg"], r["telescope_m"]) for r in load_chart(MACHINE, THRESHOLD)}
+    assert (0.0, 0.8) in chart
+    ch = MACHINE.chains
+    q = MACHINE.coordinates.home()
+    q[2] = ch["slew"].chain.stroke_from_angle(0.0)
+    q[3] = ch["lift"].chain.stroke_from_angle(np.radians(20.0))
+    q[4] = ch["tilt"].chain.stroke_from_angle(np.radians(-40.0))
+    q[5] = telescope
+    q[6] = -np.radians(-20.0)
+    return q
+
+
+def test_the_lift_force_at_the_rated_load_is_its_limit_in_mujoco():
+    q = _pose(0.8)
+    rated = rated_payload(MACHINE, q, THRESHOLD)
+    assert rated.limit == "lift" and 200.0 < rated.mass < 1000.0
+    mass = 0.9 * rated.mass
+    heavy = build_reference_machine(payload_mass=mass)
+    sim = Simulator(heavy, T.flat())
+    sim.reset(q, settle_time=2.0)
+    lift = MACHINE.coordinates.independent_names.index("lift")
+    measured = sim.actuator_forces()[lift]
+    zero = np.zeros(13)
+    state = MachineState(np.zeros(3), np.eye(3), np.zeros(6), np.zeros(6),
+                         sim.measure()[0].q, zero, zero)
+    p0, p1 = _models(MACHINE)
+    e0, _ = _efforts_and_wrench(p0, state)
+    e1, _ = _efforts_and_wrench(p1, state)
+    predicted = e0[lift] + (mass - 1.0) * (e1[lift] - e0[lift])
+    assert measured == pytest.approx(predicted, rel=0.02)
+    assert predicted == pytest.approx(0.9 * MACHINE.chains["lift"].cylinder.force_range[1]
+                                      + 0.1 * (e0[lift] - (e1[lift] - e0[lift])), rel=0.02)
+
+
+def test_the_chart_falls_with_reach_and_tipping_binds_on_a_slope():
+    chart = load_chart(MACHINE, THRESHOLD, slews_deg=(0.0,))
+    masses = [r["rated_kg"] for r in chart]
+    assert masses == sorted(masses, reverse=True)
+    c, s = np.cos(0.45), np.sin(0.45)  # a 26 deg slope
+    tilt = np.array([[1, 0, 0], [0, c, -s], [0, s, c]])
+    q = _pose(1.05)
+    q[2] = MACHINE.chains["slew"].chain.stroke_from_angle(np.radians(60.0))
+    level = rated_payload(MACHINE, q, THRESHOLD)
+    steep = [rated_payload(MACHINE, q, THRESHOLD, base_rotation=r) for r in (tilt, tilt.T)]
+    assert min(s.mass for s in steep) < level.mass
+    assert any(s.limit == "tipping" for s in steep)
+    assert np.all(min(steep, key=lambda s: s.mass).forces >= THRESHOLD - 1e-6)
+
+
+def test_bad_threshold_raises():
+    with pytest.raises(ModelError, match="threshold_n"):
+        rated_payload(MACHINE, MACHINE.coordinates.home(), float("nan"))
+
+
+def test_wbc_machine_load_chart_prints_and_plots(tmp_path, capsys):
+    from wbc_hdmm.cli import main
+
+    png = tmp_path / "chart.png"
+    assert main(["machine", "--load-chart", str(png), "--slope", "8"]) == 0
+    out = capsys.readouterr().out
+    assert "rated payload" in out and png.stat().st_size > 1000
+    assert len([line for line in out.splitlines() if "(lift" in line or "(tilt" in line
+                or "(tipping" in line]) == 6
+    assert main(["machine", "--load-chart", str(png), "--slope", "90"]) == 2
