@@ -273,7 +273,7 @@ class WarpCompliance:
                  else np.asarray(wheel_loads, float))
         if loads.shape != (4,) or not np.all(np.isfinite(loads)):
             raise EstimatorInputError(f"wheel_loads must be 4 finite forces [N], got {loads}")
-        if wheel_loads is None:  # cached: then a call is a few scalar formulas (~50 us)
+        if wheel_loads is None:  # cached: then a call is a few scalar formulas (~0.15 ms)
             k_t = self._static_tyre
         else:
             loads = np.maximum(loads, 0.1 * self.static_load)
