@@ -8,7 +8,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from wbc.errors import ConfigurationError
-from wbc.force_models.feedback import WARP_STIFFNESS
+from wbc.force_models.feedback import warp_stiffness
 
 __all__ = ["ControllerConfig", "ForceConfig", "MpcConfig", "QPConfig", "ReferenceConfig"]
 
@@ -229,7 +229,9 @@ class ForceConfig:
         feedback: MPC only: correct the horizon model by the load split measured now, the
             estimator's cylinder-force closure (`wbc.force_models.feedback`).
         warp_stiffness: MPC only: k_w of the chassis warp by the suspension setpoints
-            [N/m per wheel]; 0: the suspension does not act on the load split in the model.
+            [N/m per wheel per metre of ``s_L - s_R``]; 0: the suspension does not act on
+            the load split in the model; None: derived from the machine at construction
+            (`warp_stiffness_for`).
         leveling_weight: MPC only: weight of `HorizonLevelingTask` (0: off).
         leveling_limit: MPC only: largest warp change the leveling asks for at once [N].
         drift_horizon: MPC only: how far ahead the measured rate of the terrain's twist is
@@ -249,7 +251,7 @@ class ForceConfig:
     drive_time_constant: float = 0.5
     margin: float = 0.0
     feedback: bool = True
-    warp_stiffness: float = WARP_STIFFNESS
+    warp_stiffness: float | None = None
     leveling_weight: float = 1.0
     leveling_limit: float = 5000.0
     drift_horizon: float = 0.3
@@ -259,8 +261,9 @@ class ForceConfig:
         _positive(self, "slack_linear", "slack_quadratic",
                   "speed_scale_rate", "speed_scale_weight", "drive_time_constant",
                   "leveling_limit")
-        _positive(self, "margin", "warp_stiffness", "leveling_weight", "drift_horizon",
-                  allow_zero=True)
+        _positive(self, "margin", "leveling_weight", "drift_horizon", allow_zero=True)
+        if self.warp_stiffness is not None:
+            _positive(self, "warp_stiffness", allow_zero=True)
         _positive(self, "drift_time_constant")
         _positive(self, "threshold_fraction", "speed_scale_min", allow_zero=True)
         _flags(self, "soft", "speed_scale", "feedback")
@@ -270,6 +273,16 @@ class ForceConfig:
         if not 0 <= self.speed_scale_min < 1:
             raise ConfigurationError(f"speed_scale_min must be in [0, 1), got "
                                      f"{self.speed_scale_min}")
+
+    def warp_stiffness_for(self, machine) -> float:
+        """`warp_stiffness` if set, else derived from ``machine`` at home [N/m].
+
+        The derivation is `wbc.force_models.feedback.warp_stiffness` (it compiles the
+        machine's MuJoCo model once, ~0.1 s).
+        """
+        if self.warp_stiffness is not None:
+            return float(self.warp_stiffness)
+        return warp_stiffness(machine)
 
     def thresholds_for(self, machine) -> np.ndarray:
         """Per-wheel f_min of ``machine`` [N], shape (4,).

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import qpsolvers
 
@@ -84,6 +86,10 @@ class MpcController(Controller):
         super().__init__(machine, config, tcp_kinematics=tcp_kinematics)
         if force_model is None:
             raise ConfigurationError("MpcController needs a force_model")
+        if self.config.force.warp_stiffness is None:  # derived from the machine, once
+            fc = self.config.force
+            self.config = replace(self.config, force=replace(
+                fc, warp_stiffness=fc.warp_stiffness_for(machine)))
         cfg, mc, fc = self.config, self.config.mpc, self.config.force
         self.force_model = force_model
         self.feedback: ClosureFeedback | None = None

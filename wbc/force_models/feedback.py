@@ -5,11 +5,17 @@ fourth row, eq. 29) is exact in the three equilibrium rows (eqs. 25-28) but fixe
 direction, the *diagonal* load split ``n = (+1, -1, -1, +1)`` (FL, RL, FR, RR), at a
 constant. On the machine that split is set by the chassis warp: terrain twist, drive-torque
 reactions, and the two suspension servos, whose setpoint difference twists the chassis
-against the wheels. Measured on the MuJoCo machine (flat, crane at home and at long reach,
-`wbc.force_models.feedback.WARP_STIFFNESS`): ``df = k_w n d(s_L - s_R)`` with ``k_w = 6.88
-kN`` per wheel and millimetre of setpoint difference, linear up to the lift-off of a wheel;
-the measured strokes barely move (the servos are the soft part, about 10x softer than the
-tyre contacts), so the *setpoints* are the controlled quantity.
+against the wheels: ``df = k_w n d(s_L - s_R)``, linear up to the lift-off of a wheel.
+``k_w`` is derived from the machine description (`warp_stiffness`,
+`estimators.compliance.WarpCompliance`): the series stiffness, per wheel along ``n``, of the
+suspension servos mapped through the bogie chains (``kp / (2 a^2 k1^2)``) and the tyre
+contacts (MuJoCo's soft contact at the static wheel load), times ``a |k1| / 2``. For the
+reference machine at home that is 6.88 kN per wheel and millimetre of setpoint difference,
+-5 % / +8 % over the bogie stroke range; `tests/test_compliance.py` compares it with MuJoCo.
+The servos are the soft part (~10x softer than the tyres): a setpoint difference turns into
+servo deflection (force) on both sides, and the stroke *difference* moves by only the tyres'
+share (~8 %; the common part pitches the chassis), so the *setpoints* are the controlled
+quantity.
 
 `ClosureFeedback` gives, once per control tick at the measured state:
 
@@ -37,18 +43,31 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from estimators.compliance import WarpCompliance
+from models.description import Machine
 from models.state import MachineState
 from wbc.axes import N_AXES, SUSPENSION_AXES
 from wbc.errors import ForceModelError
 from wbc.force_models.protocol import MODEL_ERRORS, NormalForceModel, contact_flags
 
-__all__ = ["DIAGONAL", "WARP_STIFFNESS", "ClosureFeedback", "ForceFeedback", "WarpDrift",
-           "leveling_offset", "warp_matrix"]
+__all__ = ["DIAGONAL", "ClosureFeedback", "ForceFeedback", "WarpDrift", "leveling_offset",
+           "warp_matrix", "warp_stiffness"]
 
 DIAGONAL = np.array([1.0, -1.0, -1.0, 1.0])  # FL, RL, FR, RR: the free (warp) direction
-# [N/m] per wheel along DIAGONAL per metre of (setpoint_L - setpoint_R): measured on the
-# reference machine in MuJoCo (0.02..0.2 mm steps at home and at long reach, linear to 0.1 %).
-WARP_STIFFNESS = 6.88e6
+
+
+def warp_stiffness(machine: Machine, q=None) -> float:
+    """k_w of ``machine`` [N/m per wheel along `DIAGONAL` per metre of ``s_L - s_R``].
+
+    Derived from the description (`estimators.compliance.WarpCompliance`) at the bogie
+    strokes of ``q`` and the static wheel load; compiles the machine's MuJoCo model once
+    (~0.1 s), so call it at construction, not per tick.
+
+    Args:
+        machine: The machine description.
+        q: Independent coordinates, shape (13,); the home pose if None.
+    """
+    return WarpCompliance(machine).stiffness(q)
 
 
 @dataclass(frozen=True)
