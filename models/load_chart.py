@@ -24,7 +24,7 @@ within the servos' range (not bounded by how far the suspension can twist the ch
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 import pinocchio as pin
@@ -32,12 +32,12 @@ from scipy.optimize import linprog
 
 from models.description import Machine
 from models.errors import ModelError
-from models.pinocchio_model import PinocchioMachine
+from models.pinocchio_model import PAYLOAD_PAIR_MASSES, PinocchioMachine, payload_pair
 from models.state import MachineState
 
 __all__ = ["RatedLoad", "load_chart", "rated_payload"]
 
-_M0, _M1 = 1.0, 2.0  # [kg] the two payload masses the affine maps are read at
+_M0, _M1 = PAYLOAD_PAIR_MASSES  # [kg] the two payload masses the affine maps are read at
 _MAX_PAYLOAD = 1e4  # [kg] the LP's upper bound (a rated load is far below)
 
 
@@ -56,26 +56,8 @@ class RatedLoad:
     forces: np.ndarray
 
 
-_CACHE: dict[str, tuple[PinocchioMachine, PinocchioMachine]] = {}
-
-
 def _models(machine: Machine) -> tuple[PinocchioMachine, PinocchioMachine]:
-    """Pinocchio models of ``machine`` with payloads `_M0` and `_M1` (cached by content)."""
-    key = machine.fingerprint
-    if key in _CACHE:
-        return _CACHE[key]
-    body = next(b for b in machine.bodies if b.name == machine.payload)
-    models = []
-    for m in (_M0, _M1):
-        scale = m / body.inertia.mass
-        inertia = replace(body.inertia, mass=m, inertia=np.asarray(body.inertia.inertia) * scale)
-        bodies = tuple(replace(b, inertia=inertia) if b.name == machine.payload else b
-                       for b in machine.bodies)
-        models.append(PinocchioMachine(replace(machine, bodies=bodies)))
-    if len(_CACHE) >= 8:
-        _CACHE.pop(next(iter(_CACHE)))
-    _CACHE[key] = (models[0], models[1])
-    return _CACHE[key]
+    return payload_pair(machine)
 
 
 def _efforts_and_wrench(pm: PinocchioMachine, state: MachineState):

@@ -15,6 +15,8 @@ derivative. This matches `MachineState`'s base fields one to one.
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pinocchio as pin
 
@@ -135,3 +137,30 @@ class PinocchioMachine:
 def build_pinocchio(machine: Machine) -> PinocchioMachine:
     """Build the Pinocchio model of ``machine``."""
     return PinocchioMachine(machine)
+
+
+PAYLOAD_PAIR_MASSES = (1.0, 2.0)  # [kg] the payload masses of `payload_pair`
+_PAIRS: dict[str, tuple[PinocchioMachine, PinocchioMachine]] = {}
+
+
+def payload_pair(machine: Machine) -> tuple[PinocchioMachine, PinocchioMachine]:
+    """Models of ``machine`` with the payload at the two `PAYLOAD_PAIR_MASSES` (cached).
+
+    The dynamics are linear in the inertial parameters and the payload's inertia scales
+    with its mass about a fixed centre of mass, so anything computed from them is affine in
+    the payload mass: ``x(m) = x_1 + (m - m_1) (x_2 - x_1) / (m_2 - m_1)``.
+    """
+    key = machine.fingerprint
+    if key not in _PAIRS:
+        body = next(b for b in machine.bodies if b.name == machine.payload)
+        models = []
+        for m in PAYLOAD_PAIR_MASSES:
+            inertia = replace(body.inertia, mass=m, inertia=np.asarray(body.inertia.inertia)
+                              * (m / body.inertia.mass))
+            bodies = tuple(replace(b, inertia=inertia) if b.name == machine.payload else b
+                           for b in machine.bodies)
+            models.append(PinocchioMachine(replace(machine, bodies=bodies)))
+        if len(_PAIRS) >= 8:
+            _PAIRS.pop(next(iter(_PAIRS)))
+        _PAIRS[key] = (models[0], models[1])
+    return _PAIRS[key]

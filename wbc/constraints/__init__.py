@@ -2,6 +2,7 @@
 
 from wbc.constraints.acceleration_limit import AccelerationLimit
 from wbc.constraints.constraint import Box, Constraint, Inequality
+from wbc.constraints.horizon_effort_limit import HorizonEffortLimit
 from wbc.constraints.horizon_limits import (
     HorizonLimit,
     HorizonPositionLimit,
@@ -14,7 +15,8 @@ from wbc.constraints.speed_scale_limit import SpeedScaleLimit
 from wbc.constraints.velocity_limit import VelocityLimit
 
 __all__ = [
-    "AccelerationLimit", "Box", "Constraint", "HorizonLimit", "HorizonNormalForceConstraint",
+    "AccelerationLimit", "Box", "Constraint", "HorizonEffortLimit", "HorizonLimit",
+    "HorizonNormalForceConstraint",
     "HorizonPositionLimit", "HorizonVelocityLimit", "Inequality", "NormalForceConstraint",
     "PositionLimit", "SpeedScaleLimit", "VelocityLimit",
 ]

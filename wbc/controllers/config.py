@@ -154,6 +154,10 @@ class MpcConfig:
             bounce, and against the stiff chassis warp a suspension setpoint loads the
             wheels while its stroke hardly moves.
         deflection_time_constant: Filter of that deflection [s].
+        effort_limits: Keep every crane cylinder's and drive's force within its range along
+            the horizon (`wbc.constraints.HorizonEffortLimit`).
+        effort_margin: Fraction of each effort range kept free (seal friction, the chains'
+            soft closure).
 
     The horizon ``first_step + (n_steps - 1) step`` must be >= 1 s.
     """
@@ -174,8 +178,14 @@ class MpcConfig:
     force_constraint_start: float = 0.0
     setpoint_state: bool = True
     deflection_time_constant: float = 0.5
+    effort_limits: bool = True
+    effort_margin: float = 0.05
 
     def __post_init__(self):
+        _flags(self, "effort_limits")
+        if not (isinstance(self.effort_margin, (int, float)) and 0 <= self.effort_margin < 0.5):
+            raise ConfigurationError(f"effort_margin must be in [0, 0.5), got "
+                                     f"{self.effort_margin!r}")
         _positive(self, "step", "n_steps", "crane_position_weight", "crane_velocity_weight",
                   "suspension_position_weight", "suspension_velocity_weight", "input_weight",
                   "n_linearizations")

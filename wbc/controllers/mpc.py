@@ -7,11 +7,13 @@ from dataclasses import replace
 import numpy as np
 import qpsolvers
 
+from estimators.efforts import ActuatorEfforts
 from models.description import Machine
 from models.state import MachineState
 from wbc.axes import CRANE_AXES, N_AXES, SUSPENSION_AXES
 from wbc.constraints import (
     AccelerationLimit,
+    HorizonEffortLimit,
     HorizonNormalForceConstraint,
     HorizonPositionLimit,
     HorizonVelocityLimit,
@@ -117,6 +119,10 @@ class MpcController(Controller):
         constraints = [AccelerationLimit(), HorizonVelocityLimit(), HorizonPositionLimit(),
                        self.force_constraint, SpeedScaleLimit(fc.speed_scale_min,
                                                               fc.speed_scale_rate)]
+        self.effort_limit = (HorizonEffortLimit(ActuatorEfforts(machine), mc.effort_margin)
+                             if mc.effort_limits else None)
+        if self.effort_limit is not None:
+            constraints.append(self.effort_limit)
         solver = make_solver(cfg.solver, cfg.eps_abs, cfg.eps_rel, cfg.max_iter,
                              feasible_by_construction=fc.soft)
         self.planner = MpcPlanner(self.limits, layout, mc.step_lengths(cfg.dt), cfg.dt, tasks,
@@ -150,6 +156,18 @@ class MpcController(Controller):
         self.force_model = force_model
         self.force_constraint.model = force_model
         self._set_feedback(feedback)
+
+    def set_payload_mass(self, mass: float) -> None:
+        """Tell the models the payload now held [kg] (the observer's estimate, or known).
+
+        The effort model takes it directly; a force model (and the feedback's closure)
+        that has a run-time ``payload_mass`` too.
+        """
+        if self.effort_limit is not None:
+            self.effort_limit.efforts.payload_mass = mass
+        for model in (self.force_model, getattr(self.feedback, "closure", None)):
+            if model is not None and hasattr(type(model), "payload_mass"):
+                model.payload_mass = mass
 
     def _set_feedback(self, feedback: ClosureFeedback | None) -> None:
         """The warp is modelled only where the split is measured (it acts on that split)."""

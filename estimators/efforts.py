@@ -1,0 +1,147 @@
+r"""Actuator efforts the motion needs: each cylinder's force, affine in the accelerations.
+
+For a state (base pose, twist and acceleration; independent q, qd) the tree's joint torques
+are ``tau = M(q) qdd_tree + h(q, v)`` (RNEA of the machine description: the same rigid-body
+dynamics as the normal-force estimator, whose wrench matches Pinocchio's RNEA to round-off).
+With the chains closed through their Jacobian (``qd_tree = J qd``, ``qdd_tree = J qdd +
+Jdot qd``, eqs. 6-7), the effort on independent coordinate ``i`` is ``e_i = J_i^T tau``
+(virtual work): the cylinder force of a chain [N], the torque or force of a direct drive.
+On the nine servo axes, with their accelerations ``u`` free and everything else given:
+
+.. math:: e = E u + e_0, \qquad E = J_a^T M J_a, \quad e_0 = J_a^T (M (J_r qdd_r
+          + \dot J qd) + h)
+
+(``J_a``: the axes' columns, ``r``: the other coordinates, the wheels). The base
+acceleration is an input (the ground supplies whatever the motion needs), as in the
+estimator. Affine in the payload mass as well (`models.pinocchio_model.payload_pair`).
+
+The suspension cylinders also carry the ground's reaction, which the tree's dynamics do not
+contain: their rows here are the tree's share only (the estimator's bogie rows add the
+ground); the MPC bounds the crane's efforts.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pinocchio as pin
+
+from estimators.errors import EstimatorError
+from models.coordinates import N_INDEPENDENT
+from models.description import Machine
+from models.pinocchio_model import PAYLOAD_PAIR_MASSES, payload_pair
+from models.state import N_SERVO_AXES, MachineState
+
+__all__ = ["ActuatorEfforts", "effort_ranges"]
+
+
+def effort_ranges(machine: Machine) -> tuple[np.ndarray, np.ndarray]:
+    """(lower, upper) effort of each servo axis [N or N m], shape (9,) each.
+
+    A chain's cylinder: ``(-p A_B, p A_A)`` (`HydraulicCylinder.force_range`); a direct
+    drive: its effort limit.
+    """
+    names = machine.coordinates.independent_names[:N_SERVO_AXES]
+    lo, hi = np.zeros(N_SERVO_AXES), np.zeros(N_SERVO_AXES)
+    for i, name in enumerate(names):
+        if name in machine.chains:
+            lo[i], hi[i] = machine.chains[name].cylinder.force_range
+        elif name in machine.direct_drives:
+            e = machine.direct_drives[name].effort_limit
+            lo[i], hi[i] = -e, e
+        else:
+            raise EstimatorError(f"axis '{name}' has neither a cylinder nor a drive")
+    return lo, hi
+
+
+class ActuatorEfforts:
+    """``e = E u + e_0`` of the nine servo axes (module docstring).
+
+    Args:
+        machine: The machine description.
+        payload_mass: Payload [kg]; the description's if None.
+
+    Attributes:
+        payload_mass: Settable (finite, >= 0).
+    """
+
+    def __init__(self, machine: Machine, payload_mass: float | None = None):
+        self.machine = machine
+        self._pair = payload_pair(machine)
+        body = next(b for b in machine.bodies if b.name == machine.payload)
+        self.payload_mass = body.inertia.mass if payload_mass is None else payload_mass
+
+    @property
+    def payload_mass(self) -> float:
+        """Payload mass [kg]."""
+        return self._mass
+
+    @payload_mass.setter
+    def payload_mass(self, value) -> None:
+        m = float(value) if isinstance(value, (int, float, np.floating)) else float("nan")
+        if not (np.isfinite(m) and m >= 0):
+            raise EstimatorError(f"payload_mass must be a finite mass >= 0 [kg], got {value!r}")
+        self._mass = m
+
+    def _tree_motion(self, state: MachineState):
+        """(q, v, a, J_axes): Pinocchio's configuration with the axes' accelerations zero.
+
+        Every chain's state is evaluated once (the chains' kinematics are the costly part).
+        """
+        pm = self._pair[0]
+        coords = pm.coordinates
+        q_ind, qd_ind = state.q, state.qd
+        n_tree = coords.n_tree
+        jac = np.zeros((n_tree, N_INDEPENDENT))
+        q_tree = np.zeros(n_tree)
+        jdot_qd = np.zeros(n_tree)
+        for i, j in coords._direct:
+            jac[j, i] = 1.0
+            q_tree[j] = q_ind[i]
+        for i, b in coords._chains:
+            c = b.chain.state(q_ind[i], check=False)
+            d, br, pi = (coords.index[b.driven_joint], coords.index[b.barrel],
+                         coords.index[b.piston])
+            q_tree[d], q_tree[br], q_tree[pi] = c.theta, c.theta_barrel, q_ind[i]
+            jac[d, i], jac[br, i], jac[pi, i] = c.k[0], c.k[1], 1.0
+            jdot_qd[d] = c.dk_dx[0] * qd_ind[i] * qd_ind[i]
+            jdot_qd[br] = c.dk_dx[1] * qd_ind[i] * qd_ind[i]
+        q = np.zeros(pm.model.nq)
+        v = np.zeros(pm.model.nv)
+        a = np.zeros(pm.model.nv)
+        q[:3] = state.base_position
+        q[3:7] = pin.Quaternion(state.base_rotation).normalized().coeffs()
+        q[pm._tree_q_idx] = q_tree
+        v[:6] = state.base_twist
+        v[pm._tree_v_idx] = jac @ qd_ind
+        a[:6] = state.base_acceleration
+        qdd_rest = np.array(state.qdd, float)
+        qdd_rest[:N_SERVO_AXES] = 0.0
+        a[pm._tree_v_idx] = jac @ qdd_rest + jdot_qd
+        return q, v, a, jac[:, :N_SERVO_AXES]
+
+    @staticmethod
+    def _one(pm, q, v, a, ja) -> tuple[np.ndarray, np.ndarray]:
+        idx = pm._tree_v_idx
+        tau = pin.rnea(pm.model, pm.data, q, v, a)[idx]
+        mass = pin.crba(pm.model, pm.data, q)[np.ix_(idx, idx)]
+        m_tt = np.triu(mass) + np.triu(mass, 1).T  # crba fills the upper triangle
+        return ja.T @ m_tt @ ja, ja.T @ tau
+
+    def affine(self, state: MachineState) -> tuple[np.ndarray, np.ndarray]:
+        """``(E (9, 9), e_0 (9,))`` at ``state`` for the current payload mass.
+
+        ``state.qdd`` of the nine axes is ignored (they are the free ``u``); the wheels'
+        and the base's accelerations are used.
+        """
+        if not isinstance(state, MachineState):
+            raise EstimatorError(f"expected a MachineState, got {type(state).__name__}")
+        motion = self._tree_motion(state)
+        (e1, f1), (e2, f2) = (self._one(pm, *motion) for pm in self._pair)
+        m1, m2 = PAYLOAD_PAIR_MASSES
+        w = (self._mass - m1) / (m2 - m1)
+        return e1 + w * (e2 - e1), f1 + w * (f2 - f1)
+
+    def efforts(self, state: MachineState) -> np.ndarray:
+        """The nine efforts at the state's own accelerations [N or N m], shape (9,)."""
+        E, e0 = self.affine(state)
+        return E @ state.qdd[:N_SERVO_AXES] + e0

@@ -1,0 +1,106 @@
+r"""MPC: every crane cylinder's force within its pressure x area range along the horizon.
+
+Each crane axis's effort is affine in the axis accelerations ``u`` (`estimators.efforts`,
+the machine's rigid-body dynamics through the chains): ``e_k = E_j u_k + e_{0,j}``, with
+``(E_j, e_{0,j})`` evaluated at ``n_linearizations`` nodes ``j`` of the nominal trajectory
+(the previous plan shifted, as the force constraint does) and node ``k`` using the last
+``j <= k``. The rows keep
+
+.. math:: (1 - m)\, e_{lo} \le E_j u_k + e_{0,j} \le (1 - m)\, e_{hi}
+
+with a margin ``m`` for what the model leaves out (seal friction, the soft chain closures).
+So a fast swing at long reach cannot ask the lift cylinder for more than its pressure can
+give, where the boom would sag. Each bound is relaxed to admit the brake-and-hold input of
+that step (``ctx.brake_inputs``): a pose already over a limit (a heavy pick) is braked, not
+infeasible. The suspension axes carry the ground's reaction, which these dynamics lack: they
+are not bounded here (the normal-force constraint covers them).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from estimators.efforts import ActuatorEfforts, effort_ranges
+from models.coordinates import N_INDEPENDENT, WHEELS
+from models.state import MachineState
+from wbc.axes import CRANE_AXES, N_AXES
+from wbc.constraints.constraint import Constraint, Inequality
+from wbc.errors import ConfigurationError
+from wbc.mpc.prediction import predict_base_pose
+
+__all__ = ["HorizonEffortLimit"]
+
+
+class HorizonEffortLimit(Constraint):
+    """The crane axes' efforts within their ranges at every step (module docstring).
+
+    Args:
+        efforts: The effort model (its ``payload_mass`` is the controller's).
+        margin: Fraction of each range kept free, in [0, 0.5).
+        n_linearizations: Effort-model evaluations per tick (>= 1), the first at step 0.
+        axes: The axes bounded (default: the four cylinder-driven crane axes, slew, lift,
+            tilt and telescope; the wrist drives carry small loads).
+
+    Attributes:
+        last_efforts: Efforts at step 0 of the last solution's nominal input, (9,), or None.
+    """
+
+    def __init__(self, efforts: ActuatorEfforts, margin: float = 0.05,
+                 n_linearizations: int = 1, axes=tuple(CRANE_AXES[:4])):
+        if not (0.0 <= margin < 0.5) or n_linearizations < 1:
+            raise ConfigurationError(f"need margin in [0, 0.5) and n_linearizations >= 1, got "
+                                     f"{margin}, {n_linearizations}")
+        self.efforts = efforts
+        lo, hi = effort_ranges(efforts.machine)
+        self.lower = (1.0 - margin) * lo
+        self.upper = (1.0 - margin) * hi
+        self.n_linearizations = int(n_linearizations)
+        self.axes = np.asarray(axes, int)
+        self._scale = np.maximum(hi, -lo)[self.axes]
+        self.last_efforts: np.ndarray | None = None
+
+    def _nominal_state(self, ctx, t: float, q_axes, qd_axes) -> MachineState:
+        st = ctx.state
+        pos, rot = predict_base_pose(st, t)
+        q, qd = st.q.copy(), st.qd.copy()
+        q[:N_AXES], qd[:N_AXES] = q_axes, qd_axes
+        q[WHEELS] += t * st.qd[WHEELS]
+        return MachineState(pos, rot, st.base_twist, np.zeros(6), q, qd,
+                            np.zeros(N_INDEPENDENT), st.time + t)
+
+    def compute(self, ctx) -> Inequality:
+        """Two rows per crane axis and step: ``+-E u_k <= bound - e_0``."""
+        lay, pred = ctx.layout, ctx.prediction
+        N, na = lay.n_steps, lay.n_axes
+        qn, vn = pred.trajectory(ctx.q, ctx.qd, ctx.nominal_inputs)
+        qn = np.vstack([ctx.state.q[:N_AXES], qn])
+        vn = np.vstack([ctx.state.qd[:N_AXES], vn])
+        steps = np.unique(np.round(np.linspace(0, N - 1, self.n_linearizations)).astype(int))
+        maps = []
+        for j in steps:
+            st = (ctx.state if j == 0 else
+                  self._nominal_state(ctx, pred.start_times[j], qn[j], vn[j]))
+            maps.append(self.efforts.affine(st))
+        which = np.minimum(np.searchsorted(steps, np.arange(N), side="right") - 1,
+                           len(steps) - 1)
+        ax = self.axes
+        n_rows = 2 * N * ax.size
+        G = np.zeros((n_rows, lay.n))
+        h = np.zeros(n_rows)
+        for k in range(N):
+            E, e0 = maps[which[k]]
+            Ea, e0a = E[ax], e0[ax]
+            brake = Ea @ ctx.brake_inputs[k] + e0a
+            hi = np.maximum(self.upper[ax], brake)
+            lo = np.minimum(self.lower[ax], brake)
+            r = slice(2 * k * ax.size, (2 * k + 1) * ax.size)
+            r2 = slice((2 * k + 1) * ax.size, (2 * k + 2) * ax.size)
+            # Rows scaled to the effort range (the solver's tolerance is absolute).
+            G[r, lay.step(k)] = Ea / self._scale[:, None]
+            h[r] = (hi - e0a) / self._scale
+            G[r2, lay.step(k)] = -Ea / self._scale[:, None]
+            h[r2] = (e0a - lo) / self._scale
+        E0, e00 = maps[0]
+        self.last_efforts = E0 @ ctx.nominal_inputs[0] + e00 if N else None
+        del na
+        return Inequality(G, h)
