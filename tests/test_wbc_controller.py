@@ -199,7 +199,8 @@ def test_wheel_contacts_measured(machine):
     prob = ctrl.prepare(st)
     n_force_rows = 3 * (ctrl.layout.n_steps + 1)  # the steps and the terminal brake node
     n_limit_rows = 4 * 9 * ctrl.layout.n_steps
-    assert prob.G.shape[0] == n_limit_rows + n_force_rows
+    n_effort_rows = 2 * 4 * ctrl.layout.n_steps  # slew, lift, tilt, telescope
+    assert prob.G.shape[0] == n_limit_rows + n_force_rows + n_effort_rows
 
 
 @pytest.mark.parametrize("name", CONTROLLER_NAMES)
