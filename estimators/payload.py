@@ -1,0 +1,126 @@
+r"""The payload as a run-time input: two compiled estimators, interpolated exactly.
+
+The normal forces, their map in the accelerations and their sensitivities are affine in the
+payload mass ``m`` (the dynamics are linear in the inertial parameters, the payload's centre
+of mass is fixed in its body, and every fourth row is linear in the wrench). Two estimators
+of the same machine with payloads ``m_a`` and ``m_b``, compiled once before the control loop
+starts, therefore give every other payload exactly:
+
+.. math:: x(m) = x(m_a) + w\,(x(m_b) - x(m_a)), \qquad w = (m - m_a) / (m_b - m_a).
+
+`PayloadEstimator` does that for `estimate`, `constraint` and `linearize`, with ``payload_mass``
+settable at every tick (an observer's estimate) and ``payload_sensitivity`` (``df/dm``) for
+the force margin. No kernel is compiled after construction, whatever the mass.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from estimators.errors import EstimatorError
+from estimators.estimator import NormalForceEstimator
+from estimators.linearization import ForceLinearization
+from estimators.results import Estimate
+from models.description import Machine
+from models.reference_machine import MAX_PAYLOAD_MASS
+from models.state import MachineState
+
+__all__ = ["PayloadEstimator", "with_payload_mass"]
+
+_SPAN = 100.0  # [kg] m_b - m_a
+
+
+def with_payload_mass(machine: Machine, mass: float) -> Machine:
+    """``machine`` with its payload body's mass set to ``mass`` (inertia scaled alike)."""
+    body = next(b for b in machine.bodies if b.name == machine.payload)
+    scale = mass / body.inertia.mass
+    inertia = dataclasses.replace(body.inertia, mass=float(mass),
+                                  inertia=np.asarray(body.inertia.inertia) * scale)
+    bodies = tuple(dataclasses.replace(b, inertia=inertia) if b.name == machine.payload else b
+                   for b in machine.bodies)
+    return dataclasses.replace(machine, bodies=bodies)
+
+
+class PayloadEstimator:
+    """A `NormalForceEstimator` whose payload mass is set at run time (module docstring).
+
+    Args:
+        machine: The machine description (its payload mass is ``m_a`` and the default).
+        **options: `NormalForceEstimator` options (method, fourth, D, beta, strokes, ...).
+
+    Attributes:
+        payload_mass: The payload now [kg]; settable, finite, in [0, `MAX_PAYLOAD_MASS`].
+        method, fourth: As the wrapped estimators'.
+    """
+
+    def __init__(self, machine: Machine, **options):
+        body = next(b for b in machine.bodies if b.name == machine.payload)
+        self.machine = machine
+        self._m_a = float(body.inertia.mass)
+        self._a = NormalForceEstimator(machine, **options)
+        self._b = NormalForceEstimator(with_payload_mass(machine, self._m_a + _SPAN), **options)
+        self.method, self.fourth = self._a.method, self._a.fourth
+        self._w = 0.0
+        self._mass = self._m_a
+
+    @property
+    def payload_mass(self) -> float:
+        """The payload now [kg]."""
+        return self._mass
+
+    @payload_mass.setter
+    def payload_mass(self, value) -> None:
+        ok = isinstance(value, (int, float, np.floating)) and not isinstance(value, bool)
+        m = float(value) if ok else float("nan")
+        if not (np.isfinite(m) and 0.0 <= m <= MAX_PAYLOAD_MASS):
+            raise EstimatorError(f"payload_mass must be a mass in [0, {MAX_PAYLOAD_MASS:g}] "
+                                 f"kg, got {value!r}")
+        self._mass = m
+        self._w = (m - self._m_a) / _SPAN
+
+    def _mix(self, x_a, x_b):
+        return x_a + self._w * (np.asarray(x_b) - np.asarray(x_a))
+
+    def estimate(self, state: MachineState) -> Estimate:
+        """`NormalForceEstimator.estimate` at the current payload mass."""
+        ea = self._a.estimate(state)
+        if self._w == 0.0:
+            return ea
+        eb = self._b.estimate(state)
+        return dataclasses.replace(
+            ea, normal_forces=self._mix(ea.normal_forces, eb.normal_forces),
+            wrench_xi=self._mix(ea.wrench_xi, eb.wrench_xi),
+            residual=self._mix(ea.residual, eb.residual),
+            system_rhs=self._mix(ea.system_rhs, eb.system_rhs))
+
+    def constraint(self, state: MachineState) -> tuple[np.ndarray, np.ndarray]:
+        """`NormalForceEstimator.constraint` at the current payload mass."""
+        ga, ha = self._a.constraint(state)
+        if self._w == 0.0:
+            return ga, ha
+        gb, hb = self._b.constraint(state)
+        return self._mix(ga, gb), self._mix(ha, hb)
+
+    def linearize(self, state: MachineState) -> ForceLinearization:
+        """`NormalForceEstimator.linearize` at the current payload mass."""
+        la = self._a.linearize(state)
+        if self._w == 0.0:
+            return la
+        lb = self._b.linearize(state)
+        return dataclasses.replace(
+            la, normal_forces=self._mix(la.normal_forces, lb.normal_forces),
+            G=self._mix(la.G, lb.G), g0=self._mix(la.g0, lb.g0),
+            d_q=self._mix(la.d_q, lb.d_q), d_qd=self._mix(la.d_qd, lb.d_qd))
+
+    def payload_sensitivity(self, state: MachineState) -> np.ndarray:
+        """``df/dm`` of the normal forces [N/kg], shape (4,) (exact: affine in ``m``)."""
+        fa = self._a.estimate(state).normal_forces
+        fb = self._b.estimate(state).normal_forces
+        return (np.asarray(fb) - np.asarray(fa)) / _SPAN
+
+    @property
+    def machines(self) -> tuple[Machine, Machine]:
+        """The two machines whose kernels it uses (to warm them before a run)."""
+        return self._a.machine, self._b.machine

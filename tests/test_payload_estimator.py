@@ -1,0 +1,52 @@
+"""The payload as a run-time input: exact against an estimator built for that payload."""
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from estimators import NormalForceEstimator
+from estimators.errors import EstimatorError
+from estimators.payload import PayloadEstimator
+from models import build_reference_machine
+from testkit.estimator_states import random_state
+
+MACHINE = build_reference_machine()
+
+
+@pytest.mark.parametrize("fourth", ["d-beta", "cylinder-force"])
+def test_any_payload_equals_the_estimator_built_for_it(fourth):
+    est = PayloadEstimator(MACHINE, fourth=fourth, strokes="clip")
+    # The oracles run in CasADi's virtual machine: no compile for them.
+    heavy = NormalForceEstimator(build_reference_machine(payload_mass=287.0), fourth=fourth,
+                                 strokes="clip", backend="casadi")
+    est.payload_mass = 287.0
+    rng = np.random.default_rng(3)
+    for _ in range(5):
+        s = replace(random_state(MACHINE, rng, max_tilt=0.3, speed=0.5),
+                    suspension_force=rng.uniform(2e4, 6e4, 2))
+        scale = 1e-9 * max(1.0, np.abs(heavy.estimate(s).normal_forces).max())
+        np.testing.assert_allclose(est.estimate(s).normal_forces,
+                                   heavy.estimate(s).normal_forces, atol=1e3 * scale)
+        la, lb = est.linearize(s), heavy.linearize(s)
+        for name in ("G", "g0", "d_q", "d_qd"):
+            np.testing.assert_allclose(getattr(la, name), getattr(lb, name), rtol=1e-7,
+                                       atol=1e-6 * np.abs(getattr(lb, name)).max())
+        g, g0 = est.constraint(s)
+        np.testing.assert_allclose(g, heavy.constraint(s)[0], rtol=1e-7, atol=1e-6)
+        # df/dm against a central difference of two more machines.
+        f_plus = NormalForceEstimator(build_reference_machine(payload_mass=297.0),
+                                      fourth=fourth, strokes="clip",
+                                      backend="casadi").estimate(s).normal_forces
+        f_minus = NormalForceEstimator(build_reference_machine(payload_mass=277.0),
+                                       fourth=fourth, strokes="clip",
+                                       backend="casadi").estimate(s).normal_forces
+        np.testing.assert_allclose(est.payload_sensitivity(s), (f_plus - f_minus) / 20.0,
+                                   rtol=1e-6, atol=1e-6)
+
+
+def test_bad_masses_raise():
+    est = PayloadEstimator(MACHINE)
+    for bad in (-1.0, float("nan"), "heavy", True, 2e4):
+        with pytest.raises(EstimatorError, match="payload_mass"):
+            est.payload_mass = bad
