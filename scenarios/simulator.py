@@ -344,6 +344,11 @@ class Simulator:
         qpos, qvel, t = self._snapshot
         return qpos.copy(), qvel.copy(), t
 
+    @property
+    def servo_setpoint(self) -> np.ndarray:
+        """The nine axis servos' setpoints at the measured instant [m, rad], (9,) (a copy)."""
+        return self._snapshot_setpoint.copy()
+
     def closure_violation(self) -> float:
         """Largest distance between the two points of a loop closure [m], measured instant."""
         pairs = self.index.loop_site_pairs

@@ -1,0 +1,124 @@
+"""The sensor suites: ``oracle``, ``ideal`` and ``realistic`` (`models.sensing.SensorSpec`).
+
+``realistic`` takes its error figures from public datasheets of industrial parts of the kind a
+forestry or construction machine carries (figures as read from the datasheets; a noise
+density ``d`` becomes a per-sample standard deviation ``d sqrt(rate / 2)`` for a reading
+band-limited to the Nyquist frequency of its sample rate):
+
+=====================  ===================================  ==============================
+channel                part                                 datasheet figures used
+=====================  ===================================  ==============================
+IMU accelerometer      Xsens MTi-630 (MTi 600-series)        noise density 60 ug/sqrt(Hz),
+                                                            in-run bias stability 10 ug;
+                                                            400 Hz output
+IMU gyroscope          Xsens MTi-630                        noise density 0.007 deg/s/
+                                                            sqrt(Hz), in-run bias
+                                                            stability 8 deg/h
+stroke sensors         MTS Temposonics R-series (SSI),      resolution 1 um, repeatability
+                       in-cylinder magnetostrictive         +-0.001 % FS (min 2.5 um),
+                                                            linearity < +-0.01 % FS
+angle encoders         14-bit absolute single-turn encoder  resolution 360/2^14 deg,
+                       (e.g. Kuebler Sendix M3663)          accuracy +-0.1 deg
+pressure transducers   WIKA MH-3 (mobile hydraulics),       accuracy <= +-0.5 % FS
+                       0-400 bar                            (non-linearity, hysteresis,
+                                                            zero and span error)
+wheel-motor speed      Hall pulse pick-up on the hydraulic  pulses counted over the sample
+                       motor (e.g. Danfoss PPU), 60         period
+                       pulses/rev, 40:1 final drive
+=====================  ===================================  ==============================
+
+What the model makes of them, and what it simplifies:
+
+* turn-on biases (the part that does not average out): the accelerometer's and the
+  gyroscope's are set at five times their in-run stability (a field calibration at
+  start-up leaves that much); the pressure transducer's zero error is the accuracy class
+  split into a constant zero offset (0.3 % FS, per transducer) and noise; the stroke
+  sensors' linearity error is a constant offset per cylinder over the few millimetres a
+  cylinder moves while it holds a load;
+* bias drift: the in-run stability as a random walk over one minute;
+* latency: one sample period of each bus (CAN at 500 Hz and 100 Hz, the IMU at 400 Hz), as
+  multiples of the 2 ms physics step;
+* no temperature effects, no misalignment of the IMU, no cross-axis sensitivity.
+
+``ideal`` is the same set of sensors and rates without any error; ``oracle`` hands the
+controller MuJoCo's exact state (contacts, accelerations, cylinder forces) instead.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+from models.errors import ModelError
+from models.sensing import ChannelSpec, ImuSpec, SensorSpec
+
+__all__ = ["IDEAL", "ORACLE", "REALISTIC", "SUITES", "sensor_suite"]
+
+_G = 9.81
+_DEG = math.pi / 180.0
+
+
+def _density(d: float, rate: float) -> float:
+    """Per-sample std of white noise of density ``d`` [unit/sqrt(Hz)] sampled at ``rate``."""
+    return d * math.sqrt(rate / 2.0)
+
+
+IMU_RATE, FAST_RATE, SLOW_RATE = 400.0, 500.0, 100.0  # [Hz]
+IMU_POSITION = (0.60, 0.25, 0.45)  # [m] in fb: on the chassis beside the crane base
+_ACC_DENSITY = 60e-6 * _G  # [m/s^2/sqrt(Hz)]
+_GYRO_DENSITY = 0.007 * _DEG  # [rad/s/sqrt(Hz)]
+_ACC_BIAS_STABILITY = 10e-6 * _G  # [m/s^2]
+_GYRO_BIAS_STABILITY = 8.0 * _DEG / 3600.0  # [rad/s]
+_PRESSURE_FS = 400e5  # [Pa]
+_WHEEL_COUNTS = 60 * 40  # pulses per wheel revolution
+
+_REALISTIC_IMU = ImuSpec(
+    accelerometer=ChannelSpec(
+        rate=IMU_RATE, noise=_density(_ACC_DENSITY, IMU_RATE), bias=5 * _ACC_BIAS_STABILITY,
+        bias_drift=_ACC_BIAS_STABILITY / math.sqrt(60.0), latency=0.002,
+        source="Xsens MTi-630: 60 ug/sqrt(Hz), in-run bias stability 10 ug"),
+    gyroscope=ChannelSpec(
+        rate=IMU_RATE, noise=_density(_GYRO_DENSITY, IMU_RATE), bias=5 * _GYRO_BIAS_STABILITY,
+        bias_drift=_GYRO_BIAS_STABILITY / math.sqrt(60.0), latency=0.002,
+        source="Xsens MTi-630: 0.007 deg/s/sqrt(Hz), in-run bias stability 8 deg/h"),
+    position=IMU_POSITION)
+
+REALISTIC = SensorSpec(
+    name="realistic",
+    imu=_REALISTIC_IMU,
+    stroke=ChannelSpec(rate=FAST_RATE, noise=2.5e-6, bias=20e-6, resolution=1e-6,
+                       latency=0.002,
+                       source="MTS Temposonics R-series: 1 um resolution, repeatability "
+                              "2.5 um, linearity < 0.01 % FS"),
+    angle=ChannelSpec(rate=FAST_RATE, noise=0.0, bias=0.1 * _DEG / 3.0,
+                      resolution=2 * math.pi / 2 ** 14, latency=0.002,
+                      source="14-bit absolute encoder: 0.022 deg steps, +-0.1 deg accuracy"),
+    pressure=ChannelSpec(rate=FAST_RATE, noise=0.2e-2 * _PRESSURE_FS / 3.0,
+                         bias=0.3e-2 * _PRESSURE_FS / 3.0, resolution=_PRESSURE_FS / 2 ** 12,
+                         latency=0.002,
+                         source="WIKA MH-3, 0-400 bar: accuracy <= 0.5 % FS"),
+    wheel_speed=ChannelSpec(rate=SLOW_RATE, resolution=2 * math.pi * SLOW_RATE / _WHEEL_COUNTS,
+                            latency=0.01,
+                            source="Hall pick-up, 60 pulses/rev on the motor, 40:1 drive"),
+)
+
+IDEAL = dataclasses.replace(
+    REALISTIC, name="ideal",
+    imu=ImuSpec(ChannelSpec(rate=IMU_RATE), ChannelSpec(rate=IMU_RATE), IMU_POSITION),
+    stroke=ChannelSpec(rate=FAST_RATE), angle=ChannelSpec(rate=FAST_RATE),
+    pressure=ChannelSpec(rate=FAST_RATE), wheel_speed=ChannelSpec(rate=SLOW_RATE))
+
+ORACLE = dataclasses.replace(IDEAL, name="oracle", oracle=True)
+
+SUITES = {s.name: s for s in (ORACLE, IDEAL, REALISTIC)}
+
+
+def sensor_suite(name: str, seed: int = 0) -> SensorSpec:
+    """The suite ``name`` with its errors drawn from ``seed``.
+
+    Raises:
+        ModelError: Unknown name or a bad seed.
+    """
+    if name not in SUITES:
+        raise ModelError(f"unknown sensor suite {name!r}; valid: {', '.join(SUITES)}")
+    return dataclasses.replace(SUITES[name], seed=seed)

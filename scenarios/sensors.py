@@ -1,0 +1,217 @@
+"""The machine's sensors in the simulator: each physics instant turned into sensor readings.
+
+`SensorSimulator` is a step listener (`Simulator.add_step_listener`): at every physics step
+it samples the streams that are due (each at its own rate, on the 2 ms grid), from the
+instant the step started at (to which MuJoCo's accelerations and forces belong), adds the
+errors of `models.sensing.ChannelSpec` and queues the reading until its latency has passed.
+`readings` hands the controller what has been delivered by a tick, as
+`models.sensing.SensorReadings`.
+
+What each sensor measures (the truth before the errors):
+
+* IMU at ``p`` (fb axes): specific force ``a_p + R^T g e_z`` with ``a_p = a_o + alpha x p +
+  w x (w x p)`` the acceleration of the mounting point (MuJoCo's free-joint acceleration of
+  the chassis), and the chassis angular rate;
+* stroke sensors and encoders: the nine servo axes' coordinates (piston strokes, joints);
+* pressure transducers: the hydraulics deliver the servo's force ``F`` (MuJoCo's actuator
+  force: the seal friction, if any, acts on the mechanism besides it). It is split into the
+  chambers with the return side at the back pressure `BACK_PRESSURE`: ``F >= 0``: ``p_B =
+  p_0``, ``p_A = (F + p_0 A_B) / A_A``; else ``p_A = p_0``, ``p_B = (p_0 A_A - F) / A_B``;
+* wheel-motor speeds: the mean spin rate of each side's two wheels.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from models.sensing import (
+    N_PRESSURE,
+    PRESSURE_CYLINDERS,
+    ChannelSpec,
+    Samples,
+    SensorReadings,
+    SensorSpec,
+    cylinder_areas,
+)
+from scenarios.errors import SimulatorError
+from scenarios.simulator import Simulator
+
+__all__ = ["BACK_PRESSURE", "SensorSimulator"]
+
+BACK_PRESSURE = 15e5  # [Pa] return-line pressure of a valve-controlled cylinder (15 bar)
+
+
+class _Stream:
+    """One stream: its spec, per-channel scale and bias, and the readings waiting.
+
+    The step listener only records the true value (`record`); the errors are applied in one
+    vectorized pass when the readings are delivered (`deliver`), bias random walk included,
+    so the per-step cost is one row copy.
+
+    Args:
+        spec: The channels' error model.
+        n: Channels in the reading.
+        dt: The physics step [s].
+        rng: The suite's random generator.
+        transform: Maps the recorded truths (k, m) to the measured quantity (k, n); None:
+            identity (m = n).
+        m: Width of the recorded truth (default n).
+    """
+
+    def __init__(self, spec: ChannelSpec, n: int, dt: float, rng: np.random.Generator,
+                 transform=None, m: int | None = None):
+        self.spec = spec
+        self.every = max(1, int(round(1.0 / (spec.rate * dt))))
+        self.latency = spec.latency
+        self.scale = 1.0 + spec.scale * rng.standard_normal(n)
+        self.bias = spec.bias * rng.standard_normal(n)
+        self.walk = spec.bias_drift * np.sqrt(self.every * dt)
+        self.rng = rng
+        self.n = n
+        self.transform = transform
+        self.times = np.zeros(256)
+        self.truths = np.zeros((256, n if m is None else m))
+        self.count = 0
+
+    def record(self, t: float, truth) -> None:
+        """Record the true value measured at ``t``."""
+        if self.count == self.times.shape[0]:
+            self.times = np.concatenate([self.times, np.zeros_like(self.times)])
+            self.truths = np.concatenate([self.truths, np.zeros_like(self.truths)])
+        self.times[self.count] = t
+        self.truths[self.count] = truth
+        self.count += 1
+
+    def _errors(self, truth: np.ndarray) -> np.ndarray:
+        sp, k = self.spec, truth.shape[0]
+        y = self.transform(truth) if self.transform is not None else truth.copy()
+        if self.walk:
+            steps = self.walk * self.rng.standard_normal((k, self.n))
+            bias = self.bias + np.cumsum(steps, axis=0) - steps  # the bias at each sample
+            self.bias = bias[-1] + steps[-1] if k else self.bias
+        else:
+            bias = self.bias
+        y = self.scale * y + bias
+        if sp.noise:
+            y += sp.noise * self.rng.standard_normal((k, self.n))
+        if sp.resolution:
+            y = np.round(y / sp.resolution) * sp.resolution
+        return y
+
+    def deliver(self, tick: float) -> Samples:
+        """The readings whose latency has passed by ``tick`` (removed from the queue)."""
+        c = self.count
+        k = int(np.searchsorted(self.times[:c], tick - self.latency + 1e-9, side="right"))
+        out = Samples(self.times[:k].copy(), self._errors(self.truths[:k]))
+        rest = c - k
+        self.times[:rest] = self.times[k:c]
+        self.truths[:rest] = self.truths[k:c]
+        self.count = rest
+        return out
+
+
+class SensorSimulator:
+    """Samples the machine's sensors from a running `Simulator` (module docstring).
+
+    Args:
+        sim: The simulator (the sensors attach as a step listener; `close` detaches them).
+        spec: The sensor suite (``spec.oracle`` suites have no sensors: refused).
+
+    Raises:
+        SimulatorError: An oracle suite, or a spec that is not a `SensorSpec`.
+    """
+
+    def __init__(self, sim: Simulator, spec: SensorSpec):
+        if not isinstance(spec, SensorSpec) or spec.oracle:
+            raise SimulatorError(f"SensorSimulator needs a SensorSpec with sensors, got "
+                                 f"{getattr(spec, 'name', spec)!r}")
+        self.sim, self.spec = sim, spec
+        rng = np.random.default_rng(spec.seed)
+        dt = sim.timestep
+        self._acc = _Stream(spec.imu.accelerometer, 3, dt, rng)
+        self._gyro = _Stream(spec.imu.gyroscope, 3, dt, rng)
+        self._pos_lin = _Stream(spec.stroke, 6, dt, rng)
+        self._pos_ang = _Stream(spec.angle, 3, dt, rng)
+        self._press = _Stream(spec.pressure, 2 * N_PRESSURE, dt, rng,
+                              transform=self.chamber_pressures, m=N_PRESSURE)
+        self._wheels = _Stream(spec.wheel_speed, 2, dt, rng)
+        self._streams = (self._acc, self._gyro, self._pos_lin, self._pos_ang, self._press,
+                         self._wheels)
+        ix = sim.index
+        self._p = np.asarray(spec.imu.position, float)
+        self._g = sim.machine.gravity
+        self._base = ix.base_body
+        self._base_dof = ix.base_dof
+        self._axes_qpos = ix.independent_qpos[:9]
+        self._wheel_dof = ix.independent_dof[9:13]
+        names = sim.coordinates.independent_names
+        self._press_act = ix.actuators[[names.index(c) for c in PRESSURE_CYLINDERS]]
+        self._areas = cylinder_areas(sim.machine)
+        self._step = 0
+        self._f = np.zeros(3)
+        self._wheel_speed = np.zeros(2)
+        sim.add_step_listener(self)
+
+    def __call__(self, sim: Simulator, qpos, qvel, t: float) -> None:
+        """Sample the streams due at the step that started at ``t`` (a step listener)."""
+        n = self._step
+        self._step += 1
+        d = sim.data
+        acc, gyro = self._acc, self._gyro
+        if n % acc.every == 0 or n % gyro.every == 0:
+            rot = d.xmat[self._base]  # row-major world <- fb
+            v6, a6 = qvel[self._base_dof], d.qacc[self._base_dof]
+            w0, w1, w2 = v6[3], v6[4], v6[5]
+            if n % acc.every == 0:
+                al0, al1, al2 = a6[3], a6[4], a6[5]
+                p0, p1, p2 = self._p
+                # a_p = R^T a_o + alpha x p + w x (w x p), plus R^T g e_z
+                c0, c1, c2 = w1 * p2 - w2 * p1, w2 * p0 - w0 * p2, w0 * p1 - w1 * p0
+                ax, ay, az = a6[0], a6[1], a6[2] + self._g
+                self._f[0] = (rot[0] * ax + rot[3] * ay + rot[6] * az + al1 * p2 - al2 * p1
+                              + w1 * c2 - w2 * c1)
+                self._f[1] = (rot[1] * ax + rot[4] * ay + rot[7] * az + al2 * p0 - al0 * p2
+                              + w2 * c0 - w0 * c2)
+                self._f[2] = (rot[2] * ax + rot[5] * ay + rot[8] * az + al0 * p1 - al1 * p0
+                              + w0 * c1 - w1 * c0)
+                acc.record(t, self._f)
+            if n % gyro.every == 0:
+                gyro.record(t, v6[3:6])
+        if n % self._pos_lin.every == 0 or n % self._pos_ang.every == 0:
+            q = qpos[self._axes_qpos]
+            if n % self._pos_lin.every == 0:
+                self._pos_lin.record(t, q[:6])
+            if n % self._pos_ang.every == 0:
+                self._pos_ang.record(t, q[6:])
+        if n % self._press.every == 0:
+            self._press.record(t, d.actuator_force[self._press_act])
+        if n % self._wheels.every == 0:
+            wd = qvel[self._wheel_dof]  # FL, RL, FR, RR
+            self._wheel_speed[0] = 0.5 * (wd[0] + wd[1])
+            self._wheel_speed[1] = 0.5 * (wd[2] + wd[3])
+            self._wheels.record(t, self._wheel_speed)
+
+    def chamber_pressures(self, forces) -> np.ndarray:
+        """``p_A, p_B`` [Pa] for cylinder forces [N] (module docstring): (..., 5) -> (..., 10)."""
+        f = np.asarray(forces, float)
+        a_a, a_b = self._areas[:, 0], self._areas[:, 1]
+        p0 = BACK_PRESSURE
+        p_a = np.where(f >= 0, (f + p0 * a_b) / a_a, p0)
+        p_b = np.where(f >= 0, p0, (p0 * a_a - f) / a_b)
+        return np.stack([p_a, p_b], axis=-1).reshape(f.shape[:-1] + (2 * N_PRESSURE,))
+
+    def readings(self, tick: float) -> SensorReadings:
+        """What the sensors delivered by ``tick`` [s] since the previous call."""
+        lin = self._pos_lin.deliver(tick)
+        ang = self._pos_ang.deliver(tick)
+        n = min(len(lin), len(ang))
+        positions = Samples(lin.time[:n], np.hstack([lin.value[:n], ang.value[:n]]))
+        return SensorReadings(
+            time=float(tick), specific_force=self._acc.deliver(tick),
+            angular_rate=self._gyro.deliver(tick), positions=positions,
+            pressures=self._press.deliver(tick), wheel_speeds=self._wheels.deliver(tick),
+            servo_setpoint=self.sim.servo_setpoint)
+
+    def close(self) -> None:
+        """Detach from the simulator."""
+        self.sim.remove_step_listener(self)

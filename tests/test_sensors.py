@@ -1,0 +1,148 @@
+"""The simulated sensors: error statistics against their specs, the IMU against an independent
+differentiation of MuJoCo's motion, chamber pressures, rates and latency."""
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from models import build_reference_machine
+from models import terrain as T
+from models.errors import ModelError
+from models.sensing import cylinder_force
+from models.sensor_suites import IDEAL, REALISTIC, sensor_suite
+from scenarios.errors import SimulatorError
+from scenarios.sensors import SensorSimulator
+from scenarios.simulator import Simulator
+
+MACHINE = build_reference_machine()
+
+
+@pytest.fixture(scope="module")
+def sim():
+    return Simulator(MACHINE, T.flat())
+
+
+def _rest_run(sim, spec, seconds=4.0):
+    sim.reset()
+    sensors = SensorSimulator(sim, spec)
+    try:
+        sim.step(int(round(seconds / sim.timestep)))
+        return sensors.readings(sim.time), sim.measure()[0]
+    finally:
+        sensors.close()
+
+
+def test_noise_of_each_stream_matches_its_spec(sim):
+    r, state = _rest_run(sim, sensor_suite("realistic", 1), seconds=8.0)
+    for samples, spec in ((r.specific_force, REALISTIC.imu.accelerometer),
+                          (r.angular_rate, REALISTIC.imu.gyroscope),
+                          (r.pressures, REALISTIC.pressure)):
+        std = samples.value.std(axis=0)
+        # 4000 samples: the sample std is within 5 % of the truth (the machine is at rest;
+        # the bias walk adds < 1 %).
+        np.testing.assert_allclose(std, spec.sample_std, rtol=0.06)
+    # Stroke sensors: noise 2.5 um on a 1 um grid.
+    np.testing.assert_allclose(r.positions.value[:, :6].std(axis=0),
+                               REALISTIC.stroke.sample_std, rtol=0.1)
+    steps = np.diff(np.unique(r.positions.value[:, 3]))
+    np.testing.assert_allclose(steps, REALISTIC.stroke.resolution, rtol=1e-6)
+    del state
+
+
+def test_turn_on_biases_have_their_spec_spread(sim):
+    """Across seeds, the constant offsets scatter as the specs' bias figures say."""
+    offsets = []
+    for seed in range(8):
+        r, _ = _rest_run(sim, sensor_suite("realistic", seed), seconds=1.0)
+        force = sim.actuator_forces()[:5]  # at rest: the same at every sample
+        p_true = SensorSimulator.chamber_pressures(_Areas(), force)
+        offsets.append(r.pressures.value.mean(axis=0) - p_true)
+    spread = np.std(np.concatenate(offsets))  # 80 offsets
+    assert spread == pytest.approx(REALISTIC.pressure.bias, rel=0.35)
+
+
+class _Areas:
+    """Stand-in ``self`` for `SensorSimulator.chamber_pressures` (it reads the areas only)."""
+
+    from models.sensing import cylinder_areas as _ca
+    _areas = _ca(MACHINE)
+
+
+def test_imu_at_rest_reads_gravity_in_its_own_frame(sim):
+    r, state = _rest_run(sim, sensor_suite("ideal"), seconds=1.0)
+    f = r.specific_force.value.mean(axis=0)
+    np.testing.assert_allclose(f, state.base_rotation.T @ [0, 0, MACHINE.gravity], atol=2e-3)
+    assert np.linalg.norm(f) == pytest.approx(MACHINE.gravity, rel=2e-4)
+
+
+def test_imu_specific_force_is_the_mounting_points_acceleration_less_gravity(sim):
+    """Against the point velocity differentiated over each step (MuJoCo's own motion)."""
+    sim.reset()
+    sensors = SensorSimulator(sim, IDEAL)
+    ix = sim.index
+    p = np.asarray(IDEAL.imu.position)
+    vel, rot = [], []
+    try:
+        sim.set_command(cylinder_rates={"slew": 0.15, "lift": 0.08}, wheel_speeds=(2.0, -1.0))
+        for _ in range(300):
+            sim.step(1)
+            qpos, qvel, _ = sim.measured_instant
+            r_wb = sim.data.xmat[ix.base_body].reshape(3, 3).copy()
+            w_body = qvel[ix.base_dof][3:6]
+            vel.append(qvel[ix.base_dof][:3] + r_wb @ np.cross(w_body, p))
+            rot.append(r_wb)
+        readings = sensors.readings(sim.time + 1.0)
+    finally:
+        sensors.close()
+    f = readings.specific_force.value[-300:]
+    h = sim.timestep
+    g = np.array([0.0, 0.0, MACHINE.gravity])
+    errors = []
+    for k in range(100, 299):
+        a_world = (vel[k + 1] - vel[k]) / h  # semi-implicit Euler: v' = v + h a
+        expected = rot[k].T @ (a_world + g)
+        errors.append(f[k] - expected)
+    err = np.abs(np.array(errors)).max()
+    assert err < 0.02 * np.abs(f).max(), err
+
+
+def test_pressures_give_back_the_servo_force(sim):
+    r, _ = _rest_run(sim, IDEAL, seconds=0.2)
+    np.testing.assert_allclose(cylinder_force(MACHINE, r.pressures.value[-1]),
+                               sim.actuator_forces()[:5], rtol=1e-9, atol=1e-6)
+    assert np.all(r.pressures.value >= 0.0)
+
+
+def test_rates_latency_and_delivery_once(sim):
+    sim.reset()
+    sensors = SensorSimulator(sim, REALISTIC)
+    try:
+        sim.step(5)
+        first = sensors.readings(sim.time)
+        sim.step(5)
+        second = sensors.readings(sim.time)
+    finally:
+        sensors.close()
+    lat = REALISTIC.pressure.latency
+    assert first.pressures.time.max() <= first.time - lat + 1e-9
+    assert second.pressures.time.min() > first.pressures.time.max()  # each reading once
+    np.testing.assert_allclose(np.diff(second.pressures.time), 1.0 / REALISTIC.pressure.rate)
+    assert len(second.wheel_speeds) in (0, 1, 2)
+
+
+def test_seeds_reproduce_and_differ(sim):
+    a, _ = _rest_run(sim, sensor_suite("realistic", 4), seconds=0.2)
+    b, _ = _rest_run(sim, sensor_suite("realistic", 4), seconds=0.2)
+    c, _ = _rest_run(sim, sensor_suite("realistic", 5), seconds=0.2)
+    np.testing.assert_array_equal(a.pressures.value, b.pressures.value)
+    assert not np.array_equal(a.pressures.value, c.pressures.value)
+
+
+def test_bad_suites_are_typed_errors(sim):
+    with pytest.raises(SimulatorError, match="SensorSpec with sensors"):
+        SensorSimulator(sim, sensor_suite("oracle"))
+    with pytest.raises(ModelError, match="unknown sensor suite"):
+        sensor_suite("perfect")
+    with pytest.raises(ModelError, match="rate"):
+        dataclasses.replace(REALISTIC.stroke, rate=0.0)
