@@ -123,9 +123,16 @@ class ActuatorEfforts:
     def _one(pm, q, v, a, ja) -> tuple[np.ndarray, np.ndarray]:
         idx = pm._tree_v_idx
         tau = pin.rnea(pm.model, pm.data, q, v, a)[idx]
-        mass = pin.crba(pm.model, pm.data, q)[np.ix_(idx, idx)]
-        m_tt = np.triu(mass) + np.triu(mass, 1).T  # crba fills the upper triangle
-        return ja.T @ m_tt @ ja, ja.T @ tau
+        # E column by column from RNEA (linear in the acceleration): Pinocchio's CRBA
+        # (4.1) leaves some free-flyer couplings of this tree at zero.
+        zero = np.zeros(pm.model.nv)
+        g = pin.rnea(pm.model, pm.data, q, zero, zero)[idx].copy()
+        cols = np.empty((ja.shape[0], N_SERVO_AXES))
+        da = np.zeros(pm.model.nv)
+        for k in range(N_SERVO_AXES):
+            da[idx] = ja[:, k]
+            cols[:, k] = pin.rnea(pm.model, pm.data, q, zero, da)[idx] - g
+        return ja.T @ cols, ja.T @ tau
 
     def affine(self, state: MachineState) -> tuple[np.ndarray, np.ndarray]:
         """``(E (9, 9), e_0 (9,))`` at ``state`` for the current payload mass.
@@ -140,6 +147,22 @@ class ActuatorEfforts:
         m1, m2 = PAYLOAD_PAIR_MASSES
         w = (self._mass - m1) / (m2 - m1)
         return e1 + w * (e2 - e1), f1 + w * (f2 - f1)
+
+    def payload_regressor(self, state: MachineState) -> tuple[np.ndarray, np.ndarray]:
+        """``(e_0, Y)``: the efforts at the state's own accelerations are ``e_0 + m Y``.
+
+        Shapes (9,) each [N or N m, and per kg]. Two RNEA passes, no mass matrix.
+        """
+        if not isinstance(state, MachineState):
+            raise EstimatorError(f"expected a MachineState, got {type(state).__name__}")
+        q, v, a, ja = self._tree_motion(state)
+        idx = self._pair[0]._tree_v_idx
+        a = a.copy()
+        a[idx] += ja @ state.qdd[:N_SERVO_AXES]
+        e1, e2 = (ja.T @ pin.rnea(pm.model, pm.data, q, v, a)[idx] for pm in self._pair)
+        m1, m2 = PAYLOAD_PAIR_MASSES
+        y = (e2 - e1) / (m2 - m1)
+        return e1 - m1 * y, y
 
     def efforts(self, state: MachineState) -> np.ndarray:
         """The nine efforts at the state's own accelerations [N or N m], shape (9,)."""

@@ -1,0 +1,118 @@
+r"""The chassis from its IMU and the wheel-motor speeds: attitude, twist, acceleration.
+
+* **Attitude**: a complementary filter on SO(3). The gyroscope's mean rate over a tick
+  propagates ``R <- R exp(w dt)``; the accelerometer's specific force, low-pass filtered with
+  `ATTITUDE_TIME_CONSTANT`, pulls the estimated up direction ``R^T e_z`` towards it (at rest
+  and on average the specific force is gravity). Yaw is the gyroscope's integral only: the
+  normal forces do not depend on it.
+* **Angular rate** from the gyroscope (its in-run bias, 10^-4 rad/s, is left: its effect on
+  the forces is below a newton); **angular acceleration** from the difference of the tick's
+  mean rates, low-pass filtered with `ANGULAR_ACCELERATION_TIME_CONSTANT`.
+* **Specific force at the fb origin**: the IMU's, moved by the lever arm ``p``:
+  ``f_o = f_p - alpha x p - w x (w x p)``.
+* **Linear velocity**: skid-steer odometry, ``v = (r (w_L + w_R) / 2, 0, 0)`` in fb.
+* **Acceleration handed to the dynamics**: the estimator's dynamics see the base
+  acceleration only through ``v_dot + w x v + R^T g e_z`` (the gravity offset of
+  `estimators.spatial`), which is the specific force at the origin. Setting ``v_dot = f_o -
+  w x v - R^T g e_z`` makes the dynamics see exactly the measured specific force, whatever
+  the attitude error.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from estimators.errors import EstimatorError
+from models.rotations import axis_rotation
+
+__all__ = ["ANGULAR_ACCELERATION_TIME_CONSTANT", "ATTITUDE_TIME_CONSTANT", "BaseFilter"]
+
+ATTITUDE_TIME_CONSTANT = 2.0  # [s] the accelerometer's pull on the attitude
+ANGULAR_ACCELERATION_TIME_CONSTANT = 0.03  # [s]
+
+
+def _exp(w_dt: np.ndarray) -> np.ndarray:
+    angle = float(np.linalg.norm(w_dt))
+    if angle < 1e-12:
+        return np.eye(3)
+    return axis_rotation(w_dt / angle, angle)
+
+
+class BaseFilter:
+    """The chassis state from IMU samples and wheel speeds (module docstring).
+
+    Args:
+        imu_position: Lever arm ``p`` of the IMU in fb [m], (3,).
+        gravity: [m/s^2].
+        wheel_radius: [m].
+    """
+
+    def __init__(self, imu_position, gravity: float, wheel_radius: float):
+        self.p = np.asarray(imu_position, float)
+        self.g = float(gravity)
+        self.r_wheel = float(wheel_radius)
+        self.rotation = np.eye(3)
+        self.rate = np.zeros(3)
+        self.angular_acceleration = np.zeros(3)
+        self.specific_force = np.array([0.0, 0.0, self.g])
+        self.velocity = np.zeros(3)
+        self._f_slow: np.ndarray | None = None
+        self._last_rate: np.ndarray | None = None
+        self._last_time: float | None = None
+
+    def update(self, time: float, rates: np.ndarray, forces: np.ndarray,
+               wheel_speeds: np.ndarray | None) -> None:
+        """Take one tick's IMU samples ((k, 3) each) and the latest side speeds (2,)."""
+        if rates.shape[0] == 0 or forces.shape[0] == 0:
+            return  # nothing new: keep the state (the caller flags the gap)
+        w = rates.mean(axis=0)
+        f_p = forces.mean(axis=0)
+        if not (np.all(np.isfinite(w)) and np.all(np.isfinite(f_p))):
+            raise EstimatorError("IMU samples hold NaN or inf")
+        dt = 0.0 if self._last_time is None else max(time - self._last_time, 0.0)
+        if self._f_slow is None:  # first tick: level the attitude on gravity at once
+            self._f_slow = f_p.copy()
+            self.rotation = _level(f_p)
+        if dt > 0:
+            self.rotation = self.rotation @ _exp(w * dt)
+            a = dt / (ANGULAR_ACCELERATION_TIME_CONSTANT + dt)
+            raw = (w - self._last_rate) / dt
+            self.angular_acceleration = self.angular_acceleration + a * (
+                raw - self.angular_acceleration)
+            b = dt / (ATTITUDE_TIME_CONSTANT + dt)
+            self._f_slow = self._f_slow + b * (f_p - self._f_slow)
+            up_meas = self._f_slow / np.linalg.norm(self._f_slow)
+            up_est = self.rotation[2]  # R^T e_z
+            # Rotate the estimate by the small angle between the two up directions.
+            self.rotation = self.rotation @ _exp(b * np.cross(up_meas, up_est))
+            u, _, vt = np.linalg.svd(self.rotation)  # stay a rotation
+            self.rotation = u @ vt
+        self.rate = w
+        self._last_rate = w
+        self._last_time = time
+        alpha, p = self.angular_acceleration, self.p
+        self.specific_force = f_p - np.cross(alpha, p) - np.cross(w, np.cross(w, p))
+        if wheel_speeds is not None and np.all(np.isfinite(wheel_speeds)):
+            self.velocity = np.array([self.r_wheel * 0.5 * (wheel_speeds[0]
+                                                            + wheel_speeds[1]), 0.0, 0.0])
+
+    @property
+    def twist(self) -> np.ndarray:
+        """[v; w] in fb, (6,)."""
+        return np.concatenate([self.velocity, self.rate])
+
+    @property
+    def acceleration(self) -> np.ndarray:
+        """The twist derivative the dynamics get (module docstring), (6,)."""
+        v_dot = (self.specific_force - np.cross(self.rate, self.velocity)
+                 - self.g * self.rotation[2])
+        return np.concatenate([v_dot, self.angular_acceleration])
+
+
+def _level(f: np.ndarray) -> np.ndarray:
+    """A rotation world <- fb whose up direction in fb is along ``f`` (yaw zero)."""
+    up = f / np.linalg.norm(f)  # R^T e_z: the third row of R
+    x = np.array([1.0, 0.0, 0.0]) - up[0] * up
+    x /= np.linalg.norm(x)
+    y = np.cross(up, x)
+    return np.vstack([x, y, up])
