@@ -121,6 +121,11 @@ class PayloadEstimator:
         return (np.asarray(fb) - np.asarray(fa)) / _SPAN
 
     @property
+    def tree(self):
+        """The estimators' tree model (geometry)."""
+        return self._a.tree
+
+    @property
     def machines(self) -> tuple[Machine, Machine]:
         """The two machines whose kernels it uses (to warm them before a run)."""
         return self._a.machine, self._b.machine

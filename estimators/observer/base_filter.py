@@ -3,7 +3,8 @@ r"""The chassis from its IMU and the wheel-motor speeds: attitude, twist, accele
 * **Attitude**: a complementary filter on SO(3). The gyroscope's mean rate over a tick
   propagates ``R <- R exp(w dt)``; the accelerometer's specific force, low-pass filtered with
   `ATTITUDE_TIME_CONSTANT`, pulls the estimated up direction ``R^T e_z`` towards it (at rest
-  and on average the specific force is gravity). Yaw is the gyroscope's integral only: the
+  and on average the specific force is gravity; the time constant grows from 0.05 s at
+  start-up to its value over the first seconds). Yaw is the gyroscope's integral only: the
   normal forces do not depend on it.
 * **Angular rate** from the gyroscope (its in-run bias, 10^-4 rad/s, is left: its effect on
   the forces is below a newton); **angular acceleration** from the difference of the tick's
@@ -29,6 +30,12 @@ __all__ = ["ANGULAR_ACCELERATION_TIME_CONSTANT", "ATTITUDE_TIME_CONSTANT", "Base
 
 ATTITUDE_TIME_CONSTANT = 2.0  # [s] the accelerometer's pull on the attitude
 ANGULAR_ACCELERATION_TIME_CONSTANT = 0.03  # [s]
+
+
+def _cross(a, b) -> np.ndarray:
+    """``a x b`` of two 3-vectors (numpy's ``cross`` costs ~10 us a call)."""
+    return np.array([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2],
+                     a[0] * b[1] - a[1] * b[0]])
 
 
 def _exp(w_dt: np.ndarray) -> np.ndarray:
@@ -59,6 +66,7 @@ class BaseFilter:
         self._f_slow: np.ndarray | None = None
         self._last_rate: np.ndarray | None = None
         self._last_time: float | None = None
+        self._age = 0.0
 
     def update(self, time: float, rates: np.ndarray, forces: np.ndarray,
                wheel_speeds: np.ndarray | None) -> None:
@@ -79,19 +87,20 @@ class BaseFilter:
             raw = (w - self._last_rate) / dt
             self.angular_acceleration = self.angular_acceleration + a * (
                 raw - self.angular_acceleration)
-            b = dt / (ATTITUDE_TIME_CONSTANT + dt)
+            # Converge fast at start-up (the machine stands while the run gets ready).
+            self._age += dt
+            b = dt / (min(ATTITUDE_TIME_CONSTANT, 0.05 + self._age) + dt)
             self._f_slow = self._f_slow + b * (f_p - self._f_slow)
             up_meas = self._f_slow / np.linalg.norm(self._f_slow)
             up_est = self.rotation[2]  # R^T e_z
             # Rotate the estimate by the small angle between the two up directions.
-            self.rotation = self.rotation @ _exp(b * np.cross(up_meas, up_est))
-            u, _, vt = np.linalg.svd(self.rotation)  # stay a rotation
-            self.rotation = u @ vt
+            self.rotation = self.rotation @ _exp(b * _cross(up_meas, up_est))
+            self.rotation = _orthonormal(self.rotation)
         self.rate = w
         self._last_rate = w
         self._last_time = time
         alpha, p = self.angular_acceleration, self.p
-        self.specific_force = f_p - np.cross(alpha, p) - np.cross(w, np.cross(w, p))
+        self.specific_force = f_p - _cross(alpha, p) - _cross(w, _cross(w, p))
         if wheel_speeds is not None and np.all(np.isfinite(wheel_speeds)):
             self.velocity = np.array([self.r_wheel * 0.5 * (wheel_speeds[0]
                                                             + wheel_speeds[1]), 0.0, 0.0])
@@ -104,9 +113,17 @@ class BaseFilter:
     @property
     def acceleration(self) -> np.ndarray:
         """The twist derivative the dynamics get (module docstring), (6,)."""
-        v_dot = (self.specific_force - np.cross(self.rate, self.velocity)
+        v_dot = (self.specific_force - _cross(self.rate, self.velocity)
                  - self.g * self.rotation[2])
         return np.concatenate([v_dot, self.angular_acceleration])
+
+
+def _orthonormal(r: np.ndarray) -> np.ndarray:
+    """The rotation nearest ``r`` for a small drift: rows re-orthonormalised (Gram-Schmidt)."""
+    z = r[2] / np.linalg.norm(r[2])
+    x = r[0] - (r[0] @ z) * z
+    x /= np.linalg.norm(x)
+    return np.vstack([x, _cross(z, x), z])
 
 
 def _level(f: np.ndarray) -> np.ndarray:
@@ -114,5 +131,5 @@ def _level(f: np.ndarray) -> np.ndarray:
     up = f / np.linalg.norm(f)  # R^T e_z: the third row of R
     x = np.array([1.0, 0.0, 0.0]) - up[0] * up
     x /= np.linalg.norm(x)
-    y = np.cross(up, x)
+    y = _cross(up, x)
     return np.vstack([x, y, up])

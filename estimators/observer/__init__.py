@@ -1,0 +1,11 @@
+"""The observer: the machine's sensor streams turned into the state the estimator reads."""
+
+from estimators.observer.observer import (
+    CONTACT_OFF_N,
+    CONTACT_ON_N,
+    CONTACT_TICKS,
+    Observer,
+    ObserverEstimate,
+)
+
+__all__ = ["CONTACT_OFF_N", "CONTACT_ON_N", "CONTACT_TICKS", "Observer", "ObserverEstimate"]
