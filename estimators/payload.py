@@ -27,9 +27,9 @@ from models.description import Machine
 from models.reference_machine import MAX_PAYLOAD_MASS
 from models.state import MachineState
 
-__all__ = ["PayloadEstimator", "with_payload_mass"]
+__all__ = ["SPAN", "PayloadEstimator", "with_payload_mass"]
 
-_SPAN = 100.0  # [kg] m_b - m_a
+SPAN = 100.0  # [kg] m_b - m_a
 
 
 def with_payload_mass(machine: Machine, mass: float) -> Machine:
@@ -60,7 +60,7 @@ class PayloadEstimator:
         self.machine = machine
         self._m_a = float(body.inertia.mass)
         self._a = NormalForceEstimator(machine, **options)
-        self._b = NormalForceEstimator(with_payload_mass(machine, self._m_a + _SPAN), **options)
+        self._b = NormalForceEstimator(with_payload_mass(machine, self._m_a + SPAN), **options)
         self.method, self.fourth = self._a.method, self._a.fourth
         self._w = 0.0
         self._mass = self._m_a
@@ -78,7 +78,7 @@ class PayloadEstimator:
             raise EstimatorError(f"payload_mass must be a mass in [0, {MAX_PAYLOAD_MASS:g}] "
                                  f"kg, got {value!r}")
         self._mass = m
-        self._w = (m - self._m_a) / _SPAN
+        self._w = (m - self._m_a) / SPAN
 
     def _mix(self, x_a, x_b):
         return x_a + self._w * (np.asarray(x_b) - np.asarray(x_a))
@@ -118,7 +118,12 @@ class PayloadEstimator:
         """``df/dm`` of the normal forces [N/kg], shape (4,) (exact: affine in ``m``)."""
         fa = self._a.estimate(state).normal_forces
         fb = self._b.estimate(state).normal_forces
-        return (np.asarray(fb) - np.asarray(fa)) / _SPAN
+        return (np.asarray(fb) - np.asarray(fa)) / SPAN
+
+    @property
+    def n_clipped(self) -> int:
+        """Evaluations whose coordinates were clipped into their ranges (``strokes="clip"``)."""
+        return self._a.n_clipped
 
     @property
     def tree(self):

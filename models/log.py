@@ -86,6 +86,10 @@ COLUMNS = {
     "measured_forces": Column("(N, 4)", "N", "the MPC's measured load split (NaN if none)",
                               True),
     "payload_now": Column("(N,)", "kg", "payload mass held by the machine", True),
+    "payload_estimate": Column("(N,)", "kg", "payload the controller assumed (estimate)", True),
+    "force_margin": Column("(N, 4)", "N", "uncertainty margin over each wheel's threshold",
+                           True),
+    "observer_ms": Column("(N,)", "ms", "wall time of the observer's update", True),
     "com_world": Column("(N, 3)", "m", "ground truth: the machine's centre of mass in the world",
                         True),
 }

@@ -1,18 +1,19 @@
 """Closed-loop runs: a controller drives the MuJoCo machine at 100 Hz on rough slopes.
 
-The controller sees only `Simulator.measure`'s state (optionally with `MeasurementNoise` and
-a delay of whole control periods); the metrics (`scenarios.metrics`) use MuJoCo's
-ground-truth contacts. The scenarios are in `scenarios.closed_loop_scenarios`, the
-comparison of the three controllers in `scenarios.comparison`.
-
-The payload event: the estimators are built from the machine description (payload
-included), so the MPC is told the new mass by swapping in estimators of
-``build_reference_machine(payload_mass=...)``, built before the run (the compiled kernels
-are cached per machine), at the pick instant (`MpcController.set_force_model`).
+By default the controller sees only what the machine's sensors report, through the observer
+(`scenarios.sensing`: ``sensors="realistic"``; ``ideal`` without sensor errors; ``oracle``:
+`Simulator.measure`'s exact state, optionally with `MeasurementNoise`), optionally delayed by
+whole control periods. The MPC keeps each wheel's force above the threshold plus ``z sigma``
+of its uncertainty (`uncertainty_margin`), with the payload the observer estimates (or,
+with the oracle, the one it is told at the payload event). The log's state columns and the
+metrics (`scenarios.metrics`) are MuJoCo's ground truth. The scenarios are in
+`scenarios.closed_loop_scenarios`, the comparison of the three controllers in
+`scenarios.comparison`.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import sys
 import time
 from collections import deque
@@ -21,6 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
+from estimators.uncertainty import force_margin, normal_force_std, suspension_sensitivity
 from models import build_reference_machine
 from models.log import ScenarioLog
 from models.state import MachineState
@@ -34,7 +36,7 @@ from scenarios.closed_loop_scenarios import (
     scenario_terrain,
     threshold,
 )
-from scenarios.errors import RunInterrupted
+from scenarios.errors import RunInputError, RunInterrupted
 from scenarios.json_io import write_json
 from scenarios.kernels import warm_estimator_kernels
 from scenarios.metrics import closed_loop_metrics
@@ -43,6 +45,7 @@ from scenarios.physics_rate import NormalForceRecorder
 from scenarios.progress import Progress
 from scenarios.run_args import check_delay, check_duration, check_seed, check_threshold
 from scenarios.scenario_file import scenario_to_toml
+from scenarios.sensing import Sensing, check_sensors
 from scenarios.simulator import Simulator
 from scenarios.startup import READY_TIMEOUT_SECONDS, Readiness
 from wbc import (
@@ -53,10 +56,12 @@ from wbc import (
     TcpKinematics,
     make_controller,
 )
-from wbc.controllers.registry import estimator_models
 
 # DEFAULT_SCENARIO and SCENARIOS are re-exported: callers pick a scenario here by name.
-__all__ = ["DEFAULT_SCENARIO", "SCENARIOS", "run_closed_loop"]
+__all__ = ["DEFAULT_SCENARIO", "FORCE_CONFIDENCE", "SCENARIOS", "run_closed_loop",
+           "uncertainty_margin"]
+
+FORCE_CONFIDENCE = 0.99  # one-sided: z = 2.33 standard deviations of each wheel's force
 
 
 def _set_payload(sim: Simulator, mass: float) -> None:
@@ -111,7 +116,9 @@ def run_closed_loop(scenario: ClosedLoopScenario | str, out_dir: Path | None = N
                     duration: float | None = None, progress: bool = False,
                     noise: MeasurementNoise | None = None, delay_periods: int = 0,
                     config: ControllerConfig | None = None,
-                    inform_payload: bool = True, threshold_n: float | None = None) -> dict:
+                    inform_payload: bool = True, threshold_n: float | None = None,
+                    sensors: str = "realistic", sensor_seed: int | None = None,
+                    confidence: float = FORCE_CONFIDENCE) -> dict:
     """Run a closed-loop scenario; write ``log.npz`` and ``metrics.json`` to ``out_dir``.
 
     Args:
@@ -121,13 +128,19 @@ def run_closed_loop(scenario: ClosedLoopScenario | str, out_dir: Path | None = N
         seed: Terrain seed.
         duration: Override the scenario's duration [s].
         progress: Show a progress bar.
-        noise: Measurement noise of the state the controller sees.
+        noise: Measurement noise of the oracle state (``sensors="oracle"`` only).
         delay_periods: The controller sees the state of this many control periods ago.
         config: Controller settings; `controller_config` if None.
-        inform_payload: Tell the MPC the new payload mass at the payload event.
+        inform_payload: ``oracle`` only: tell the MPC the new payload mass at the payload
+            event (with sensors the observer estimates it; the payload is never told).
         threshold_n: Normal-force threshold of the metrics and the controllers [N];
             `threshold` (10 % of the static wheel load) if None. Ignored by the controllers
             when ``config`` is given.
+        sensors: ``realistic`` (default), ``ideal`` or ``oracle`` (`scenarios.sensing`).
+        sensor_seed: Seed of the sensors' errors; None: ``seed``.
+        confidence: The MPC keeps each wheel's force above its threshold plus ``z sigma``
+            of the force's uncertainty, ``z`` of this one-sided confidence
+            (`estimators.uncertainty.force_margin`).
 
     Returns:
         The metrics (also written to ``metrics.json``), with ``"partial": False``.
@@ -155,24 +168,26 @@ def run_closed_loop(scenario: ClosedLoopScenario | str, out_dir: Path | None = N
         threshold_n, machine.total_mass * machine.gravity / 4)
     config = controller_config(thr, scenario.crane_speed) if config is None else config
     terrain = scenario_terrain(scenario, seed)
+    sensors = check_sensors(sensors)
+    if noise is not None and sensors != "oracle":
+        raise RunInputError("measurement noise applies to the oracle state only "
+                            "(sensors='oracle'); the sensor suites have their own errors")
     sim = Simulator(machine, terrain, noise=noise)
     sim.reset(scenario.start_pose.q(machine), scenario.start)
     n_sub = int(round(CONTROL_PERIOD / sim.timestep))
     ctrl = make_controller(controller, machine, config)
-    new_models = None
-    if scenario.payload_event is not None and isinstance(ctrl, MpcController) \
-            and inform_payload:
-        heavy = build_reference_machine(payload_mass=scenario.payload_event[1])
-        new_models = estimator_models(heavy, controller.removeprefix("mpc-"))
-    if isinstance(ctrl, MpcController):  # compile before the clock starts
-        warm_estimator_kernels([machine] + ([heavy] if new_models is not None else []),
-                               notice=_notice if progress else None)
+    sensing = Sensing(sim, machine, sensors, seed if sensor_seed is None else sensor_seed)
+    mpc = isinstance(ctrl, MpcController)
+    # Compile before the clock starts: every payload is a run-time input of two machines'
+    # kernels (estimators.payload), so nothing compiles in the loop.
+    warm_estimator_kernels(list(_payload_machines(machine)),
+                           notice=_notice if progress else None)
     kin = TcpKinematics(machine)
     goals = _GoalSequence([JointGoal(crane=p.coordinates(machine)) for p in scenario.goals],
                           scenario.first_goal_time, scenario.dwell)
     tcp_goal = kin.position(scenario.start_pose.q(machine))
     x0 = sim.measure()[0].base_position.copy()
-    heading = sim.measure()[0].base_rotation[:, 0].copy()
+    heading = sim.measure()[0].base_rotation[:, 0].copy()  # the truth: the task's own measure
     log = ScenarioLog(scenario=scenario.name, controller=controller, seed=seed,
                       payload_mass=scenario.payload_mass, timestep=sim.timestep,
                       control_period=CONTROL_PERIOD, terrain=terrain.name, threshold=thr,
@@ -191,8 +206,11 @@ def run_closed_loop(scenario: ClosedLoopScenario | str, out_dir: Path | None = N
                   enabled=None if progress else False) as bar:
         try:
             for k in range(n_max):
-                state, truth = sim.measure()
-                t = state.time
+                truth_state, truth = sim.measure()
+                t = truth_state.time
+                obs = sensing.observe(t)
+                state = obs.state
+                readiness.set_payload(obs.payload_mass)
                 ready = readiness.update(state)
                 tau = t - readiness.offset  # the scenario's clock
                 if ready and tau >= duration - 1e-9:
@@ -201,21 +219,28 @@ def run_closed_loop(scenario: ClosedLoopScenario | str, out_dir: Path | None = N
                     tau = -1.0  # the operator waits: no goal, no driving, no event yet
                 if not payload_done and tau >= scenario.payload_event[0] - 1e-9:
                     _set_payload(sim, scenario.payload_event[1])
-                    if new_models is not None:
-                        ctrl.set_force_model(*new_models)
+                    if inform_payload:
+                        sensing.tell_payload(scenario.payload_event[1])
                     payload_done = True
-                tcp_err = float(np.linalg.norm(kin.position(_true_q(sim, state)) - tcp_goal))
+                tcp_err = float(np.linalg.norm(kin.position(_true_q(sim, truth_state)) - tcp_goal))
                 new_goal = goals.update(tau, tcp_err)
                 if new_goal is not None:
                     ctrl.set_goal(new_goal)
-                    goal_q_full = _true_q(sim, state).copy()
+                    goal_q_full = _true_q(sim, truth_state).copy()
                     goal_q_full[2:9] = new_goal.crane
                     tcp_goal = kin.position(goal_q_full)
-                    tcp_err = float(np.linalg.norm(kin.position(_true_q(sim, state)) - tcp_goal))
-                history.append(state)
+                    tcp_err = float(np.linalg.norm(kin.position(_true_q(sim, truth_state))
+                                                   - tcp_goal))
+                history.append(obs)
                 t0 = time.perf_counter()
-                cmd = ctrl.step(history[0])
-                step_s[k] = time.perf_counter() - t0
+                seen = history[0]
+                margin = np.zeros(4)
+                if mpc:
+                    ctrl.set_payload_mass(seen.payload_mass)
+                    margin = uncertainty_margin(ctrl, seen, confidence)
+                    ctrl.set_force_margin(margin)
+                cmd = ctrl.step(seen.state)
+                step_s[k] = time.perf_counter() - t0 + obs.observer_seconds
                 fallbacks += int(cmd.fallback)
                 # Driving ramps up from the ready time (not before: the machine stands still).
                 w = scenario.wheel_speed(t - readiness.time, machine.wheel_radius) if ready \
@@ -224,17 +249,19 @@ def run_closed_loop(scenario: ClosedLoopScenario | str, out_dir: Path | None = N
                 sim.set_command(cmd.cylinder_rates, cmd.wrist_rates, wheels)
                 info = cmd.info
                 qpos, qvel, _ = sim.measured_instant
-                log.append(state, truth, np.concatenate([cmd.rates, wheels]),
+                log.append(truth_state, truth, np.concatenate([cmd.rates, wheels]),
                            sim.closure_violation(), qpos=qpos, qvel=qvel,
                            tcp_error=tcp_err, goal_index=goals.index,
                            last_goal_given=goals.last_given,
-                           distance=float((state.base_position - x0) @ heading),
+                           distance=float((truth_state.base_position - x0) @ heading),
                            speed_scale=cmd.wheel_speed_scale, fallback=cmd.fallback,
                            step_ms=1e3 * step_s[k],
                            measured_forces=info.get("measured_forces", np.full(4, np.nan)),
                            com_world=sim.data.subtree_com[sim.index.base_body],
                            payload_now=(scenario.payload_event[1] if scenario.payload_event
-                                        and payload_done else scenario.payload_mass))
+                                        and payload_done else scenario.payload_mass),
+                           payload_estimate=obs.payload_mass, force_margin=margin,
+                           observer_ms=1e3 * obs.observer_seconds)
                 sim.step(n_sub)
                 if k % 50 == 0:
                     bar.update(min(sim.time - readiness.offset, duration))
@@ -244,6 +271,7 @@ def run_closed_loop(scenario: ClosedLoopScenario | str, out_dir: Path | None = N
             bar.update(duration)
     wall = time.perf_counter() - wall0
     recorder.close()
+    sensing.close()
     n_done = len(log)
     if n_done == 0:  # nothing to save
         raise KeyboardInterrupt
@@ -254,6 +282,8 @@ def run_closed_loop(scenario: ClosedLoopScenario | str, out_dir: Path | None = N
         "scenario": scenario.name, "description": scenario.description,
         "controller": controller, "terrain": terrain.name, "seed": seed,
         "noise": None if noise is None else vars(noise),
+        "sensors": sensors,
+        "payload_told": bool(sensors == "oracle" and inform_payload),
         "delay_periods": delay_periods,
         "control_period_s": CONTROL_PERIOD,
         "partial": interrupted,
@@ -266,6 +296,11 @@ def run_closed_loop(scenario: ClosedLoopScenario | str, out_dir: Path | None = N
         **closed_loop_metrics(arrays, scenario, thr, ready_time=readiness.time,
                               clock_offset=readiness.offset),
         "control_step_ms": _tick_figures(step_s[:max(n_done, 1)]),
+        "observer_step_ms": _tick_figures(arrays["observer_ms"] / 1e3)
+        if "observer_ms" in arrays else None,
+        "payload_estimate_final_kg": float(arrays["payload_estimate"][-1]),
+        "force_margin_N": {"median": float(np.median(arrays["force_margin"])),
+                           "max": float(np.max(arrays["force_margin"]))},
         "fallbacks": fallbacks,
     }
     if out_dir is not None:
@@ -275,6 +310,40 @@ def run_closed_loop(scenario: ClosedLoopScenario | str, out_dir: Path | None = N
     if interrupted:
         raise RunInterrupted(out_dir, metrics)
     return metrics
+
+
+def _payload_machines(machine):
+    """The machines whose kernels a run uses: its own and the payload's second point."""
+    from estimators.payload import SPAN, with_payload_mass
+
+    body = next(b for b in machine.bodies if b.name == machine.payload)
+    return machine, with_payload_mass(machine, body.inertia.mass + SPAN)
+
+
+def uncertainty_margin(ctrl: MpcController, seen, confidence: float) -> np.ndarray:
+    """``z sigma`` [N] (4,) of the forces the MPC constrains, from the observer's errors.
+
+    The MPC predicts the forces of step k as ``f_c(x) + G_m (a_k - a)``: the closure ``f_c``
+    (its feedback) at the observed state ``x`` with the measured accelerations ``a``, moved
+    by the horizon model's map ``G_m`` to the planned ones. An error ``da`` in the measured
+    accelerations (the IMU's specific force, the joints' accelerations) thus enters as
+    ``(G_c - G_m) da``: only through the load split the two models disagree on. The joint
+    velocities, the suspension cylinder forces and the payload enter through the closure's
+    sensitivities (`estimators.uncertainty.normal_force_std`).
+    """
+    unc = seen.uncertainty
+    if not (np.any(unc.acceleration) or np.any(unc.qd) or np.any(unc.suspension_force)
+            or unc.payload_mass):
+        return np.zeros(4)
+    closure = ctrl.feedback.closure if ctrl.feedback is not None else ctrl.force_model
+    state = seen.state
+    lin = closure.linearize(state)
+    if closure is not ctrl.force_model:
+        lin = dataclasses.replace(lin, G=lin.G - ctrl.force_model.linearize(state).G)
+    d_susp = suspension_sensitivity(closure, state)
+    d_m = (closure.payload_sensitivity(state) if hasattr(closure, "payload_sensitivity")
+           else None)
+    return force_margin(normal_force_std(lin, unc, d_susp, d_m), confidence)
 
 
 def _notice(text: str) -> None:

@@ -150,7 +150,19 @@ class SensorSimulator:
         self._step = 0
         self._f = np.zeros(3)
         self._wheel_speed = np.zeros(2)
+        self._prime()
         sim.add_step_listener(self)
+
+    def _prime(self) -> None:
+        """One reading of every stream, of the measured instant, delivered at once.
+
+        The sensors ran while the machine settled; their last readings are there when the
+        run starts (the errors are those of any reading).
+        """
+        qpos, qvel, t = self.sim.measured_instant
+        latency = max(s.latency for s in self._streams)
+        self(self.sim, qpos, qvel, t - latency)
+        self._step = 0
 
     def __call__(self, sim: Simulator, qpos, qvel, t: float) -> None:
         """Sample the streams due at the step that started at ``t`` (a step listener)."""

@@ -41,6 +41,10 @@ class Readiness:
         self.time: float | None = None
         self.timed_out = False
 
+    def set_payload(self, mass: float) -> None:
+        """The payload the machine believes it holds [kg] (the estimate's run-time input)."""
+        self._estimator.payload_mass = mass
+
     def update(self, state: MachineState) -> bool:
         """Take the state the controller sees at a tick; True once ready (and after)."""
         if self.time is not None:

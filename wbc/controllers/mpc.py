@@ -128,6 +128,7 @@ class MpcController(Controller):
         self.planner = MpcPlanner(self.limits, layout, mc.step_lengths(cfg.dt), cfg.dt, tasks,
                                   constraints, solver)
         self.last_plan: MpcPlan | None = None
+        self.force_margin = np.zeros(4)
         ranges = machine.coordinates  # the setpoints may use the full ranges (no margin)
         self.servo = (ServoState(cfg.dt, mc.deflection_time_constant, ranges.lower[:N_AXES],
                                  ranges.upper[:N_AXES]) if mc.setpoint_state else None)
@@ -168,6 +169,22 @@ class MpcController(Controller):
         for model in (self.force_model, getattr(self.feedback, "closure", None)):
             if model is not None and hasattr(type(model), "payload_mass"):
                 model.payload_mass = mass
+
+    def set_force_margin(self, margin) -> None:
+        """Set the per-wheel margin [N] (4,) added to the thresholds from now on.
+
+        Besides ``ForceConfig.margin``: ``z sigma`` of the forces' uncertainty
+        (`estimators.uncertainty.force_margin`), updated every tick.
+
+        Raises:
+            ConfigurationError: Not four finite margins >= 0.
+        """
+        m = np.asarray(margin, float)
+        if m.shape != (4,) or not np.all(np.isfinite(m)) or np.any(m < 0):
+            raise ConfigurationError(f"force margin must be 4 finite forces >= 0 [N], got "
+                                     f"{margin!r}")
+        self.force_constraint.thresholds = self.force_thresholds + self.config.force.margin + m
+        self.force_margin = m
 
     def _set_feedback(self, feedback: ClosureFeedback | None) -> None:
         """The warp is modelled only where the split is measured (it acts on that split)."""

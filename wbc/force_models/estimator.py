@@ -1,8 +1,13 @@
-"""The project's normal-force estimator, as the MPC's force model and its closure."""
+"""The project's normal-force estimator, as the MPC's force model and its closure.
+
+Both take the payload mass at run time (`estimators.payload.PayloadEstimator`: two compiled
+estimators interpolated exactly), so an observer's payload estimate or a pick changes the
+model without a compile in the control loop.
+"""
 
 from __future__ import annotations
 
-from estimators.estimator import NormalForceEstimator
+from estimators.payload import PayloadEstimator
 from models.description import Machine
 from wbc.errors import ForceModelError
 
@@ -18,7 +23,7 @@ def _checked_method(method: str) -> str:
     return method
 
 
-def load_estimator(machine: Machine, method: str) -> NormalForceEstimator:
+def load_estimator(machine: Machine, method: str) -> PayloadEstimator:
     """The estimator with the d-beta fourth row (eq. 29), ``method`` full or quasi-static.
 
     Strokes outside their ranges are clipped (``strokes="clip"``): the MPC evaluates it at
@@ -28,14 +33,14 @@ def load_estimator(machine: Machine, method: str) -> NormalForceEstimator:
     Raises:
         ForceModelError: Unknown ``method``.
     """
-    return NormalForceEstimator(machine, method=_checked_method(method), strokes="clip")
+    return PayloadEstimator(machine, method=_checked_method(method), strokes="clip")
 
 
-def load_closure(machine: Machine, method: str) -> NormalForceEstimator:
+def load_closure(machine: Machine, method: str) -> PayloadEstimator:
     """The estimator with the cylinder-force fourth row (the measured load split).
 
     Raises:
         ForceModelError: Unknown ``method``.
     """
-    return NormalForceEstimator(machine, method=_checked_method(method),
-                                fourth="cylinder-force", strokes="clip")
+    return PayloadEstimator(machine, method=_checked_method(method), fourth="cylinder-force",
+                            strokes="clip")
