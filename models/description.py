@@ -187,6 +187,10 @@ class HydraulicCylinder:
         supply_pressure: Pump pressure [Pa].
         rated_flow: Valve flow at full opening under the load-sensing margin [m^3/s].
         max_acceleration: Stroke acceleration limit used by planners [m/s^2].
+        seal_friction: Coulomb friction of the piston and rod seals [N]: the simulated
+            cylinder's piston joint carries it (MuJoCo ``frictionloss``), so the force the
+            chamber pressures report differs from the force on the mechanism by it. The
+            estimators do not model it.
     """
 
     name: str
@@ -196,6 +200,7 @@ class HydraulicCylinder:
     supply_pressure: float
     rated_flow: float
     max_acceleration: float
+    seal_friction: float = 0.0
 
     @property
     def area_piston(self) -> float:

@@ -21,6 +21,7 @@ the bogies; x forward, y left, z up. The crane plane is the x-z plane of the ``s
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -123,6 +124,20 @@ def _cylinder_bodies(prefix: str, parent: str, chain: CylinderChain, origin: np.
 MAX_PAYLOAD_MASS = 10_000.0  # [kg] far above the crane's capacity; heavier is a typo
 
 
+SEAL_FRICTION_FRACTION = 0.01  # of the rated force p_supply A_A
+
+
+def _seal(bore: float, supply: float) -> float:
+    """Seal friction [N] of a cylinder of ``bore`` [m] at ``supply`` [Pa]."""
+    return SEAL_FRICTION_FRACTION * supply * math.pi * bore ** 2 / 4
+
+
+def _sealed(cylinder: HydraulicCylinder) -> HydraulicCylinder:
+    """``cylinder`` with its seal friction (`SEAL_FRICTION_FRACTION` of the rated force)."""
+    return dataclasses.replace(cylinder, seal_friction=_seal(cylinder.bore,
+                                                             cylinder.supply_pressure))
+
+
 def build_reference_machine(payload_mass: float = 150.0) -> Machine:
     """Build the reference machine.
 
@@ -181,6 +196,10 @@ def build_reference_machine(payload_mass: float = 150.0) -> Machine:
     # Bogie suspension chain (x-z plane, axis -y: positive angle lifts the bogie's front).
     susp_cyl = dict(bore=0.10, rod=0.06, stroke=0.25, supply_pressure=supply,
                     rated_flow=80 * LPM, max_acceleration=1.0)
+    note("seal friction", f"Coulomb, {SEAL_FRICTION_FRACTION:.0%} of each cylinder's rated "
+         f"force p A_A (suspension {_seal(0.10, supply):.0f} N, crane {_seal(0.08, supply):.0f} "
+         f"N)", "design: seal friction of heavy cylinders is ~0.5-3 % of the rated force; "
+         "simulated only (MuJoCo frictionloss), not known to the estimators")
     note("suspension cylinders", "bore 0.10 m, rod 0.06 m, stroke 0.25 m, 80 L/min",
          "design (heavy short-stroke cylinder)")
     note("supply pressure", "260 bar, every cylinder", "design: the XS031 lab model's 190 bar "
@@ -202,7 +221,7 @@ def build_reference_machine(payload_mass: float = 150.0) -> Machine:
         )
         bodies.append(bogie)
         chain = CylinderChain(f"bogie_{side}", **bogie_chain_geom)
-        cyl = HydraulicCylinder(f"bogie_{side}", **susp_cyl)
+        cyl = _sealed(HydraulicCylinder(f"bogie_{side}", **susp_cyl))
         barrel, piston = _cylinder_bodies(
             f"bogie_{side}_cyl", "chassis", chain, np.array([0, sgn * bogie_y, 0.0]),
             lambda a, b: _xz(a, b), _AXIS_XZ,
@@ -254,7 +273,7 @@ def build_reference_machine(payload_mass: float = 150.0) -> Machine:
     note("slew chain", "horizontal four-bar: base pivot 1.2 m behind the slew axis, lever "
          "0.30 m, L_c0 0.12 m, L_c 0.80 m, stroke 0.56 m: about +-69 deg of slew",
          "design (XS031 has no slew joint)")
-    slew_cyl = HydraulicCylinder("slew", 0.08, 0.045, 0.56, supply, 60 * LPM, 1.0)
+    slew_cyl = _sealed(HydraulicCylinder("slew", 0.08, 0.045, 0.56, supply, 60 * LPM, 1.0))
     note("slew cylinder", "bore 0.08 m, rod 0.045 m, 60 L/min", "design (XS031-like cylinder)")
     slew_plane_z = 0.30
     pillar = _vdc(307.29601379, [0.14178771, 0.16555780, 0.0],
@@ -281,7 +300,7 @@ def build_reference_machine(payload_mass: float = 150.0) -> Machine:
 
     # Lift chain (x-z plane of the slew body; axis -y).
     lift_chain = CylinderChain("lift", tuple(bc1 - b11), tuple(tc1), 0.085, 0.745, 0.59)
-    lift_cyl = HydraulicCylinder("lift", 0.080, 0.045, 0.59, supply, 100 * LPM, 1.0)
+    lift_cyl = _sealed(HydraulicCylinder("lift", 0.080, 0.045, 0.59, supply, 100 * LPM, 1.0))
     note("lift/tilt cylinders", "bore 0.080, rod 0.045, stroke 0.59 m, L_c0 0.085, L_c 0.745 m, "
          "100 L/min", "XS031 s3")
     note("lift stroke range", "[0, 0.553] m: the 0.59 m stroke is cut by the triangle",
@@ -311,7 +330,7 @@ def build_reference_machine(payload_mass: float = 150.0) -> Machine:
 
     # Tilt chain (x-z plane of the lift link).
     tilt_chain = CylinderChain("tilt", tuple(bc2 - b12), tuple(tc2), 0.085, 0.745, 0.59)
-    tilt_cyl = HydraulicCylinder("tilt", 0.080, 0.045, 0.59, supply, 100 * LPM, 1.0)
+    tilt_cyl = _sealed(HydraulicCylinder("tilt", 0.080, 0.045, 0.59, supply, 100 * LPM, 1.0))
     tilt_i = _vdc(33.92850233, [0.60504569, 0.27199376, 2.484e-5],
                   [[1.18803886, -2.36786418, 0.00280315], [-2.36786418, 6.31493281, 0.00022322],
                    [0.00280315, 0.00022322, 7.40915161]], _rz(-beta4))
@@ -345,7 +364,7 @@ def build_reference_machine(payload_mass: float = 150.0) -> Machine:
                (_capsule_between((-1.3, 0, 0), (0.35, 0, 0), 0.065, _YELLOW),))
     bodies.append(tel)
     tcp = _P @ _rx(roll) @ np.array([0.40499744871392, -0.13130517281345, -0.013385243295654])
-    tel_cyl = HydraulicCylinder("telescope", 0.05, 0.03, 1.1, supply, 40 * LPM, 1.0)
+    tel_cyl = _sealed(HydraulicCylinder("telescope", 0.05, 0.03, 1.1, supply, 40 * LPM, 1.0))
 
     # Wrist (3-DoF), tool and payload.
     wrist_specs = (("wrist_pitch", _AXIS_XZ, (0, 0, 0), 30.0, (1.0, 3000.0, 2.0)),

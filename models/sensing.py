@@ -161,7 +161,8 @@ class Samples:
 
     Attributes:
         time: The instant each reading measured [s], shape (n,), increasing.
-        value: The readings, shape (n, k) (k channels).
+        value: The readings, shape (n, k) (k channels); NaN where a sensor reported an
+            invalid value (the observer refuses such a reading and holds its estimate).
     """
 
     time: np.ndarray
@@ -176,7 +177,9 @@ class Samples:
             raise StateError(f"'value' must have shape (n, k) with n = {t.shape[0]}, got "
                              f"{v.shape}")
         object.__setattr__(self, "time", frozen_array("time", t, t.shape))
-        object.__setattr__(self, "value", frozen_array("value", v, v.shape))
+        v = shaped_array("value", v, v.shape)  # a sensor may report an invalid (NaN) value
+        v.flags.writeable = False
+        object.__setattr__(self, "value", v)
 
     def __len__(self) -> int:
         return int(self.time.shape[0])

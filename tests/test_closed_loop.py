@@ -127,7 +127,8 @@ def test_noise_and_delay_are_applied(tmp_path):
 
     short = dataclasses.replace(SCENARIOS["swing-out"], duration=1.5)
     noise = MeasurementNoise(q=1e-4, qd=1e-3, suspension_force=100.0, seed=3)
-    m = run_closed_loop(short, tmp_path, "mpc-full", noise=noise, delay_periods=2)
+    m = run_closed_loop(short, tmp_path, "mpc-full", noise=noise, delay_periods=2,
+                        sensors="oracle")
     assert m["delay_periods"] == 2 and m["noise"]["suspension_force"] == 100.0
     assert m["fallbacks"] == 0
     log = load_log(tmp_path)

@@ -10,8 +10,9 @@ Once per control tick (`Observer.update`) it takes the readings delivered since 
   wheel-motor speeds;
 * the suspension cylinder forces from their chamber pressures (mean over the tick);
 * the contact flags from the forces themselves: a wheel whose estimated normal force falls
-  below `CONTACT_OFF_N` on `CONTACT_TICKS` ticks in a row is out of contact until its
-  four-wheel estimate rises above `CONTACT_ON_N` (hysteresis); the estimator then solves
+  below `CONTACT_OFF_N` is out of contact until its four-wheel estimate has stayed above
+  `CONTACT_ON_N` for `CONTACT_TICKS` ticks (hysteresis: a wheel that bounces off the
+  ground reads high again before it lands); the estimator then solves
   the three-wheel system of Sec. III-B. The contact points are the wheels' lowest points
   (the estimator's geometry, from the bogie angles and the attitude), the friction forces
   zero: no per-wheel measurement exists, and the estimator takes the tangential forces the
@@ -53,9 +54,9 @@ from models.state import N_SERVO_AXES, MachineState, WheelContacts
 
 __all__ = ["CONTACT_OFF_N", "CONTACT_ON_N", "CONTACT_TICKS", "Observer", "ObserverEstimate"]
 
-CONTACT_OFF_N = 300.0  # [N] below this a wheel is leaving the ground
-CONTACT_ON_N = 800.0  # [N] above this it is back
-CONTACT_TICKS = 2
+CONTACT_OFF_N = 300.0  # [N] below this a wheel is leaving the ground (at once)
+CONTACT_ON_N = 800.0  # [N] above this on `CONTACT_TICKS` ticks in a row it is back
+CONTACT_TICKS = 3
 _LIFT, _TILT = 3, 4  # independent coordinates of the lift and tilt cylinders
 _PRESS_LIFT_TILT = [PRESSURE_CYLINDERS.index("lift"), PRESSURE_CYLINDERS.index("tilt")]
 
@@ -112,6 +113,10 @@ class Observer:
         n_press = max(1, round(spec.pressure.rate * 0.01))
         self._force_std = a_norm * spec.pressure.sample_std / math.sqrt(n_press)
         self._force_bias = a_norm * spec.pressure.bias
+        # The seals' friction is between the pressures' force and the mechanism's, of
+        # unknown sign and size up to its rating: uniform, std F_c / sqrt(3).
+        self._friction_std = np.array([machine.chains[c].cylinder.seal_friction
+                                       for c in PRESSURE_CYLINDERS]) / math.sqrt(3.0)
         body = next(b for b in machine.bodies if b.name == machine.payload)
         m0 = body.inertia.mass if initial_payload is None else float(initial_payload)
         # The lift and tilt forces the model predicts carry the joint accelerations' errors
@@ -122,15 +127,17 @@ class Observer:
                                                      np.zeros(6), home, zero, zero))
         _, qdd_std = self.joints.std
         model_std = np.sqrt(((e_home[[_LIFT, _TILT]] * qdd_std) ** 2).sum(axis=1))
-        self.payload = PayloadRLS(m0, initial_payload_std,
-                                  np.hypot(self._force_std[_PRESS_LIFT_TILT], model_std),
-                                  self._force_bias[_PRESS_LIFT_TILT])
+        lt = _PRESS_LIFT_TILT
+        self.payload = PayloadRLS(
+            m0, initial_payload_std,
+            np.sqrt(self._force_std[lt] ** 2 + model_std ** 2 + self._friction_std[lt] ** 2),
+            self._force_bias[lt])
         self._wheel_angle = np.zeros(4)
         self._wheel_rate = np.zeros(4)
         self._wheel_acc = np.zeros(4)
         self._suspension = None
         self._in_contact = np.ones(4, bool)
-        self._below = np.zeros(4, int)
+        self._above = np.zeros(4, int)
         self._last_time: float | None = None
         self._last: ObserverEstimate | None = None
         self._uncertainty_const = self._uncertainty_parts()
@@ -230,7 +237,8 @@ class Observer:
         accel_std, qd_std = self._uncertainty_const
         unc = StateUncertainty(
             acceleration=accel_std, qd=qd_std,
-            suspension_force=np.hypot(self._force_std[:2], self._force_bias[:2]),
+            suspension_force=np.sqrt(self._force_std[:2] ** 2 + self._force_bias[:2] ** 2
+                                     + self._friction_std[:2] ** 2),
             payload_mass=self.payload.std)
         self._last_time = t
         self._last = ObserverEstimate(state, mass, self.payload.std, self.payload.event, unc,
@@ -256,7 +264,6 @@ class Observer:
         return centre
 
     def _contacts(self, forces: np.ndarray) -> None:
-        low = forces < CONTACT_OFF_N
-        self._below = np.where(low, self._below + 1, 0)
-        self._in_contact = np.where(self._below >= CONTACT_TICKS, False, self._in_contact)
-        self._in_contact = np.where(forces > CONTACT_ON_N, True, self._in_contact)
+        self._above = np.where(forces > CONTACT_ON_N, self._above + 1, 0)
+        back = ~self._in_contact & (self._above >= CONTACT_TICKS)
+        self._in_contact = (self._in_contact & (forces >= CONTACT_OFF_N)) | back

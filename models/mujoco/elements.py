@@ -114,6 +114,10 @@ def add_body(parent: ET.Element, machine: Machine, name: str, children) -> None:
             jattrs["range"] = fmt(j.range)
         if j.damping:
             jattrs["damping"] = fmt(j.damping)
+        seal = next((c.cylinder.seal_friction for c in machine.chains.values()
+                     if c.piston == name), 0.0)
+        if seal:
+            jattrs["frictionloss"] = fmt(seal)
         if j.armature:
             jattrs["armature"] = fmt(j.armature)
         ET.SubElement(el, "joint", jattrs)

@@ -1,0 +1,95 @@
+"""The observer on MuJoCo runs: payload after a pick, contact flags, attitude, bad readings."""
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from estimators.errors import EstimatorError
+from estimators.observer import Observer
+from estimators.payload import PayloadEstimator
+from models import build_reference_machine
+from models import terrain as T
+from models.sensing import Samples
+from models.sensor_suites import sensor_suite
+from scenarios.closed_loop import _set_payload
+from scenarios.closed_loop_scenarios import SCENARIOS
+from scenarios.sensors import SensorSimulator
+from scenarios.simulator import Simulator
+
+PICK_POSE = SCENARIOS["pick-in-motion"].start_pose  # crane out on the downhill side
+
+
+def _observer(machine, suite="realistic", seed=2, prior=None):
+    closure = PayloadEstimator(machine, fourth="cylinder-force", strokes="clip")
+    return Observer(machine, sensor_suite(suite, seed), closure, initial_payload=prior)
+
+
+def test_payload_within_5_percent_2_s_after_a_pick():
+    machine = build_reference_machine(payload_mass=10.0)
+    sim = Simulator(machine, T.side_slope(-5.0))
+    sim.reset(PICK_POSE.q(machine), (8.0, 0.0, 0.0))
+    sensors = SensorSimulator(sim, sensor_suite("realistic", 2))
+    obs = _observer(machine, prior=10.0)
+    events = []
+    for k in range(500):  # 5 s: pick (10 -> 240 kg) at 2 s
+        if k == 200:
+            _set_payload(sim, 240.0)
+        sim.step(5)
+        e = obs.update(sensors.readings(sim.time))
+        if e.payload_event:
+            events.append((k, e.payload_event))
+        if k == 199:
+            assert e.payload_mass == pytest.approx(10.0, abs=0.05 * 240.0)
+    assert e.payload_mass == pytest.approx(240.0, rel=0.05)
+    assert any(kind == "pick" and 200 <= k <= 400 for k, kind in events)
+    # Within 2 s of the pick (k = 200 .. 400) it is there and stays.
+    assert 0.0 < e.payload_std < 0.05 * 240.0
+
+
+def test_contact_flags_right_where_the_force_is_clear():
+    """A wheel lifts (crane out at full reach on a side slope): every sample with a true
+    force above 1 kN is flagged in contact, every sample at zero force out of contact."""
+    machine = build_reference_machine(payload_mass=150.0)
+    sim = Simulator(machine, T.side_slope(-8.0))
+    sim.reset(None, (8.0, 0.0, 0.0))
+    sensors = SensorSimulator(sim, sensor_suite("realistic", 4))
+    obs = _observer(machine, prior=150.0)
+    wrong, zero_seen = 0, 0
+    for k in range(700):  # the operator ramps the motion up over a second, after one at rest
+        ramp = min(max((k - 100) / 100.0, 0.0), 1.0)
+        sim.set_command(cylinder_rates={"slew": 0.12 * ramp, "telescope": 0.25 * ramp,
+                                        "lift": -0.05 * ramp})
+        sim.step(5)
+        e = obs.update(sensors.readings(sim.time))
+        truth = sim.measure()[1]
+        f = truth.normal_force
+        flags = e.state.contacts.in_contact
+        wrong += int(np.sum(flags[f > 1000.0] == False))  # noqa: E712
+        wrong += int(np.sum(flags[f <= 0.0] == True))  # noqa: E712
+        zero_seen += int(np.sum(f <= 0.0))
+    assert zero_seen > 0, "the scenario should lift a wheel"
+    assert wrong == 0
+
+
+def test_attitude_at_rest_and_stale_on_nan():
+    machine = build_reference_machine()
+    sim = Simulator(machine, T.side_slope(-10.0))
+    sim.reset(None, (8.0, 0.0, 0.4))
+    sensors = SensorSimulator(sim, sensor_suite("realistic", 1))
+    obs = _observer(machine)
+    for _ in range(200):
+        sim.step(5)
+        e = obs.update(sensors.readings(sim.time))
+    up_true = sim.measure()[0].base_rotation[2]
+    assert np.degrees(np.arccos(up_true @ e.state.base_rotation[2])) < 0.1
+    sim.step(5)
+    r = sensors.readings(sim.time)
+    bad = dataclasses.replace(r, pressures=Samples(r.pressures.time,
+                                                   np.full(r.pressures.value.shape, np.nan)))
+    held = obs.update(bad)
+    assert held.stale and np.all(np.isfinite(held.state.suspension_force))
+    with pytest.raises(EstimatorError, match="SensorReadings"):
+        obs.update("readings")
+    with pytest.raises(EstimatorError, match="oracle"):
+        _observer(machine, suite="oracle")
