@@ -146,3 +146,31 @@ def test_bad_suites_are_typed_errors(sim):
         sensor_suite("perfect")
     with pytest.raises(ModelError, match="rate"):
         dataclasses.replace(REALISTIC.stroke, rate=0.0)
+
+
+def test_pressure_force_is_the_mechanism_force_plus_the_seal_friction(sim):
+    """While the lift cylinder slides, the pressures' force exceeds the force the mechanism
+    needs (rigid-body dynamics, `estimators.efforts`) by the seal friction, sign of the
+    motion; MuJoCo's friction rows on the piston carry exactly that."""
+    from estimators.efforts import ActuatorEfforts
+
+    lift = MACHINE.coordinates.independent_names.index("lift")
+    friction = MACHINE.chains["lift"].cylinder.seal_friction
+    assert friction > 0
+    efforts = ActuatorEfforts(MACHINE)
+    for rate in (0.05, -0.05):
+        sim.reset()
+        sensors = SensorSimulator(sim, IDEAL)
+        try:
+            sim.set_command(cylinder_rates={"lift": rate})
+            sim.step(250)  # steady sliding
+            excess = []
+            for _ in range(20):
+                sim.step(5)
+                state = sim.measure()[0]
+                r = sensors.readings(sim.time)
+                pressure_force = cylinder_force(MACHINE, r.pressures.value[-1])[lift]
+                excess.append(pressure_force - efforts.efforts(state)[lift])
+        finally:
+            sensors.close()
+        assert np.mean(excess) == pytest.approx(np.sign(rate) * friction, abs=0.1 * friction)

@@ -93,6 +93,9 @@ def body_poses_in_fb(machine: Machine, q_tree) -> dict[str, tuple[np.ndarray, np
     return poses
 
 
+SEAL_FRICTION_SOLREF = (0.004, 1.0)  # [s, -] of the cylinders' seal friction rows
+
+
 def add_body(parent: ET.Element, machine: Machine, name: str, children) -> None:
     """Append the MJCF ``body`` of ``name`` (joint, inertia, geoms, sites) and its subtree."""
     b = machine.body(name)
@@ -117,7 +120,10 @@ def add_body(parent: ET.Element, machine: Machine, name: str, children) -> None:
         seal = next((c.cylinder.seal_friction for c in machine.chains.values()
                      if c.piston == name), 0.0)
         if seal:
+            # Dry friction: MuJoCo's friction rows are soft; a short time constant makes the
+            # force reach the seal's rating at a few mm/s instead of a few dm/s.
             jattrs["frictionloss"] = fmt(seal)
+            jattrs["solreffriction"] = fmt(SEAL_FRICTION_SOLREF)
         if j.armature:
             jattrs["armature"] = fmt(j.armature)
         ET.SubElement(el, "joint", jattrs)
