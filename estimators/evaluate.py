@@ -54,6 +54,7 @@ import numpy as np
 from estimators import calibration
 from estimators.errors import EstimatorInputError
 from estimators.estimator import NormalForceEstimator
+from estimators.evaluate_sensors import suites_report
 from estimators.full_dynamics import D_BETA_COEFFICIENTS
 from estimators.log_batch import log_to_batch
 from estimators.results import BatchEstimate
@@ -363,6 +364,7 @@ def evaluate_log(log_path, out_dir=None, plots: bool = True, *, machine: Machine
         "goals_pct": GOALS.get(scenario, {}),
         "paper_pct": PAPER.get(scenario, {}),
     }
+    report["sensor_suites"] = suites_report(log, machine, sb, rows, static_load)
     report["summary"] = _summary(report)
     figures = []
     tick(0.8)
@@ -416,6 +418,9 @@ def _summary(report: dict) -> dict:
             report["equilibrium_rows"]["full"]["dynamics_pct"], 3),
         "tipping_count": report["tipping_count"],
     }
+    out["sensor_suites_pct"] = {
+        suite: {m: (v["four_contact"], v["three_contact"]) for m, v in e["methods"].items()}
+        for suite, e in report["sensor_suites"].items()}
     if goals:
         out["goals"] = {name: {"goal_pct": g, "measured_pct": table.get(name),
                                "met": bool(table.get(name, math.inf) <= g)}

@@ -27,8 +27,9 @@ import numpy as np
 from models.errors import ModelError
 from models.state import MachineState, WheelContacts
 
-__all__ = ["COLUMNS", "META", "PHYSICS_COLUMNS", "SCHEMA_VERSION", "SETTLE_SECONDS", "Column",
-           "LogError", "ScenarioLog", "check_log", "load_log", "state_at"]
+__all__ = ["COLUMNS", "META", "OBSERVED_COLUMNS", "OBSERVED_SUITES", "PHYSICS_COLUMNS",
+           "SCHEMA_VERSION", "SETTLE_SECONDS", "Column", "LogError", "ScenarioLog", "check_log",
+           "load_log", "state_at"]
 
 # 1: the unversioned logs before the schema; 2: this table, qpos/qvel; 3: `PHYSICS_COLUMNS`
 SCHEMA_VERSION = 3
@@ -93,6 +94,29 @@ COLUMNS = {
     "com_world": Column("(N, 3)", "m", "ground truth: the machine's centre of mass in the world",
                         True),
 }
+
+# What the observer made of the sensors, per suite (open-loop runs record every suite beside
+# the truth, so the estimators can be scored on each: `estimators.evaluate_sensors`).
+OBSERVED_SUITES = ("ideal", "realistic")
+_OBSERVED_FIELDS = {
+    "base_rotation": ("(N, 3, 3)", "-", "rotation world <- fb"),
+    "base_twist": ("(N, 6)", "m/s, rad/s", "twist"),
+    "base_acceleration": ("(N, 6)", "m/s^2, rad/s^2", "twist derivative (the dynamics' input)"),
+    "q": ("(N, 13)", "m, rad", "independent coordinates"),
+    "qd": ("(N, 13)", "m/s, rad/s", "their velocities"),
+    "qdd": ("(N, 13)", "m/s^2, rad/s^2", "their accelerations"),
+    "in_contact": ("(N, 4)", "-", "contact flags"),
+    "point_in_fb": ("(N, 4, 3)", "m", "contact points"),
+    "suspension_force": ("(N, 2)", "N", "suspension cylinder forces from the pressures"),
+    "servo_setpoint": ("(N, 9)", "m, rad", "the servos' setpoints"),
+    "payload": ("(N,)", "kg", "payload estimate"),
+    "payload_std": ("(N,)", "kg", "its standard deviation"),
+}
+OBSERVED_COLUMNS = {
+    f"obs_{suite}_{field}": Column(shape, unit, f"observer, {suite} sensors: {meaning}")
+    for suite in OBSERVED_SUITES for field, (shape, unit, meaning) in _OBSERVED_FIELDS.items()}
+COLUMNS.update(OBSERVED_COLUMNS)
+COLUMNS["servo_setpoint"] = Column("(N, 9)", "m, rad", "the nine axis servos' setpoints")
 
 # Sampled at every physics step (M samples, M >= N): what a control-rate sample misses (a
 # 2-4 ms drop of a wheel's force to 0 N). Written by runs that count metrics at that rate.
@@ -189,6 +213,8 @@ class ScenarioLog:
             fz_in_fb=contacts.fz_in_fb,
             suspension_force=(state.suspension_force if state.suspension_force is not None
                               else np.full(2, np.nan)),
+            servo_setpoint=(state.servo_setpoint if state.servo_setpoint is not None
+                            else np.full(9, np.nan)),
             closure_violation=closure_violation,
             **columns,
         )

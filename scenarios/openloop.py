@@ -23,12 +23,13 @@ import numpy as np
 
 from models import build_reference_machine
 from models.description import WHEEL_ORDER
-from models.log import SETTLE_SECONDS, ScenarioLog
+from models.log import OBSERVED_SUITES, SETTLE_SECONDS, ScenarioLog
 from models.terrain import Terrain, flat, rough
 from scenarios.errors import RunInterrupted
 from scenarios.json_io import write_json
 from scenarios.progress import Progress
 from scenarios.run_args import check_duration, check_seed
+from scenarios.sensing import Sensing
 from scenarios.simulator import Simulator
 
 # (amplitude, angular frequency [rad/s], phase [rad]) per servo, independent order:
@@ -116,8 +117,26 @@ def _summary(log: dict, machine, settle: float) -> dict:
     }
 
 
+def _observed(sensing: dict, tick: float) -> dict:
+    """The observers' states at the tick, as log columns ``obs_<suite>_<field>``."""
+    out = {}
+    for suite, sens in sensing.items():
+        o = sens.observe(tick)
+        st = o.state
+        fields = {"base_rotation": st.base_rotation, "base_twist": st.base_twist,
+                  "base_acceleration": st.base_acceleration, "q": st.q, "qd": st.qd,
+                  "qdd": st.qdd, "in_contact": st.contacts.in_contact,
+                  "point_in_fb": st.contacts.point_in_fb,
+                  "suspension_force": st.suspension_force,
+                  "servo_setpoint": st.servo_setpoint, "payload": o.payload_mass,
+                  "payload_std": o.payload_std}
+        out.update({f"obs_{suite}_{k}": v for k, v in fields.items()})
+    return out
+
+
 def run_open_loop(scenario: OpenLoopScenario, out_dir: Path, seed: int = 0,
-                  duration: float | None = None, progress: bool = True) -> dict:
+                  duration: float | None = None, progress: bool = True,
+                  observe: bool = True, machine=None) -> dict:
     """Run an open-loop scenario; write ``log.npz`` and ``metrics.json`` to ``out_dir``.
 
     Args:
@@ -126,6 +145,10 @@ def run_open_loop(scenario: OpenLoopScenario, out_dir: Path, seed: int = 0,
         seed: Terrain seed (the flat terrain has none; it is checked all the same).
         duration: Override the scenario's duration [s].
         progress: Show a progress bar.
+        observe: Also run the machine's sensors and observer (`OBSERVED_SUITES`) and log
+            their states (`models.log.OBSERVED_COLUMNS`).
+        machine: The machine (a payload other than the description's); None: the reference
+            machine.
 
     Returns:
         The metrics written to ``metrics.json``, with ``"partial": False``.
@@ -137,11 +160,15 @@ def run_open_loop(scenario: OpenLoopScenario, out_dir: Path, seed: int = 0,
     """
     duration = check_duration(duration, scenario.duration)
     seed = check_seed(seed)
-    machine = build_reference_machine()
+    machine = build_reference_machine() if machine is None else machine
     terrain = scenario.terrain(seed)
     sim = Simulator(machine, terrain)
     q0 = machine.coordinates.home()
     sim.reset(q0)
+    # The machine's sensors and observer beside the truth, one per suite (payload not told:
+    # the observers start from an empty grapple's 10 kg).
+    sensing = {suite: Sensing(sim, machine, suite, seed, initial_payload=10.0)
+               for suite in OBSERVED_SUITES} if observe else {}
     every = max(1, int(round(1.0 / (scenario.log_rate * sim.timestep))))
     n_samples = int(duration / (every * sim.timestep))
     log = ScenarioLog(scenario=scenario.name, seed=seed, payload_mass=machine.body(
@@ -159,7 +186,8 @@ def run_open_loop(scenario: OpenLoopScenario, out_dir: Path, seed: int = 0,
                 state, contacts = sim.measure()
                 qpos, qvel, _ = sim.measured_instant
                 log.append(state, contacts, np.concatenate([rates, (left, right)]),
-                           sim.closure_violation(), qpos=qpos, qvel=qvel)
+                           sim.closure_violation(), qpos=qpos, qvel=qvel,
+                           **_observed(sensing, state.time))
                 if k % 50 == 0:
                     bar.update(sim.time)
         except KeyboardInterrupt:

@@ -17,7 +17,10 @@ physics step after settling (``time_below_threshold_s`` > 0 on a wheel) or it ti
 
 from __future__ import annotations
 
+import contextlib
 import json
+import multiprocessing
+import os
 import time
 import traceback
 from collections.abc import Callable, Iterable
@@ -99,7 +102,8 @@ def run_sweep(family: str, draws: int, controllers: Iterable[str], out_dir: Path
                 for t in tasks:
                     keep(run_one(*t, options))
             else:
-                with ProcessPoolExecutor(max_workers=jobs) as pool:
+                with _single_threaded_env(), ProcessPoolExecutor(
+                        max_workers=jobs, mp_context=multiprocessing.get_context("spawn")) as pool:
                     futures = [pool.submit(run_one, *t, options) for t in tasks]
                     for f in as_completed(futures):
                         keep(f.result())
@@ -111,6 +115,27 @@ def run_sweep(family: str, draws: int, controllers: Iterable[str], out_dir: Path
     return summary
 
 
+# Every worker runs its linear algebra on one thread: the runs are independent and parallel
+# already, and a BLAS that splits a product over threads rounds differently with their count
+# (a closed loop amplifies that), so the pool and Ray would not give the same rows.
+_ONE_THREAD = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
+
+
+@contextlib.contextmanager
+def _single_threaded_env():
+    """Spawned workers inherit these variables before they import numpy."""
+    old = {k: os.environ.get(k) for k in _ONE_THREAD}
+    os.environ.update(_ONE_THREAD)
+    try:
+        yield
+    finally:
+        for k, v in old.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
+
+
 def _run_ray(tasks: list[tuple], options: dict | None, address: str, keep) -> None:
     try:
         import ray
@@ -119,7 +144,7 @@ def _run_ray(tasks: list[tuple], options: dict | None, address: str, keep) -> No
     started = not ray.is_initialized()
     if started:
         ray.init(address=None if address == "local" else address, include_dashboard=False,
-                 log_to_driver=False)
+                 log_to_driver=False, runtime_env={"env_vars": dict(_ONE_THREAD)})
     try:
         remote = ray.remote(run_one)
         pending = [remote.remote(*t, options) for t in tasks]

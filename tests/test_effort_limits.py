@@ -23,7 +23,8 @@ def _run(tmp_path, effort_limits: bool):
     cfg = dataclasses.replace(base, mpc=dataclasses.replace(base.mpc,
                                                             effort_limits=effort_limits))
     out = tmp_path / str(effort_limits)
-    return run_closed_loop(HEAVY, out, "mpc-full", config=cfg), load_log(out)
+    return (run_closed_loop(HEAVY, out, "mpc-full", config=cfg, sensors="oracle"),
+            load_log(out))
 
 
 def test_effort_limits_keep_the_lift_within_its_force_and_the_wheels_loaded(tmp_path):

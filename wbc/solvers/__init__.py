@@ -18,7 +18,8 @@ def make_solver(name: str = "proxqp", eps_abs: float = 1e-7, eps_rel: float = 0.
     """A QP solver by name.
 
     ``proxqp``: a warm-started `ProxQPWorkspace`; any other qpsolvers name: a cold
-    `QpsolversBackend` with the same absolute/relative tolerances.
+    `QpsolversBackend` with the same absolute/relative tolerances under the backend's own
+    setting names (DAQP: ``primal_tol``/``dual_tol``; OSQP, PIQP: ``eps_abs``/``eps_rel``).
     ``feasible_by_construction`` (soft constraints, limits relaxed to the brake
     trajectory): a ProxQP "primal infeasible" is then retried (`ProxQPWorkspace`).
 
@@ -30,4 +31,13 @@ def make_solver(name: str = "proxqp", eps_abs: float = 1e-7, eps_rel: float = 0.
                                retry_infeasible=feasible_by_construction)
     if name not in qpsolvers.available_solvers:
         raise UnknownSolverError(name, tuple(qpsolvers.available_solvers))
-    return QpsolversBackend(name, eps_abs=eps_abs, eps_rel=eps_rel)
+    return QpsolversBackend(name, **_tolerances(name, eps_abs, eps_rel))
+
+
+def _tolerances(name: str, eps_abs: float, eps_rel: float) -> dict:
+    """Each backend's own names for the absolute and relative tolerances."""
+    if name == "daqp":
+        return {"primal_tol": eps_abs, "dual_tol": eps_abs}
+    if name in ("osqp", "piqp", "proxqp", "scs", "qpalm"):
+        return {"eps_abs": eps_abs, "eps_rel": eps_rel}
+    return {}
