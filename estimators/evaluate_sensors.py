@@ -50,7 +50,8 @@ def suite_batch(log: dict, suite: str) -> tuple[StateBatch, np.ndarray]:
     sb = StateBatch(base_rotation=rot, base_twist=log[p + "base_twist"],
                     base_acceleration=log[p + "base_acceleration"], q=log[p + "q"],
                     qd=log[p + "qd"], qdd=log[p + "qdd"], in_contact=log[p + "in_contact"],
-                    force_in_fb=np.zeros((n, 4, 3)), point_in_fb=log[p + "point_in_fb"],
+                    force_in_fb=log.get(p + "force_in_fb", np.zeros((n, 4, 3))),
+                    point_in_fb=log[p + "point_in_fb"],
                     normal_in_fb=normals, suspension_force=log[p + "suspension_force"],
                     time=log["time"])
     return sb, np.asarray(log[p + "payload"], float)

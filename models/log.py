@@ -107,6 +107,7 @@ _OBSERVED_FIELDS = {
     "qdd": ("(N, 13)", "m/s^2, rad/s^2", "their accelerations"),
     "in_contact": ("(N, 4)", "-", "contact flags"),
     "point_in_fb": ("(N, 4, 3)", "m", "contact points"),
+    "force_in_fb": ("(N, 4, 3)", "N", "ground forces known to the observer (traction)"),
     "suspension_force": ("(N, 2)", "N", "suspension cylinder forces from the pressures"),
     "servo_setpoint": ("(N, 9)", "m, rad", "the servos' setpoints"),
     "payload": ("(N,)", "kg", "payload estimate"),

@@ -15,7 +15,9 @@ The sensor set of the machine (what a forwarder or harvester carries):
   rotator [rad];
 * pressure transducers on both chambers of the five chain cylinders (`PRESSURE_CYLINDERS`)
   [Pa]; the cylinder force is ``p_A A_A - p_B A_B`` (`cylinder_force`);
-* one wheel-motor speed per side [rad/s] (left drives FL and RL, right FR and RR).
+* one wheel-motor speed per side [rad/s] (left drives FL and RL, right FR and RR);
+* one drive torque per side [N m]: the hydrostatic drive motors' pressure difference times
+  their displacement and gear ratio, read by pressure transducers on the motor lines.
 
 No contact force, contact flag, contact point, friction force, payload mass or acceleration
 is measured. Every stream is sampled at its own rate and delivered after its latency
@@ -135,6 +137,7 @@ class SensorSpec:
         angle: Angle encoders of the wrist and the rotator [rad].
         pressure: Pressure transducers, each chamber [Pa].
         wheel_speed: Wheel-motor speed sensors, per side [rad/s].
+        drive_torque: Drive torque per side [N m] (motor line pressures).
         oracle: True: no sensors at all; the controller reads the simulator's exact state
             (the reference the other suites are compared with).
         seed: Seed of every random draw of the suite's errors.
@@ -146,6 +149,7 @@ class SensorSpec:
     angle: ChannelSpec
     pressure: ChannelSpec
     wheel_speed: ChannelSpec
+    drive_torque: ChannelSpec
     oracle: bool = False
     seed: int = 0
     notes: tuple[str, ...] = field(default=())
@@ -204,6 +208,7 @@ class SensorReadings:
         pressures: Chamber pressures (n, 10) [Pa]: ``p_A, p_B`` of each cylinder of
             `PRESSURE_CYLINDERS`, in that order.
         wheel_speeds: Wheel-motor speeds (n, 2) [rad/s]: left, right.
+        drive_torques: Drive torques (n, 2) [N m]: left, right (both wheels of a side).
         servo_setpoint: The axis controllers' setpoints at the tick, (9,) [m, rad].
     """
 
@@ -213,6 +218,7 @@ class SensorReadings:
     positions: Samples
     pressures: Samples
     wheel_speeds: Samples
+    drive_torques: Samples
     servo_setpoint: np.ndarray
 
     def __post_init__(self):
@@ -220,7 +226,7 @@ class SensorReadings:
             raise StateError(f"'time' must be a finite number [s], got {self.time!r}")
         for name, k in (("specific_force", 3), ("angular_rate", 3),
                         ("positions", N_SERVO_AXES), ("pressures", 2 * N_PRESSURE),
-                        ("wheel_speeds", 2)):
+                        ("wheel_speeds", 2), ("drive_torques", 2)):
             s = getattr(self, name)
             if not isinstance(s, Samples):
                 raise StateError(f"'{name}' must be Samples, got {type(s).__name__}")

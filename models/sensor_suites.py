@@ -25,6 +25,9 @@ pressure transducers   WIKA MH-3 (mobile hydraulics),       accuracy <= +-0.5 % 
 wheel-motor speed      Hall pulse pick-up on the hydraulic  pulses counted over the sample
                        motor (e.g. Danfoss PPU), 60         period
                        pulses/rev, 40:1 final drive
+drive torque           WIKA MH-3 on each drive motor's A    <= +-0.5 % FS of the motor's
+                       and B lines (torque = dp x           pressure range (full scale:
+                       displacement x gear / 2 pi)          the side's 8 kN m)
 =====================  ===================================  ==============================
 
 What the model makes of them, and what it simplifies:
@@ -71,6 +74,7 @@ _ACC_BIAS_STABILITY = 10e-6 * _G  # [m/s^2]
 _GYRO_BIAS_STABILITY = 8.0 * _DEG / 3600.0  # [rad/s]
 _PRESSURE_FS = 400e5  # [Pa]
 _WHEEL_COUNTS = 60 * 40  # pulses per wheel revolution
+_DRIVE_TORQUE_FS = 8000.0  # [N m] a side's two wheels at the drive's 4 kN m each
 
 _REALISTIC_IMU = ImuSpec(
     accelerometer=ChannelSpec(
@@ -100,13 +104,17 @@ REALISTIC = SensorSpec(
     wheel_speed=ChannelSpec(rate=SLOW_RATE, resolution=2 * math.pi * SLOW_RATE / _WHEEL_COUNTS,
                             latency=0.01,
                             source="Hall pick-up, 60 pulses/rev on the motor, 40:1 drive"),
+    drive_torque=ChannelSpec(rate=FAST_RATE, noise=0.2e-2 * _DRIVE_TORQUE_FS / 3.0,
+                             bias=0.3e-2 * _DRIVE_TORQUE_FS / 3.0, latency=0.002,
+                             source="WIKA MH-3 on the drive motor lines: <= 0.5 % FS"),
 )
 
 IDEAL = dataclasses.replace(
     REALISTIC, name="ideal",
     imu=ImuSpec(ChannelSpec(rate=IMU_RATE), ChannelSpec(rate=IMU_RATE), IMU_POSITION),
     stroke=ChannelSpec(rate=FAST_RATE), angle=ChannelSpec(rate=FAST_RATE),
-    pressure=ChannelSpec(rate=FAST_RATE), wheel_speed=ChannelSpec(rate=SLOW_RATE))
+    pressure=ChannelSpec(rate=FAST_RATE), wheel_speed=ChannelSpec(rate=SLOW_RATE),
+    drive_torque=ChannelSpec(rate=FAST_RATE))
 
 ORACLE = dataclasses.replace(IDEAL, name="oracle", oracle=True)
 

@@ -127,6 +127,7 @@ def _observed(sensing: dict, tick: float) -> dict:
                   "base_acceleration": st.base_acceleration, "q": st.q, "qd": st.qd,
                   "qdd": st.qdd, "in_contact": st.contacts.in_contact,
                   "point_in_fb": st.contacts.point_in_fb,
+                  "force_in_fb": st.contacts.force_in_fb,
                   "suspension_force": st.suspension_force,
                   "servo_setpoint": st.servo_setpoint, "payload": o.payload_mass,
                   "payload_std": o.payload_std}

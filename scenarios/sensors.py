@@ -17,7 +17,8 @@ What each sensor measures (the truth before the errors):
   force: the seal friction, if any, acts on the mechanism besides it). It is split into the
   chambers with the return side at the back pressure `BACK_PRESSURE`: ``F >= 0``: ``p_B =
   p_0``, ``p_A = (F + p_0 A_B) / A_A``; else ``p_A = p_0``, ``p_B = (p_0 A_A - F) / A_B``;
-* wheel-motor speeds: the mean spin rate of each side's two wheels.
+* wheel-motor speeds: the mean spin rate of each side's two wheels;
+* drive torques: the sum of each side's two wheel drive torques (MuJoCo's actuator forces).
 """
 
 from __future__ import annotations
@@ -135,8 +136,9 @@ class SensorSimulator:
         self._press = _Stream(spec.pressure, 2 * N_PRESSURE, dt, rng,
                               transform=self.chamber_pressures, m=N_PRESSURE)
         self._wheels = _Stream(spec.wheel_speed, 2, dt, rng)
+        self._drive = _Stream(spec.drive_torque, 2, dt, rng)
         self._streams = (self._acc, self._gyro, self._pos_lin, self._pos_ang, self._press,
-                         self._wheels)
+                         self._wheels, self._drive)
         ix = sim.index
         self._p = np.asarray(spec.imu.position, float)
         self._g = sim.machine.gravity
@@ -144,6 +146,8 @@ class SensorSimulator:
         self._base_dof = ix.base_dof
         self._axes_qpos = ix.independent_qpos[:9]
         self._wheel_dof = ix.independent_dof[9:13]
+        self._wheel_act = ix.wheel_actuators
+        self._torque = np.zeros(2)
         names = sim.coordinates.independent_names
         self._press_act = ix.actuators[[names.index(c) for c in PRESSURE_CYLINDERS]]
         self._areas = cylinder_areas(sim.machine)
@@ -202,6 +206,11 @@ class SensorSimulator:
             self._wheel_speed[0] = 0.5 * (wd[0] + wd[1])
             self._wheel_speed[1] = 0.5 * (wd[2] + wd[3])
             self._wheels.record(t, self._wheel_speed)
+        if n % self._drive.every == 0:
+            tau = d.actuator_force[self._wheel_act]  # FL, RL, FR, RR
+            self._torque[0] = tau[0] + tau[1]
+            self._torque[1] = tau[2] + tau[3]
+            self._drive.record(t, self._torque)
 
     def chamber_pressures(self, forces) -> np.ndarray:
         """``p_A, p_B`` [Pa] for cylinder forces [N] (module docstring): (..., 5) -> (..., 10)."""
@@ -222,6 +231,7 @@ class SensorSimulator:
             time=float(tick), specific_force=self._acc.deliver(tick),
             angular_rate=self._gyro.deliver(tick), positions=positions,
             pressures=self._press.deliver(tick), wheel_speeds=self._wheels.deliver(tick),
+            drive_torques=self._drive.deliver(tick),
             servo_setpoint=self.sim.servo_setpoint)
 
     def close(self) -> None:
