@@ -11,7 +11,7 @@ import platform
 import time
 from pathlib import Path
 
-BENCHES = ("simulator", "estimator", "controller")
+BENCHES = ("simulator", "estimator", "controller", "observer")
 
 
 def _machine_info() -> dict:
@@ -29,6 +29,8 @@ def _run_one(name: str, out: Path) -> dict:
         from benchmarks.bench_estimator import run
     elif name == "controller":
         from benchmarks.bench_wbc import run
+    elif name == "observer":
+        from benchmarks.bench_observer import run
     else:
         raise ValueError(f"unknown benchmark '{name}'; valid: {', '.join(BENCHES)}")
     result = run(out)

@@ -41,7 +41,7 @@ def describe() -> dict[str, dict[str, str]]:
 
 def run(name: str, out_dir: Path, controller: str | None = None, duration: float | None = None,
         seed: int = 0, progress: bool = True, *, noise: str = "none", delay_periods: int = 0,
-        threshold_n: float | None = None) -> dict:
+        threshold_n: float | None = None, sensors: str = "realistic") -> dict:
     """Run scenario ``name``; returns its metrics (also written to ``out_dir``).
 
     Closed-loop scenarios take a controller (``tracking``, ``mpc-quasi-static``,
@@ -59,6 +59,7 @@ def run(name: str, out_dir: Path, controller: str | None = None, duration: float
         noise: Measurement-noise preset (`NOISE_PRESETS`).
         delay_periods: Measurement delay [control periods].
         threshold_n: Normal-force threshold [N]; None: the scenarios' default.
+        sensors: Closed loop: ``realistic``, ``ideal`` or ``oracle`` (`scenarios.sensing`).
 
     Raises:
         ValueError: Unknown scenario, or an option the scenario does not take.
@@ -72,7 +73,8 @@ def run(name: str, out_dir: Path, controller: str | None = None, duration: float
             raise ValueError(f"scenario '{name}' is open loop; it takes no controller "
                              f"(got '{controller}')")
         for option, value, default in (("noise", noise, "none"), ("delay", delay_periods, 0),
-                                       ("threshold", threshold_n, None)):
+                                       ("threshold", threshold_n, None),
+                                       ("sensors", sensors, "realistic")):
             if value != default:
                 raise ValueError(f"scenario '{name}' is open loop; it takes no {option} "
                                  f"(got {value!r}); closed-loop scenarios: "
@@ -84,5 +86,5 @@ def run(name: str, out_dir: Path, controller: str | None = None, duration: float
         return run_closed_loop(scenario, out_dir, controller or DEFAULT_CONTROLLER,
                                seed=seed, duration=duration, progress=progress,
                                noise=NOISE_PRESETS[noise], delay_periods=delay_periods,
-                               threshold_n=threshold_n)
+                               threshold_n=threshold_n, sensors=sensors)
     raise ValueError(f"unknown scenario '{name}'; valid: {', '.join(names())}")

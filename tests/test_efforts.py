@@ -35,11 +35,18 @@ def test_efforts_match_mujoco_servo_forces_while_the_crane_moves(moving_samples)
     for state, mujoco_forces in moving_samples:
         e = eff.efforts(state)
         for name, i in CRANE.items():
+            # MuJoCo's servo force also overcomes the seals' friction (the mechanism gets
+            # the rest): known while the cylinder slides, any value up to F_c at rest.
+            seal = MACHINE.chains[name].cylinder.seal_friction if name in MACHINE.chains \
+                else 0.0
+            if abs(state.qd[i]) < 2e-3 and seal:
+                continue
+            mujoco_mechanism = mujoco_forces[i] - np.sign(state.qd[i]) * seal
             # Within 1 % of the cylinder's force range. The slew's four-bar is closed by a
             # soft constraint that lags its stroke's acceleration by a few ms: while it
             # accelerates hard (> 0.1 m/s^2 of stroke) within 10 %.
             tol = 0.1 if name == "slew" and abs(state.qdd[i]) > 0.1 else 0.01
-            assert e[i] == pytest.approx(mujoco_forces[i], abs=tol * hi[i]), name
+            assert e[i] == pytest.approx(mujoco_mechanism, abs=tol * hi[i]), name
 
 
 def test_affine_in_the_axis_accelerations_and_in_the_payload(moving_samples):

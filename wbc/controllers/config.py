@@ -156,8 +156,9 @@ class MpcConfig:
         deflection_time_constant: Filter of that deflection [s].
         effort_limits: Keep every crane cylinder's and drive's force within its range along
             the horizon (`wbc.constraints.HorizonEffortLimit`).
-        effort_margin: Fraction of each effort range kept free (seal friction, the chains'
-            soft closure).
+        effort_margin: Fraction of each effort range kept free: the seals' friction (1 % of
+            the rated force) and what the rigid-body efforts miss while an axis accelerates
+            hard (up to 10 % of the range on the slew's soft four-bar, `tests/test_efforts`).
 
     The horizon ``first_step + (n_steps - 1) step`` must be >= 1 s.
     """
@@ -179,7 +180,7 @@ class MpcConfig:
     setpoint_state: bool = True
     deflection_time_constant: float = 0.5
     effort_limits: bool = True
-    effort_margin: float = 0.05
+    effort_margin: float = 0.10
 
     def __post_init__(self):
         _flags(self, "effort_limits")
