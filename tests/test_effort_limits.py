@@ -1,4 +1,9 @@
-"""Hydraulic force limits in the MPC: a heavy load at long reach does not make the boom sag."""
+"""Hydraulic force limits in the MPC: a heavy load swung fast at long reach, held safely.
+
+Measured before the cylinders had seal friction: without the limits the same run took two
+wheels off the ground (the lift cylinder saturated and the boom sagged); with the seals'
+friction damping the boom it no longer does, so only the run with the limits is asserted.
+"""
 
 import dataclasses
 
@@ -31,11 +36,7 @@ def test_effort_limits_keep_the_lift_within_its_force_and_the_wheels_loaded(tmp_
     m, log = _run(tmp_path, True)
     assert m["fallbacks"] == 0 and not m["tipped"]
     assert min(m["min_normal_force_N"].values()) >= m["threshold_N"] - 200.0
-    m_off, _ = _run(tmp_path, False)
-    # Without them the plan asks the lift cylinder for more than its pressure gives: the
-    # boom sags and the machine goes over onto two wheels.
-    assert min(m_off["min_normal_force_N"].values()) < 0.5 * m["threshold_N"]
-    del log
+    assert log["fallback"].sum() == 0
 
 
 def test_bad_settings():
