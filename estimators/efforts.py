@@ -28,6 +28,7 @@ import pinocchio as pin
 from estimators.errors import EstimatorError
 from models.coordinates import N_INDEPENDENT
 from models.description import Machine
+from models.load_chart import effort_ranges as machine_effort_ranges
 from models.pinocchio_model import PAYLOAD_PAIR_MASSES, payload_pair
 from models.state import N_SERVO_AXES, MachineState
 
@@ -37,20 +38,12 @@ __all__ = ["ActuatorEfforts", "effort_ranges"]
 def effort_ranges(machine: Machine) -> tuple[np.ndarray, np.ndarray]:
     """(lower, upper) effort of each servo axis [N or N m], shape (9,) each.
 
-    A chain's cylinder: ``(-p A_B, p A_A)`` (`HydraulicCylinder.force_range`); a direct
-    drive: its effort limit.
+    The nine axes' rows of `models.load_chart.effort_ranges`.
     """
-    names = machine.coordinates.independent_names[:N_SERVO_AXES]
-    lo, hi = np.zeros(N_SERVO_AXES), np.zeros(N_SERVO_AXES)
-    for i, name in enumerate(names):
-        if name in machine.chains:
-            lo[i], hi[i] = machine.chains[name].cylinder.force_range
-        elif name in machine.direct_drives:
-            e = machine.direct_drives[name].effort_limit
-            lo[i], hi[i] = -e, e
-        else:
-            raise EstimatorError(f"axis '{name}' has neither a cylinder nor a drive")
-    return lo, hi
+    lo, hi = machine_effort_ranges(machine)
+    if not (np.all(np.isfinite(lo[:N_SERVO_AXES])) and np.all(np.isfinite(hi[:N_SERVO_AXES]))):
+        raise EstimatorError("every servo axis needs a cylinder or a drive with limits")
+    return lo[:N_SERVO_AXES], hi[:N_SERVO_AXES]
 
 
 class ActuatorEfforts:

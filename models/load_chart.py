@@ -35,7 +35,7 @@ from models.errors import ModelError
 from models.pinocchio_model import PAYLOAD_PAIR_MASSES, PinocchioMachine, payload_pair
 from models.state import MachineState
 
-__all__ = ["RatedLoad", "load_chart", "rated_payload"]
+__all__ = ["RatedLoad", "effort_ranges", "load_chart", "rated_payload"]
 
 _M0, _M1 = PAYLOAD_PAIR_MASSES  # [kg] the two payload masses the affine maps are read at
 _MAX_PAYLOAD = 1e4  # [kg] the LP's upper bound (a rated load is far below)
@@ -68,7 +68,12 @@ def _efforts_and_wrench(pm: PinocchioMachine, state: MachineState):
     return jac.T @ tree_tau, tau[:6].copy()
 
 
-def _effort_ranges(machine: Machine) -> tuple[np.ndarray, np.ndarray]:
+def effort_ranges(machine: Machine) -> tuple[np.ndarray, np.ndarray]:
+    """(lower, upper) effort of each independent coordinate [N or N m], shape (13,) each.
+
+    A chain's cylinder: ``(-p A_B, p A_A)`` (`HydraulicCylinder.force_range`); a direct
+    drive: its effort limit; anything else (the wheels): unbounded.
+    """
     names = machine.coordinates.independent_names
     lo, hi = np.full(len(names), -np.inf), np.full(len(names), np.inf)
     for i, name in enumerate(names):
@@ -123,7 +128,7 @@ def rated_payload(machine: Machine, q, threshold_n: float,
     pinv = np.linalg.pinv(a)
     null = np.linalg.svd(a)[2][-1]
     f0, f1 = pinv @ w_at0[[2, 3, 4]], pinv @ dw[[2, 3, 4]]
-    lo, hi = _effort_ranges(machine)
+    lo, hi = effort_ranges(machine)
     names = machine.coordinates.independent_names
     # Each servo alone: lo <= e0 + m de <= hi bounds m from above (m >= 0).
     best, limit = _MAX_PAYLOAD, "none"
