@@ -14,7 +14,7 @@ from pathlib import Path
 import click
 
 from wbc_hdmm.output import OutputError, prepare_out_dir
-from wbc_hdmm.report import acceptance_lines, comparison_table, metrics_lines
+from wbc_hdmm.report import acceptance_lines, comparison_table, metrics_lines, sweep_lines
 
 __all__ = ["cli", "main"]
 
@@ -189,12 +189,7 @@ def sweep_cmd(family, draws, first, controllers, master_seed, jobs, ray_address,
         summary = run_sweep(family, draws, names, out, master_seed=master_seed, jobs=jobs,
                             ray_address=ray_address, first=first,
                             progress=lambda done, total: bar.update(done))
-    for name in names:
-        s = summary.get(name, {})
-        click.echo(f"   {name:18s} draws {s.get('draws', 0):4d}  below threshold "
-                   f"{s.get('draws_below_threshold', 0):4d}  safe {s.get('fraction_safe')}  "
-                   f"unsafe <= {s.get('unsafe_upper_95', 1.0):.3f} (95 %)  tip-overs "
-                   f"{s.get('tipovers', 0)}  exceptions {s.get('exceptions', 0)}")
+    click.echo("\n".join(sweep_lines(summary, names)))
     click.echo(f"   wrote {out / 'sweep.jsonl'}, {out / 'summary.json'}")
     return 0
 

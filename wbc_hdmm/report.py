@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-__all__ = ["acceptance_lines", "comparison_table", "fmt", "metrics_lines"]
+__all__ = ["acceptance_lines", "comparison_table", "fmt", "metrics_lines", "sweep_lines"]
 
 _METRIC_KEYS = ("sim_seconds", "wall_seconds", "real_time_factor", "max_closure_violation_m",
                 "min_normal_force_N", "contact_loss_fraction", "tipped", "task_error_final",
@@ -58,3 +58,15 @@ def comparison_table(metrics_by_controller: dict) -> list[str]:
             f"{'-' if task is None else f'{task:.1f}':>13s} "
             f"{m['control_step_ms']['median']:13.2f} {m['fallbacks']:9d}")
     return lines
+
+
+def sweep_lines(summary: dict, controllers) -> list[str]:
+    """One line per controller of a sweep's summary (`scenarios.sweep.summarize`)."""
+    out = []
+    for name in controllers:
+        s = summary.get(name, {})
+        out.append(f"   {name:18s} draws {s.get('draws', 0):4d}  below threshold "
+                   f"{s.get('draws_below_threshold', 0):4d}  safe {s.get('fraction_safe')}  "
+                   f"unsafe <= {s.get('unsafe_upper_95', 1.0):.3f} (95 %)  tip-overs "
+                   f"{s.get('tipovers', 0)}  exceptions {s.get('exceptions', 0)}")
+    return out
