@@ -71,9 +71,10 @@ def controller_config(threshold_n: float | None = None,
     The reference (the operator's motion profile, the same for all three controllers) uses
     ``crane_speed`` = (60 %, 20 %) of the axis velocity and acceleration limits by default:
     a heavy crane at long reach, whose lift cylinder is at 75-85 % of its force statically
-    (the description's limits allow 3 rad/s^2 of slew). The MPC keeps ``margin = 1.5 kN``
-    above the threshold for what it cannot predict (terrain ahead), and levels the chassis
-    through the suspension with weight 10.
+    (the description's limits allow 3 rad/s^2 of slew). The MPC keeps no hand-set margin:
+    the run adds ``z sigma`` per wheel from the observer's error model every tick
+    (`scenarios.closed_loop.uncertainty_margin`; zero for the oracle), and it levels the
+    chassis through the suspension with weight 10.
 
     Args:
         threshold_n: Normal-force threshold of every wheel [N]; `threshold` if None.
@@ -86,7 +87,7 @@ def controller_config(threshold_n: float | None = None,
     return ControllerConfig(
         reference=ReferenceConfig(velocity_fraction=crane_speed[0],
                                   acceleration_fraction=crane_speed[1]),
-        force=ForceConfig(thresholds=(thr, thr, thr, thr), margin=1500.0,
+        force=ForceConfig(thresholds=(thr, thr, thr, thr), margin=0.0,
                           leveling_weight=10.0))
 
 
