@@ -42,7 +42,12 @@ def test_unknown_scenario_is_a_clear_error(tmp_path, capsys):
 
 
 def test_contact_loss_run_loses_every_wheel(tmp_path):
-    metrics, log = _run(tmp_path, "contact-loss")
+    # The whole 200 s run, without the sensors' observers (the CLI runs are tested above).
+    from scenarios.openloop import SCENARIOS as OPEN_LOOP
+    from scenarios.openloop import run_open_loop
+
+    metrics = run_open_loop(OPEN_LOOP["contact-loss"], tmp_path, progress=False, observe=False)
+    log = load_log(tmp_path)
     assert metrics["sim_seconds"] == pytest.approx(200.0, abs=0.05)
     for wheel in WHEEL_ORDER:
         assert metrics["contact_loss_fraction"][wheel] > 0.0, wheel
