@@ -11,7 +11,9 @@ import platform
 import time
 from pathlib import Path
 
-BENCHES = ("simulator", "estimator", "controller", "observer")
+BENCHES = ("simulator", "estimator", "controller", "observer", "qp")
+# The file each benchmark writes, when it is not ``<name>.json``.
+FILES = {"qp": "qp_solvers"}
 
 
 def _machine_info() -> dict:
@@ -31,11 +33,13 @@ def _run_one(name: str, out: Path) -> dict:
         from benchmarks.bench_wbc import run
     elif name == "observer":
         from benchmarks.bench_observer import run
+    elif name == "qp":
+        from benchmarks.bench_qp_solvers import run
     else:
         raise ValueError(f"unknown benchmark '{name}'; valid: {', '.join(BENCHES)}")
     result = run(out)
     result["host"] = _machine_info()
-    (out / f"{name}.json").write_text(json.dumps(result, indent=2, default=float))
+    (out / f"{FILES.get(name, name)}.json").write_text(json.dumps(result, indent=2, default=float))
     return result
 
 

@@ -7,7 +7,8 @@ import pytest
 from benchmarks import BENCHES
 
 
-@pytest.mark.parametrize("module", ["bench_simulator", "bench_estimator", "bench_wbc"])
+@pytest.mark.parametrize("module", ["bench_simulator", "bench_estimator", "bench_wbc",
+                                    "bench_qp_solvers"])
 def test_benchmark_modules_import(module):
     mod = importlib.import_module(f"benchmarks.{module}")
     assert callable(mod.run)

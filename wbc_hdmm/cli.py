@@ -19,7 +19,7 @@ from wbc_hdmm.report import acceptance_lines, comparison_table, metrics_lines, s
 __all__ = ["cli", "main"]
 
 CONTROLLERS = ("tracking", "mpc-quasi-static", "mpc-full")
-BENCHES = ("simulator", "estimator", "controller", "observer")
+BENCHES = ("simulator", "estimator", "controller", "observer", "qp")
 EXIT_ERROR = 2
 EXIT_INTERRUPTED = 130
 
@@ -276,7 +276,7 @@ def estimate_cmd(log, out, no_plots, no_progress) -> int:
 @click.option("--only", type=click.Choice(BENCHES), default=None,
               help="One benchmark  [default: all]")
 def bench_cmd(out, only) -> int:
-    """Benchmarks of the simulator, the estimator and the controllers."""
+    """Benchmarks of the simulator, the estimator, the controllers and the QP solvers."""
     prepare_out_dir(out, force=True)
     import benchmarks
 

@@ -6,10 +6,10 @@ import qpsolvers
 
 from wbc.errors import UnknownSolverError
 from wbc.solvers.proxqp_workspace import ProxQPWorkspace
-from wbc.solvers.qpsolvers_backend import QpsolversBackend
+from wbc.solvers.qpsolvers_backend import QpsolversBackend, backend_settings
 from wbc.solvers.solution import QPSolution
 
-__all__ = ["ProxQPWorkspace", "QPSolution", "QpsolversBackend", "make_solver"]
+__all__ = ["ProxQPWorkspace", "QPSolution", "QpsolversBackend", "backend_settings", "make_solver"]
 
 
 def make_solver(name: str = "proxqp", eps_abs: float = 1e-7, eps_rel: float = 0.0,
@@ -19,7 +19,7 @@ def make_solver(name: str = "proxqp", eps_abs: float = 1e-7, eps_rel: float = 0.
 
     ``proxqp``: a warm-started `ProxQPWorkspace`; any other qpsolvers name: a cold
     `QpsolversBackend` with the same absolute/relative tolerances under the backend's own
-    setting names (DAQP: ``primal_tol``/``dual_tol``; OSQP, PIQP: ``eps_abs``/``eps_rel``).
+    setting names (`backend_settings`).
     ``feasible_by_construction`` (soft constraints, limits relaxed to the brake
     trajectory): a ProxQP "primal infeasible" is then retried (`ProxQPWorkspace`).
 
@@ -31,13 +31,4 @@ def make_solver(name: str = "proxqp", eps_abs: float = 1e-7, eps_rel: float = 0.
                                retry_infeasible=feasible_by_construction)
     if name not in qpsolvers.available_solvers:
         raise UnknownSolverError(name, tuple(qpsolvers.available_solvers))
-    return QpsolversBackend(name, **_tolerances(name, eps_abs, eps_rel))
-
-
-def _tolerances(name: str, eps_abs: float, eps_rel: float) -> dict:
-    """Each backend's own names for the absolute and relative tolerances."""
-    if name == "daqp":
-        return {"primal_tol": eps_abs, "dual_tol": eps_abs}
-    if name in ("osqp", "piqp", "proxqp", "scs", "qpalm"):
-        return {"eps_abs": eps_abs, "eps_rel": eps_rel}
-    return {}
+    return QpsolversBackend(name, **backend_settings(name, eps_abs, eps_rel))

@@ -78,6 +78,20 @@ class ProxQPWorkspace:
         self._dims = None
         self._P = None
 
+    @property
+    def multipliers(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """``(z, z_box)`` of the last successful solve, or None (none yet, or it failed).
+
+        ``z``: the inequality rows' multipliers, shape (n_in,); ``z_box``: the bounds',
+        shape (n,) (positive at an upper bound, negative at a lower one), the convention of
+        ``qpsolvers.Solution`` (for its dual residual and duality gap).
+        """
+        if self._qp is None:
+            return None
+        z = self._qp.results.z
+        n_in = self._dims[1]
+        return z[:n_in].copy(), z[n_in:].copy()
+
     def _settings(self, qp) -> None:
         s = qp.settings
         s.eps_abs = self.eps_abs

@@ -7,10 +7,39 @@ import time
 import numpy as np
 import qpsolvers
 
-from wbc.errors import QPSolveError, UnknownSolverError
+from wbc.errors import ConfigurationError, QPSolveError, UnknownSolverError
 from wbc.solvers.solution import QPSolution
 
-__all__ = ["QpsolversBackend"]
+__all__ = ["QpsolversBackend", "backend_settings"]
+
+
+def backend_settings(solver: str, eps_abs: float, eps_rel: float = 0.0) -> dict:
+    """The keyword settings that give ``solver`` the tolerances ``eps_abs``, ``eps_rel``.
+
+    qpsolvers forwards keywords to the backend unchanged, and the backends name their
+    tolerances differently: DAQP (an active-set method, exact up to its pivoting) takes a
+    primal feasibility tolerance ``primal_tol`` and rejects ``eps_abs`` with a TypeError;
+    OSQP's ADMM solution is then polished (``polishing``: the active set's KKT system solved
+    exactly), without which 1e-7 takes thousands of iterations; PIQP and ProxQP take
+    ``eps_abs`` and ``eps_rel``. Iteration caps are the backends' own: their iterations are
+    not comparable (an active-set change, an ADMM step, an interior-point step).
+
+    Args:
+        solver: A qpsolvers backend name.
+        eps_abs: Absolute primal (and, where the backend has one, dual) tolerance.
+        eps_rel: Relative tolerance (ignored by DAQP).
+
+    Raises:
+        ConfigurationError: ``eps_abs <= 0`` or ``eps_rel < 0``.
+    """
+    if not (eps_abs > 0 and eps_rel >= 0):
+        raise ConfigurationError(f"need eps_abs > 0 and eps_rel >= 0, got {eps_abs}, {eps_rel}")
+    if solver == "daqp":
+        return {"primal_tol": float(eps_abs)}
+    settings = {"eps_abs": float(eps_abs), "eps_rel": float(eps_rel)}
+    if solver == "osqp":
+        settings.update(polishing=True, max_iter=20000)
+    return settings
 
 
 class QpsolversBackend:
@@ -18,15 +47,15 @@ class QpsolversBackend:
 
     Args:
         solver: A name in ``qpsolvers.available_solvers``.
-        **tolerances: Solver-specific keyword settings passed on every solve (set them
-            explicitly, e.g. ``eps_abs=1e-7`` for OSQP/ProxQP).
+        **settings: Solver-specific keyword settings passed on every solve (set them
+            explicitly; `backend_settings` gives the tolerances by their backend's names).
     """
 
-    def __init__(self, solver: str, **tolerances):
+    def __init__(self, solver: str, **settings):
         if solver not in qpsolvers.available_solvers:
             raise UnknownSolverError(solver, tuple(qpsolvers.available_solvers))
         self.solver = solver
-        self.tolerances = dict(tolerances)
+        self.tolerances = dict(settings)
         self.n_init = 0
 
     def reset(self) -> None:
