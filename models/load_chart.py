@@ -49,11 +49,15 @@ class RatedLoad:
         mass: Largest payload [kg] (0 when even an empty grapple is out of the limits).
         limit: What limits it: a coordinate's name (its actuator) or ``tipping``.
         forces: The wheels' normal forces with that payload and the best split [N], (4,).
+        sensitivity: How the wheels' forces change with the payload at this pose [N/kg],
+            (4,): the least-norm solution of the equilibrium rows (no warp), the part a
+            sudden load change sets before the suspension moves the split.
     """
 
     mass: float
     limit: str
     forces: np.ndarray
+    sensitivity: np.ndarray
 
 
 def _models(machine: Machine) -> tuple[PinocchioMachine, PinocchioMachine]:
@@ -136,7 +140,7 @@ def rated_payload(machine: Machine, q, threshold_n: float,
         for bound, sign in ((hi[i], 1.0), (lo[i], -1.0)):
             slope, room = sign * de[i], sign * (bound - e_at0[i])
             if room < 0:
-                return RatedLoad(0.0, names[i], f0.copy())
+                return RatedLoad(0.0, names[i], f0.copy(), f1)
             if slope > 0 and room / slope < best:
                 best, limit = room / slope, names[i]
     # Tipping with the best split: max m s.t. f0 + m f1 + t n >= f_min (variables m, t).
@@ -144,14 +148,14 @@ def rated_payload(machine: Machine, q, threshold_n: float,
                   b_ub=f0 - threshold_n, bounds=[(0.0, _MAX_PAYLOAD), (None, None)],
                   method="highs")
     if res.status != 0:
-        return RatedLoad(0.0, "tipping", f0.copy())
+        return RatedLoad(0.0, "tipping", f0.copy(), f1)
     if res.x[0] < best:
         best, limit = float(res.x[0]), "tipping"
     # The split at the rated mass: the one that maximizes the smallest force.
     res = linprog(c=[0.0, -1.0], A_ub=np.column_stack([-null, np.ones(4)]),
                   b_ub=f0 + best * f1, bounds=[(None, None), (None, None)], method="highs")
     t = res.x[0] if res.status == 0 else 0.0
-    return RatedLoad(float(best), limit, f0 + best * f1 + t * null)
+    return RatedLoad(float(best), limit, f0 + best * f1 + t * null, f1)
 
 
 def load_chart(machine: Machine, threshold_n: float, slews_deg=(0.0, 30.0, 60.0),

@@ -56,6 +56,7 @@ from wbc import (
     TcpKinematics,
     make_controller,
 )
+from wbc.pick_reserve import PickReserve
 
 # DEFAULT_SCENARIO and SCENARIOS are re-exported: callers pick a scenario here by name.
 __all__ = ["DEFAULT_SCENARIO", "FORCE_CONFIDENCE", "SCENARIOS", "run_closed_loop",
@@ -200,6 +201,8 @@ def run_closed_loop(scenario: ClosedLoopScenario | str, out_dir: Path | None = N
     step_s = np.zeros(n_max)
     fallbacks = 0
     payload_done = scenario.payload_event is None
+    grapple_at = scenario.grapple_close_time()
+    reserve = PickReserve(machine, thr) if mpc and grapple_at is not None else None
     interrupted = False
     wall0 = time.perf_counter()
     with Progress(duration, f"{scenario.name}/{controller}",
@@ -217,10 +220,15 @@ def run_closed_loop(scenario: ClosedLoopScenario | str, out_dir: Path | None = N
                     break
                 if not ready:
                     tau = -1.0  # the operator waits: no goal, no driving, no event yet
+                told = None
+                if reserve is not None and not reserve.active and tau >= grapple_at - 1e-9 \
+                        and not payload_done:
+                    reserve.close_grapple(t)  # the operator's grapple command
                 if not payload_done and tau >= scenario.payload_event[0] - 1e-9:
                     _set_payload(sim, scenario.payload_event[1])
-                    if inform_payload:
+                    if inform_payload and sensors == "oracle":
                         sensing.tell_payload(scenario.payload_event[1])
+                        told = "pick"
                     payload_done = True
                 tcp_err = float(np.linalg.norm(kin.position(_true_q(sim, truth_state)) - tcp_goal))
                 new_goal = goals.update(tau, tcp_err)
@@ -238,6 +246,10 @@ def run_closed_loop(scenario: ClosedLoopScenario | str, out_dir: Path | None = N
                 if mpc:
                     ctrl.set_payload_mass(seen.payload_mass)
                     margin = uncertainty_margin(ctrl, seen, confidence)
+                    if reserve is not None:
+                        margin = margin + reserve.update(
+                            t, seen.state.q, seen.state.base_rotation, seen.payload_mass,
+                            seen.payload_std, seen.payload_event or told)
                     ctrl.set_force_margin(margin)
                 cmd = ctrl.step(seen.state)
                 step_s[k] = time.perf_counter() - t0 + obs.observer_seconds
@@ -335,7 +347,7 @@ def uncertainty_margin(ctrl: MpcController, seen, confidence: float) -> np.ndarr
     if not (np.any(unc.acceleration) or np.any(unc.qd) or np.any(unc.suspension_force)
             or unc.payload_mass):
         return np.zeros(4)
-    closure = ctrl.feedback.closure if ctrl.feedback is not None else ctrl.force_model
+    closure = _closure(ctrl)
     state = seen.state
     lin = closure.linearize(state)
     if closure is not ctrl.force_model:
@@ -344,6 +356,11 @@ def uncertainty_margin(ctrl: MpcController, seen, confidence: float) -> np.ndarr
     d_m = (closure.payload_sensitivity(state) if hasattr(closure, "payload_sensitivity")
            else None)
     return force_margin(normal_force_std(lin, unc, d_susp, d_m), confidence)
+
+
+def _closure(ctrl: MpcController):
+    """The model of the forces now: the feedback's closure, else the MPC's force model."""
+    return ctrl.feedback.closure if ctrl.feedback is not None else ctrl.force_model
 
 
 def _notice(text: str) -> None:

@@ -19,7 +19,11 @@ Families (ranges drawn uniformly; slopes in degrees, the side slope's downhill s
 * ``standing-on-rough``: standing on 12-20 deg rough terrain (side slope 0-8), 1-3 goals.
 
 Every goal is checked at construction against the limits the controller uses
-(`check_reachable`): an unreachable goal is a `ScenarioFileError` before the run.
+(`check_reachable`): an unreachable goal is a `ScenarioFileError` before the run. Goals are
+also drawn where the crane can hold the heaviest payload of the draw (its rated payload on
+level ground from the load chart, `models.load_chart.rated_payload`, at least
+1 / `HOLD_FRACTION` times that mass): an operator does not command a pose the cylinders cannot
+hold; whether the machine stays on four wheels there is the controller's business.
 """
 
 from __future__ import annotations
@@ -32,15 +36,18 @@ import numpy as np
 
 from models import build_reference_machine
 from models.description import Machine
+from models.load_chart import rated_payload
 from scenarios.errors import RunInputError, ScenarioFileError
 from scenarios.scenario import TRANSPORT, ClosedLoopScenario, CranePose
 
-__all__ = ["FAMILIES", "GRAPPLE_MASS", "POSITION_MARGIN", "Draw", "check_reachable", "draw"]
+__all__ = ["FAMILIES", "GRAPPLE_MASS", "HOLD_FRACTION", "POSITION_MARGIN", "Draw",
+           "check_reachable", "draw"]
 
 GRAPPLE_MASS = 10.0  # [kg] an empty grapple
 POSITION_MARGIN = 0.01  # the controller's margin (`wbc.ControllerConfig.position_margin`)
 _EDGE = 0.03  # goals keep this fraction of each range from its ends (inside the margin)
 _WRIST_LIMIT_DEG = 88.0  # the wrist keeps the tool vertical: |lift + tilt| within this
+HOLD_FRACTION = 0.8  # a goal's payload is at most this fraction of its rated payload
 
 
 @dataclass(frozen=True)
@@ -63,8 +70,12 @@ class Draw:
 
 
 def _pose_in_workspace(rng: np.random.Generator, machine: Machine, slew_deg=None,
-                       reach: tuple[float, float] = (0.0, 1.0)) -> CranePose:
-    """A random pose inside the controller's ranges; ``reach`` picks the telescope range."""
+                       reach: tuple[float, float] = (0.0, 1.0), hold: float = 0.0
+                       ) -> CranePose:
+    """A random pose inside the controller's ranges; ``reach`` picks the telescope range.
+
+    ``hold`` [kg]: the pose must hold this payload with the room `HOLD_FRACTION` leaves.
+    """
     ch = machine.chains
     for _ in range(1000):
         angles = []
@@ -80,8 +91,12 @@ def _pose_in_workspace(rng: np.random.Generator, machine: Machine, slew_deg=None
         span = t_hi - t_lo
         telescope = rng.uniform(t_lo + max(_EDGE, reach[0]) * span,
                                 t_lo + min(1 - _EDGE, reach[1]) * span)
-        return CranePose(*angles, telescope)
-    raise RunInputError("no crane pose found in the workspace (1000 tries)")
+        pose = CranePose(*angles, telescope)
+        if hold > 0 and rated_payload(machine, pose.q(machine), 0.0).mass * HOLD_FRACTION < hold:
+            continue
+        return pose
+    raise RunInputError(f"no crane pose found in the workspace that holds {hold:.0f} kg "
+                        "(1000 tries)")
 
 
 def check_reachable(scenario: ClosedLoopScenario, machine: Machine | None = None,
@@ -122,7 +137,6 @@ def _random(rng, machine, name):
     rough = rng.uniform(0, 20)
     speed = 0.0 if standing else rng.uniform(0.1, 0.6)
     n_goals = int(rng.integers(1, 4))
-    goals = tuple(_pose_in_workspace(rng, machine) for _ in range(n_goals))
     payload = rng.uniform(50, 300)
     event = None
     kind = rng.choice(["none", "none", "pick", "release"])
@@ -132,6 +146,8 @@ def _random(rng, machine, name):
         payload = GRAPPLE_MASS
     elif kind == "release":
         event = (first + rng.uniform(3.0, 6.0), GRAPPLE_MASS)
+    heaviest = max(payload, event[1] if event else 0.0)
+    goals = tuple(_pose_in_workspace(rng, machine, hold=heaviest) for _ in range(n_goals))
     heading = rng.uniform(-math.pi, math.pi) if standing else rng.uniform(-0.5, 0.5)
     duration = 10.0 + 5.0 * n_goals
     start = (rng.uniform(6, 12), rng.uniform(-2, 2), heading) if standing else (
@@ -147,11 +163,12 @@ def _random(rng, machine, name):
 def _heavy_pick(rng, machine, name):
     side = -rng.uniform(5, 12)
     down = _downhill_slew(side)
+    mass = rng.uniform(230, 300)
     grab = _pose_in_workspace(rng, machine, slew_deg=down * rng.uniform(0.6, 1.0),
-                              reach=(0.7, 1.0))
+                              reach=(0.7, 1.0), hold=mass)
     return dict(name=name, side_slope_deg=side, rough_slope_deg=rng.uniform(5, 15),
                 drive_speed=0.0, drive_distance=0.0, goals=(TRANSPORT,),
-                payload_mass=GRAPPLE_MASS, payload_event=(2.0, rng.uniform(230, 300)),
+                payload_mass=GRAPPLE_MASS, payload_event=(2.0, mass),
                 first_goal_time=2.5, start=(rng.uniform(6, 12), rng.uniform(-2, 2), 0.0),
                 crane_speed=(0.6, 0.2), duration=15.0, start_pose=grab)
 
@@ -159,11 +176,12 @@ def _heavy_pick(rng, machine, name):
 def _fast_swing(rng, machine, name):
     side = rng.uniform(8, 12) * rng.choice([-1.0, 1.0])
     speed = rng.uniform(0.3, 0.6)
+    payload = rng.uniform(100, 250)
     out = [_pose_in_workspace(rng, machine, slew_deg=s * rng.uniform(40, 60),
-                              reach=(0.6, 1.0)) for s in (1.0, -1.0)]
+                              reach=(0.6, 1.0), hold=payload) for s in (1.0, -1.0)]
     return dict(name=name, side_slope_deg=side, rough_slope_deg=rng.uniform(10, 20),
                 drive_speed=speed, drive_distance=0.8 * speed * 13.0, goals=tuple(out),
-                payload_mass=rng.uniform(100, 250), payload_event=None,
+                payload_mass=payload, payload_event=None,
                 first_goal_time=rng.uniform(1.0, 2.0),
                 start=(0.0, rng.uniform(-2, 2), rng.uniform(-0.3, 0.3)),
                 crane_speed=(rng.uniform(0.7, 0.8), rng.uniform(0.3, 0.4)), duration=15.0,
@@ -172,10 +190,12 @@ def _fast_swing(rng, machine, name):
 
 def _standing_rough(rng, machine, name):
     n_goals = int(rng.integers(1, 4))
+    payload = rng.uniform(50, 300)
     return dict(name=name, side_slope_deg=rng.uniform(0, 8) * rng.choice([-1.0, 1.0]),
                 rough_slope_deg=rng.uniform(12, 20), drive_speed=0.0, drive_distance=0.0,
-                goals=tuple(_pose_in_workspace(rng, machine) for _ in range(n_goals)),
-                payload_mass=rng.uniform(50, 300), payload_event=None,
+                goals=tuple(_pose_in_workspace(rng, machine, hold=payload)
+                            for _ in range(n_goals)),
+                payload_mass=payload, payload_event=None,
                 first_goal_time=rng.uniform(1.0, 2.0),
                 start=(rng.uniform(6, 12), rng.uniform(-2, 2), rng.uniform(-math.pi, math.pi)),
                 crane_speed=(rng.uniform(0.3, 0.8), rng.uniform(0.1, 0.4)),

@@ -13,9 +13,11 @@ import numpy as np
 
 from models.description import Machine
 
-__all__ = ["DRIVE_RAMP_SECONDS", "TRANSPORT", "ClosedLoopScenario", "CranePose"]
+__all__ = ["DRIVE_RAMP_SECONDS", "GRAPPLE_CLOSE_SECONDS", "TRANSPORT", "ClosedLoopScenario",
+           "CranePose"]
 
 DRIVE_RAMP_SECONDS = 1.0  # the scripted wheel speeds ramp up smoothly over this
+GRAPPLE_CLOSE_SECONDS = 1.0  # the operator's grapple command comes this long before a pick
 
 
 @dataclass(frozen=True)
@@ -70,7 +72,9 @@ class ClosedLoopScenario:
             `DRIVE_RAMP_SECONDS`; 0: standing.
         drive_distance: Distance the base must cover for the task [m].
         payload_mass: Payload at the start [kg].
-        payload_event: (time [s], new payload mass [kg]) or None.
+        payload_event: (time [s], new payload mass [kg]) or None. A heavier mass is a pick:
+            the operator's grapple command comes `GRAPPLE_CLOSE_SECONDS` before it
+            (`grapple_close_time`).
         start: Base (x [m], y [m], heading [rad]) at the start. The rough terrain is level
             within 3 m of the origin (`models.terrain.rough`), so a machine that does not
             drive starts farther out.
@@ -93,6 +97,12 @@ class ClosedLoopScenario:
     payload_event: tuple[float, float] | None = None
     start: tuple[float, float, float] = (0.0, 0.0, 0.0)
     crane_speed: tuple[float, float] = (0.6, 0.2)
+
+    def grapple_close_time(self) -> float | None:
+        """When the operator closes the grapple on a load [s], or None (no pick)."""
+        if self.payload_event is None or self.payload_event[1] <= self.payload_mass:
+            return None
+        return max(self.payload_event[0] - GRAPPLE_CLOSE_SECONDS, 0.0)
 
     def wheel_speed(self, t: float, radius: float) -> float:
         """The operator's wheel speed at time ``t`` [rad/s] (both sides)."""

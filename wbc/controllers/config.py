@@ -312,7 +312,9 @@ class ControllerConfig:
 
     Attributes:
         dt: Control period [s].
-        solver: ``proxqp`` (warm-started workspace) or any qpsolvers backend name.
+        solver: ``daqp`` (default: the fastest backend that solved every QP of the
+            recorded corpus, `benchmarks.bench_qp_solvers`), ``proxqp`` (warm-started
+            workspace) or any other qpsolvers backend name.
         eps_abs, eps_rel: Solver tolerances.
         max_iter: Cap on the solver's outer (proximal) iterations per solve; ProxQP runs at
             most 60 inner iterations in each (`ProxQPWorkspace`), so a tick's worst case
@@ -322,7 +324,7 @@ class ControllerConfig:
     """
 
     dt: float = 0.01
-    solver: str = "proxqp"
+    solver: str = "daqp"
     eps_abs: float = 1e-7
     eps_rel: float = 0.0
     max_iter: int = 50
