@@ -119,7 +119,7 @@ def run_closed_loop(scenario: ClosedLoopScenario | str, out_dir: Path | None = N
                     config: ControllerConfig | None = None,
                     inform_payload: bool = True, threshold_n: float | None = None,
                     sensors: str = "realistic", sensor_seed: int | None = None,
-                    confidence: float = FORCE_CONFIDENCE) -> dict:
+                    confidence: float = FORCE_CONFIDENCE, pick_reserve: bool = False) -> dict:
     """Run a closed-loop scenario; write ``log.npz`` and ``metrics.json`` to ``out_dir``.
 
     Args:
@@ -142,6 +142,9 @@ def run_closed_loop(scenario: ClosedLoopScenario | str, out_dir: Path | None = N
         confidence: The MPC keeps each wheel's force above its threshold plus ``z sigma``
             of the force's uncertainty, ``z`` of this one-sided confidence
             (`estimators.uncertainty.force_margin`).
+        pick_reserve: Arm the pick reserve at the grapple command (`wbc.pick_reserve`; off
+            by default: it cut the heavy picks' dips on standing draws but took a wheel to
+            0 N for 12 ms in ``pick-in-motion``, which is safe without it).
 
     Returns:
         The metrics (also written to ``metrics.json``), with ``"partial": False``.
@@ -202,7 +205,8 @@ def run_closed_loop(scenario: ClosedLoopScenario | str, out_dir: Path | None = N
     fallbacks = 0
     payload_done = scenario.payload_event is None
     grapple_at = scenario.grapple_close_time()
-    reserve = PickReserve(machine, thr) if mpc and grapple_at is not None else None
+    reserve = (PickReserve(machine, thr) if pick_reserve and mpc and grapple_at is not None
+               else None)
     interrupted = False
     wall0 = time.perf_counter()
     with Progress(duration, f"{scenario.name}/{controller}",

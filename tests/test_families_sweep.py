@@ -101,3 +101,19 @@ def test_ray_gives_the_same_rows_as_the_process_pool(tmp_path):
 
     assert rows("pool") == rows("ray") and len(rows("pool")) == 2
     assert pool["tracking"]["draws"] == ray["tracking"]["draws"] == 2
+
+
+@pytest.mark.parametrize("family", sorted(FAMILIES))
+def test_every_goal_holds_the_heaviest_payload_of_its_draw(family):
+    from models import build_reference_machine
+    from models.load_chart import rated_payload
+    from scenarios.families import HOLD_FRACTION
+
+    machine = build_reference_machine()
+    for i in range(4):
+        d = draw(family, i, 5)
+        sc = d.scenario
+        heaviest = max(sc.payload_mass, sc.payload_event[1] if sc.payload_event else 0.0)
+        for goal in sc.goals:
+            rated = rated_payload(machine, goal.q(machine), 0.0).mass
+            assert rated * HOLD_FRACTION >= heaviest - 1e-9, (family, i, goal, rated)

@@ -79,3 +79,29 @@ def test_wbc_machine_load_chart_prints_and_plots(tmp_path, capsys):
     assert len([line for line in out.splitlines() if "(lift" in line or "(tilt" in line
                 or "(tipping" in line]) == 6
     assert main(["machine", "--load-chart", str(png), "--slope", "90"]) == 2
+
+
+
+def test_the_payload_sensitivity_carries_the_payload_weight():
+    """One kilogram more adds g newtons over the wheels at the payload's centre of mass."""
+    import pinocchio as pin
+
+    from models.load_chart import _contact_matrix
+
+    q = _pose(0.8)
+    r = rated_payload(MACHINE, q, THRESHOLD)
+    zero = np.zeros(13)
+    state = MachineState(np.zeros(3), np.eye(3), np.zeros(6), np.zeros(6), q, zero, zero)
+    p0, p1 = _models(MACHINE)
+    moments = []
+    for pm in (p0, p1):  # the whole machine's mass and centre of mass (Pinocchio)
+        qp, _, _ = pm.configuration(state)
+        c = pin.centerOfMass(pm.model, pm.data, qp)
+        moments.append((pin.computeTotalMass(pm.model), c))
+    (m0, c0), (m1, c1) = moments
+    com = (m1 * c1 - m0 * c0) / (m1 - m0)  # the payload's centre of mass, in fb
+    rows = _contact_matrix(p0, state)
+    g = MACHINE.gravity
+    np.testing.assert_allclose(rows @ r.sensitivity, [g, g * com[1], -g * com[0]],
+                               rtol=1e-6, atol=1e-6)
+    assert r.sensitivity.min() < 0 < r.sensitivity.max()  # the load tilts the machine

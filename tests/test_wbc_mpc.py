@@ -152,8 +152,10 @@ def test_mpc_sees_the_force_constraint_coming(machine):
 
 
 def test_mpc_wheel_speed_scale_and_warm_start(machine):
+    """ProxQP (selectable) warm-starts from its second tick; DAQP, the default, is cold."""
     st = make_state(machine)
-    c = _mpc(machine, _extension_model(machine, st))
+    cfg = ControllerConfig(solver="proxqp")
+    c = make_controller("mpc-full", machine, cfg, force_model=_extension_model(machine, st))
     cmd = c.step(st)
     assert cmd.wheel_speed_scale == pytest.approx(1.0, abs=1e-6)
     assert not cmd.info["warm_started"]

@@ -61,6 +61,11 @@ _force_option = click.option("--force", is_flag=True,
                                   "are replaced).")
 _progress_option = click.option("--no-progress", is_flag=True,
                                 help="No progress bars (they go to stderr).")
+_sensors_option = click.option(
+    "--sensors", type=click.Choice(("realistic", "ideal", "oracle")), default="realistic",
+    show_default=True, help="What the controller sees (closed loop): the machine's sensors "
+    "through the observer with datasheet errors (realistic) or without (ideal), or the "
+    "simulator's exact state (oracle; the payload is then told).")
 
 
 @click.group(context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100})
@@ -124,11 +129,7 @@ def _scenario_argument(scenario, scenario_file):
 @click.option("--threshold", type=float, default=None,
               help="Normal-force threshold [N] (closed loop)  [default: 10 % of the static "
                    "wheel load]")
-@click.option("--sensors", type=click.Choice(("realistic", "ideal", "oracle")),
-              default="realistic", show_default=True,
-              help="What the controller sees (closed loop): the machine's sensors through "
-                   "the observer with datasheet errors (realistic) or without (ideal), or "
-                   "the simulator's exact state (oracle; the payload is then told).")
+@_sensors_option
 @click.option("--noise", type=click.Choice(("none", "default")), default="none",
               show_default=True, help="Measurement-noise preset on the oracle state.")
 @click.option("--delay", type=int, default=0, show_default=True,
@@ -157,23 +158,23 @@ def run_cmd(scenario, scenario_file, controller, duration, seed, threshold, sens
 @click.option("--family", type=click.Choice(("random", "heavy-pick-downhill",
                                              "fast-swing-steep", "standing-on-rough")),
               default="random", show_default=True, help="Scenario family to draw from.")
-@click.option("--draws", type=click.IntRange(min=1), default=20, show_default=True,
-              help="Number of draws.")
+@click.option("--draws", type=click.IntRange(min=1), default=20, show_default=True, help="Draws.")
 @click.option("--first", type=click.IntRange(min=0), default=0, show_default=True,
               help="Index of the first draw.")
-@click.option("--controllers", default="tracking,mpc-full", show_default=True,
-              help="Comma-separated controllers.")
+@click.option("--controllers", default="tracking,mpc-full", show_default=True, help="Comma-"
+              "separated controllers.")
 @click.option("--master-seed", type=click.IntRange(min=0), default=0, show_default=True,
               help="Master seed of the draws (the acceptance runs use one not tuned on).")
 @click.option("-j", "--jobs", type=click.IntRange(min=1), default=2, show_default=True,
               help="Local worker processes.")
 @click.option("--ray", "ray_address", default=None,
               help="Run on Ray: 'local' starts Ray here, else a cluster address.")
+@_sensors_option
 @_out_option("out/sweep")
 @_force_option
 @_progress_option
-def sweep_cmd(family, draws, first, controllers, master_seed, jobs, ray_address, out, force,
-              no_progress) -> int:
+def sweep_cmd(family, draws, first, controllers, master_seed, jobs, ray_address, sensors, out,
+              force, no_progress) -> int:
     """Run many random draws of a scenario family; write sweep.jsonl and summary.json."""
     names = [c.strip() for c in controllers.split(",") if c.strip()]
     unknown = [c for c in names if c not in CONTROLLERS]
@@ -187,7 +188,7 @@ def sweep_cmd(family, draws, first, controllers, master_seed, jobs, ray_address,
     with Progress(draws * len(names), f"sweep {family}", enabled=None if not no_progress
                   else False, unit="runs") as bar:
         summary = run_sweep(family, draws, names, out, master_seed=master_seed, jobs=jobs,
-                            ray_address=ray_address, first=first,
+                            ray_address=ray_address, first=first, options={"sensors": sensors},
                             progress=lambda done, total: bar.update(done))
     click.echo("\n".join(sweep_lines(summary, names)))
     click.echo(f"   wrote {out / 'sweep.jsonl'}, {out / 'summary.json'}")
