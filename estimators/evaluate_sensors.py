@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from estimators.payload import SPAN, PayloadEstimator
+from estimators.payload import PayloadEstimator
 from models.coordinates import SUSPENSION
 from models.description import Machine
 from models.log import OBSERVED_SUITES
@@ -78,10 +78,7 @@ def _forces(machine: Machine, sb: StateBatch, payload: np.ndarray, method: str,
             machine, sb.q, sb.qd, setpoint))
         fourth = "cylinder-force"
     est = PayloadEstimator(machine, method=method, fourth=fourth, strokes="clip")
-    fa = est._a.estimate_batch(sb, strict=False).normal_forces
-    fb = est._b.estimate_batch(sb, strict=False).normal_forces
-    w = (payload - est._m_a) / SPAN
-    return fa + w[:, None] * (fb - fa)
+    return est.normal_forces_batch(sb, payload)
 
 
 def _errors(f: np.ndarray, gt: np.ndarray, rows: np.ndarray, four: np.ndarray,

@@ -114,6 +114,16 @@ class PayloadEstimator:
             G=self._mix(la.G, lb.G), g0=self._mix(la.g0, lb.g0),
             d_q=self._mix(la.d_q, lb.d_q), d_qd=self._mix(la.d_qd, lb.d_qd))
 
+    def normal_forces_batch(self, batch, payload, strict: bool = False) -> np.ndarray:
+        """Normal forces [N] (N, 4) of a `StateBatch`, each row at its own payload [kg] (N,).
+
+        ``strict`` as in `NormalForceEstimator.estimate_batch`.
+        """
+        fa = self._a.estimate_batch(batch, strict=strict).normal_forces
+        fb = self._b.estimate_batch(batch, strict=strict).normal_forces
+        w = (np.asarray(payload, float) - self._m_a) / SPAN
+        return fa + w[:, None] * (fb - fa)
+
     def payload_sensitivity(self, state: MachineState) -> np.ndarray:
         """``df/dm`` of the normal forces [N/kg], shape (4,) (exact: affine in ``m``)."""
         fa = self._a.estimate(state).normal_forces
