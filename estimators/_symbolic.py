@@ -32,6 +32,7 @@ from pathlib import Path
 import casadi as ca
 import numpy as np
 
+from estimators._kernel_calls import BATCH_C, Compiled, Interpreted
 from estimators.full_dynamics import normal_force_system
 from estimators.tree import TreeModel
 from models.coordinates import N_INDEPENDENT
@@ -153,9 +154,11 @@ class Layout:
     points (12, row-major (4, 3)), use-measured flags (4), measured forces in fb (12).
     Selectors (`full_dynamics.Selectors`): mask (4), height weights (4), s_dbeta, s_cylinder,
     lost (4). Parameters: D, beta, suspension forces (2). Outputs of ``nf_estimate``: x (4),
-    F_Xi (6), A (3x4), b (3), condition, contact points (4x3), residual (3); of
-    ``nf_constraint``: x, d x / d a (4x19 row-major), d b / d a (3x19); of
-    ``nf_derivatives``: x, d x / d a, d x / d q (4x13), d x / d qd (4x13).
+    F_Xi (6), A (3x4), b (3), condition, contact points (4x3), residual (3), checksum; of
+    ``nf_constraint``: x, d x / d a (4x19 row-major), d b / d a (3x19), g0 = x - (dx/da) a
+    (4), condition, checksum; of ``nf_derivatives``: x, d x / d a, d x / d q (4x13),
+    d x / d qd (4x13), g0, condition, checksum. The checksum is the sum of the row's other
+    outputs: finite exactly when all of them are, so a caller tests one number.
     """
 
     def __init__(self):
@@ -167,12 +170,16 @@ class Layout:
                           ("s_dbeta", None), ("s_cylinder", None), ("lost", 4), ("d", None),
                           ("beta", None), ("suspension_force", 2)])
         estimate = _packed([("out_x", 4), ("out_xi", 6), ("out_a", 12), ("out_b", 3),
-                            ("out_cond", None), ("out_points", 12), ("out_residual", 3)])
+                            ("out_cond", None), ("out_points", 12), ("out_residual", 3),
+                            ("out_sum", None)])
         estimate["out_size"] = estimate.pop("size")
-        constraint = _packed([("con_x", 4), ("con_g", 4 * g), ("con_jb", 3 * g)])
+        constraint = _packed([("con_x", 4), ("con_g", 4 * g), ("con_jb", 3 * g),
+                              ("con_g0", 4), ("con_cond", None), ("con_sum", None)])
         derivatives = _packed([("der_x", 4), ("der_a", 4 * g), ("der_q", 4 * n),
-                               ("der_qd", 4 * n)])
-        del constraint["size"], derivatives["size"]
+                               ("der_qd", 4 * n), ("der_g0", 4), ("der_cond", None),
+                               ("der_sum", None)])
+        constraint["con_size"] = constraint.pop("size")
+        derivatives["der_size"] = derivatives.pop("size")
         for part in (inputs, estimate, constraint, derivatives):
             self.__dict__.update(part)
 
@@ -206,15 +213,21 @@ def build_kernels(tree: TreeModel) -> dict[str, ca.Function]:
     jqd = ca.jacobian(x, qd)
     jb = ca.jacobian(out["b"], a_sym)
     flat = lambda m: ca.reshape(m.T, -1, 1)  # noqa: E731  (row-major)
-    # Dense outputs: generated C writes only structural nonzeros, and the ctypes callers
-    # read fixed row layouts.
-    dense = ca.densify
+    g0 = x - ja @ a_sym
+
+    def row(*parts):
+        # Dense outputs: generated C writes only structural nonzeros, and the ctypes callers
+        # read fixed row layouts. The last entry is the checksum (see `Layout`).
+        body = ca.densify(ca.vertcat(*parts))
+        return ca.vertcat(body, ca.sum1(body))
+
     return {
-        "nf_estimate": ca.Function("nf_estimate", [z], [dense(est)]),
+        "nf_estimate": ca.Function("nf_estimate", [z], [row(est)]),
         "nf_constraint": ca.Function("nf_constraint", [z],
-                                     [dense(ca.vertcat(x, flat(ja), flat(jb)))]),
+                                     [row(x, flat(ja), flat(jb), g0, out["cond"])]),
         "nf_derivatives": ca.Function("nf_derivatives", [z],
-                                      [dense(ca.vertcat(x, flat(ja), flat(jq), flat(jqd)))]),
+                                      [row(x, flat(ja), flat(jq), flat(jqd), g0,
+                                           out["cond"])]),
     }
 
 
@@ -224,103 +237,6 @@ def _cache_dir() -> Path:
         return Path(env)
     base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
     return Path(base) / "wbc-hdmm"
-
-
-_BATCH_C = """
-int {name}_batch(const casadi_real* in, casadi_real* out, casadi_int n, casadi_int* iw,
-                 casadi_real* w) {{
-  const casadi_real* arg[{sz_arg}];
-  casadi_real* res[{sz_res}];
-  casadi_int i;
-  int flag = 0;
-  for (i = 0; i < n; ++i) {{
-    arg[0] = in + i * {n_in};
-    res[0] = out + i * {n_out};
-    flag |= {name}(arg, res, iw, w, 0);
-  }}
-  return flag;
-}}
-"""
-
-
-class _Compiled:
-    """One compiled kernel in a shared library, called through ctypes."""
-
-    def __init__(self, lib: ctypes.CDLL, fun: ca.Function):
-        if not (fun.sparsity_in(0).is_dense() and fun.sparsity_out(0).is_dense()):
-            raise OSError(f"kernel {fun.name()} must have dense input and output")
-        self.name = fun.name()
-        self.n_in = fun.size1_in(0)
-        self.n_out = fun.size1_out(0)
-        self.sz_arg, self.sz_res = fun.sz_arg(), fun.sz_res()
-        self.sz_iw, self.sz_w = max(fun.sz_iw(), 1), max(fun.sz_w(), 1)
-        self._single = getattr(lib, self.name)
-        self._single.argtypes = [ctypes.c_void_p] * 4 + [ctypes.c_int]
-        self._single.restype = ctypes.c_int
-        self._batch = getattr(lib, self.name + "_batch")
-        self._batch.argtypes = [ctypes.c_void_p, ctypes.c_void_p, ctypes.c_longlong,
-                                ctypes.c_void_p, ctypes.c_void_p]
-        self._batch.restype = ctypes.c_int
-        self._local = threading.local()
-
-    def _work(self):
-        loc = self._local
-        if not hasattr(loc, "w"):
-            loc.iw = np.zeros(self.sz_iw, np.int64)
-            loc.w = np.zeros(self.sz_w)
-            loc.inp = np.zeros(self.n_in)
-            loc.out = np.zeros(self.n_out)
-            loc.arg = (ctypes.c_void_p * self.sz_arg)(loc.inp.ctypes.data)
-            loc.res = (ctypes.c_void_p * self.sz_res)(loc.out.ctypes.data)
-            loc.ptrs = (ctypes.addressof(loc.arg), ctypes.addressof(loc.res),
-                        loc.iw.ctypes.data, loc.w.ctypes.data)
-        return loc
-
-    def buffers(self):
-        """This thread's (input, output) buffers for `call_buffers`."""
-        loc = self._work()
-        return loc.inp, loc.out
-
-    def call_buffers(self) -> None:
-        """Evaluate on this thread's input buffer into its output buffer."""
-        p = self._local.ptrs
-        self._single(p[0], p[1], p[2], p[3], 0)
-
-    def batch(self, inp: np.ndarray, out: np.ndarray) -> None:
-        """Evaluate the rows of ``inp`` (C-contiguous (n, n_in)) into ``out`` (n, n_out)."""
-        loc = self._work()
-        self._batch(inp.ctypes.data, out.ctypes.data, inp.shape[0], loc.iw.ctypes.data,
-                    loc.w.ctypes.data)
-
-
-class _Interpreted:
-    """The same kernel evaluated by CasADi's virtual machine (no compiler available)."""
-
-    def __init__(self, fun: ca.Function):
-        self.fun = fun
-        self.n_in = fun.size1_in(0)
-        self.n_out = fun.size1_out(0)
-        self._local = threading.local()
-
-    def buffers(self):
-        """This thread's (input, output) buffers for `call_buffers`."""
-        loc = self._local
-        if not hasattr(loc, "inp"):
-            loc.inp = np.zeros(self.n_in)
-            loc.out = np.zeros(self.n_out)
-        return loc.inp, loc.out
-
-    def call_buffers(self) -> None:
-        """Evaluate on this thread's input buffer into its output buffer."""
-        loc = self._local
-        loc.out[:] = np.asarray(self.fun(loc.inp)).ravel()
-
-    def batch(self, inp: np.ndarray, out: np.ndarray) -> None:
-        """Evaluate the rows of ``inp`` into ``out``."""
-        if inp.shape[0] == 0:
-            return
-        fm = self.fun.map(inp.shape[0], "thread", 2)
-        out[:] = np.asarray(fm(inp.T)).T
 
 
 class Kernels:
@@ -367,9 +283,9 @@ class Kernels:
                 if k is None:
                     fun = self.functions[name]
                     if self.compiled and (name in self.libraries or self._try_compile(name)):
-                        k = _Compiled(ctypes.CDLL(str(self.libraries[name])), fun)
+                        k = Compiled(ctypes.CDLL(str(self.libraries[name])), fun)
                     else:
-                        k = _Interpreted(fun)
+                        k = Interpreted(fun)
                     self._kernels[name] = k
         return k
 
@@ -395,7 +311,7 @@ class Kernels:
             cg.add(fun)
             cg.generate(tmp + os.sep)
             src = Path(tmp, name + ".c").read_text()
-        src += _BATCH_C.format(name=name, sz_arg=max(fun.sz_arg(), 1),
+        src += BATCH_C.format(name=name, sz_arg=max(fun.sz_arg(), 1),
                                sz_res=max(fun.sz_res(), 1), n_in=fun.size1_in(0),
                                n_out=fun.size1_out(0))
         cc = os.environ.get("CC", "cc")
@@ -418,7 +334,7 @@ class Kernels:
         """(input buffer, output buffer, call) of kernel ``name`` for this thread."""
         k = self.kernel(name)
         inp, out = k.buffers()
-        return inp, out, k.call_buffers
+        return inp, out, getattr(k, "bound_call", lambda: k.call_buffers)()
 
     def pool(self, threads: int) -> ThreadPoolExecutor:
         """A thread pool shared by batch evaluations (compiled kernels release the GIL)."""

@@ -81,8 +81,9 @@ def estimate_batch(est, states, *, strict: bool = True, chunk: int = 4096,
         x[i], cond[i] = least_squares(a[i], b[i], ic[i].astype(float))
         residual[i] = a[i] @ x[i] - b[i]
     check_finite_result("the normal forces", sb, x, residual, points)
-    normals = sb.normal_in_fb if sb.normal_in_fb is not None else np.repeat(
-        sb.base_rotation[:, 2][:, None, :], 4, axis=1)
+    # Without logged normals, the world z axis in fb for all four wheels: a read-only view.
+    normals = sb.normal_in_fb if sb.normal_in_fb is not None else np.broadcast_to(
+        sb.base_rotation[:, 2][:, None, :], (n, 4, 3))
     friction = sb.force_in_fb if sb.force_in_fb is not None else np.zeros((n, 4, 3))
     return BatchEstimate(x, ic.copy(), xi, cond, mode, tip, residual, points, a, b,
                          singular, est.backend, normals, friction)

@@ -15,6 +15,8 @@ and agree to round-off; the tests check them against Pinocchio's RNEA.
 
 from __future__ import annotations
 
+import math
+import threading
 from dataclasses import replace
 
 import numpy as np
@@ -23,9 +25,10 @@ from estimators import batch
 from estimators import full_dynamics as fd
 from estimators._symbolic import LAYOUT, Kernels
 from estimators.batch import SINGULAR_CONDITION
-from estimators.checks import check_finite_result, check_options, coordinate_ranges
+from estimators.checks import check_finite_result, check_options
 from estimators.errors import EstimatorInputError, SingularSystemError, range_message
 from estimators.linearization import ForceLinearization
+from estimators.packing import RowPacker
 from estimators.quasi_static import QuasiStaticMask
 from estimators.results import BatchEstimate, Estimate
 from estimators.tipping import least_squares, masked_pinv
@@ -36,6 +39,8 @@ from models.state import MachineState
 __all__ = ["NormalForceEstimator"]
 
 _FD_STEP = 1e-6  # [m, rad], [m/s, rad/s]: central-difference step where no exact column exists
+_NO_FRICTION = np.zeros((4, 3))
+_NO_FRICTION.setflags(write=False)
 
 
 class NormalForceEstimator:
@@ -85,29 +90,16 @@ class NormalForceEstimator:
             self.backend = "compiled" if self._kernels.compiled else "casadi"
         else:
             self.backend = "reference"
-        self._ranges = coordinate_ranges(machine)
-        self._selector_cache: dict = {}
-        self._no_contacts = np.zeros(LAYOUT.force.stop - LAYOUT.points.start)
-        self._all_in = np.ones(4, bool)
-        self._up_cache: tuple | None = None
+        zeroed = None
         if self._qs is not None:
             drop = self._qs.dropped_index
-            self._qs_zero = np.concatenate([np.arange(LAYOUT.twist.start,
-                                                      LAYOUT.acceleration.stop),
-                                            LAYOUT.qd.start + drop, LAYOUT.qdd.start + drop])
+            zeroed = np.concatenate([np.arange(LAYOUT.twist.start, LAYOUT.acceleration.stop),
+                                     LAYOUT.qd.start + drop, LAYOUT.qdd.start + drop])
+        self._packer = RowPacker(machine, fourth, zeroed)
+        self._ranges = self._packer.ranges
+        self._calls = threading.local()
 
     # ------------------------------------------------------------------ inputs
-    def _selectors(self, in_contact: np.ndarray, has_cyl: bool):
-        key = (in_contact.tobytes(), has_cyl)
-        hit = self._selector_cache.get(key)
-        if hit is None:
-            s = fd.select_system(in_contact, self.fourth, has_cyl)
-            packed = np.concatenate([s.mask, s.height_weights, [s.s_dbeta, s.s_cylinder],
-                                     s.lost])
-            hit = (packed, s)
-            self._selector_cache[key] = hit
-        return hit
-
     def _checked(self, state) -> tuple[MachineState, tuple[str, ...]]:
         """The state to evaluate, after the stroke policy; and the coordinates clipped.
 
@@ -117,11 +109,10 @@ class NormalForceEstimator:
         """
         if not isinstance(state, MachineState):
             raise EstimatorInputError(f"state must be a MachineState, got {type(state).__name__}")
-        q = state.q
-        bad = [(name, unit, i, lo, hi) for name, unit, i, lo, hi in self._ranges
-               if not lo - 1e-12 <= q[i] <= hi + 1e-12]
+        bad = self._packer.out_of_range(state.q)
         if not bad:
             return state, ()
+        q = state.q
         if self.strokes == "raise":
             name, unit, i, lo, hi = bad[0]
             raise EstimatorInputError(range_message(name, unit, i, float(q[i]), (lo, hi)))
@@ -131,38 +122,17 @@ class NormalForceEstimator:
         self.n_clipped += 1
         return replace(state, q=q), tuple(name for name, *_ in bad)
 
-    def _fill(self, inp: np.ndarray, state: MachineState):
+    def _fill(self, inp: np.ndarray, state: MachineState) -> fd.Selectors:
         """Pack ``state`` into a kernel input row; returns the `Selectors` used."""
-        lay = LAYOUT
-        try:
-            r = state.base_rotation
-            np.concatenate((r.reshape(9), state.base_twist, state.base_acceleration, state.q,
-                            state.qd, state.qdd), out=inp[:lay.points.start])
-            c = state.contacts
-            if c is None:
-                inp[lay.points.start:lay.force.stop] = self._no_contacts
-                in_contact = self._all_in
-            else:
-                np.concatenate((c.point_in_fb.reshape(12), self._ones4,
-                                c.force_in_fb.reshape(12)),
-                               out=inp[lay.points.start:lay.force.stop])
-                in_contact = c.in_contact
-            f = state.suspension_force
-            packed, sel = self._selectors(in_contact, f is not None)
-            inp[lay.mask.start:lay.lost.stop] = packed
-            inp[lay.d] = self.D
-            inp[lay.beta] = self.beta
-            if f is None:
-                inp[lay.suspension_force] = 0.0
-            else:
-                inp[lay.suspension_force] = f
-        except (ValueError, AttributeError, TypeError) as exc:
-            raise EstimatorInputError(f"cannot read the state: {exc}") from exc
-        if self._qs is not None:
-            inp[self._qs_zero] = 0.0
-        return sel
+        return self._packer.fill(inp, state, self.D, self.beta)[0]
 
-    _ones4 = np.ones(4)
+    def _call(self, name: str):
+        """(input buffer, output buffer, call) of the compiled kernel ``name``, this thread."""
+        calls = self._calls.__dict__
+        hit = calls.get(name)
+        if hit is None:
+            hit = calls[name] = self._kernels.single(name)
+        return hit
 
     def _reference_row(self, inp: np.ndarray, sel: fd.Selectors) -> np.ndarray:
         """The kernel's ``nf_estimate`` output row computed by the numpy reference."""
@@ -174,14 +144,14 @@ class NormalForceEstimator:
             inp[lay.force].reshape(4, 3), sel, inp[lay.d], inp[lay.beta],
             inp[lay.suspension_force])
         x = out["x"]
-        return np.concatenate([x, out["xi"], out["A"].ravel(), out["b"], [out["cond"]],
-                               np.ravel(out["points"]), out["A"] @ x - out["b"]])
+        row = np.concatenate([x, out["xi"], out["A"].ravel(), out["b"], [out["cond"]],
+                              np.ravel(out["points"]), out["A"] @ x - out["b"]])
+        return np.append(row, row.sum())
 
     def _normals(self, state: MachineState) -> np.ndarray:
         if state.contacts is not None:
             return state.contacts.normal_in_fb
-        up = state.base_rotation[2]  # world z in fb: the flat-ground normal
-        return np.tile(up, (4, 1))
+        return np.repeat(state.base_rotation[2:3], 4, axis=0)  # world z in fb: flat ground
 
     # ------------------------------------------------------------------ public API
     def estimate(self, state: MachineState) -> Estimate:
@@ -204,59 +174,71 @@ class NormalForceEstimator:
         state, _ = self._checked(state)
         lay = LAYOUT
         if self._kernels is not None:
-            inp, out, call = self._kernels.single("nf_estimate")
-            sel = self._fill(inp, state)
+            inp, out, call = self._call("nf_estimate")
+            sel, flags = self._packer.fill(inp, state, self.D, self.beta)
             call()
+            row = out.copy()
         else:
             inp = np.zeros(lay.size)
-            sel = self._fill(inp, state)
-            out = self._reference_row(inp, sel)
-        x = out[0:4].copy()
-        a = out[lay.out_a].reshape(3, 4).copy()
-        b = out[lay.out_b].copy()
-        cond = float(out[lay.out_cond])
-        residual = out[lay.out_residual].copy()
-        finite = np.isfinite(out).all()  # the whole output row at once: the common case
+            sel, flags = self._packer.fill(inp, state, self.D, self.beta)
+            row = self._reference_row(inp, sel)
+        # One row, one copy: the fields are views into it.
+        x = row[lay.out_x]
+        a = row[lay.out_a].reshape(3, 4)
+        b = row[lay.out_b]
+        cond = float(row[lay.out_cond])
+        residual = row[lay.out_residual]
+        points = row[lay.out_points].reshape(4, 3)
+        finite = math.isfinite(row[lay.out_sum])  # the whole row at once: the common case
         if not finite:
-            check_finite_result("the normal-force system", state, a, b, out[lay.out_xi])
+            check_finite_result("the normal-force system", state, a, b, row[lay.out_xi])
         if sel.tipping:
             x, cond = least_squares(a, b, sel.mask)
             residual = a @ x - b
-        else:
-            self._check_condition(sel, cond)
+        elif not cond < SINGULAR_CONDITION:
+            self._singular(sel, cond)
         if not finite or sel.tipping:
-            check_finite_result("the normal forces", state, x, residual, out[lay.out_points])
+            check_finite_result("the normal forces", state, x, residual, points)
         c = state.contacts
-        friction = c.force_in_fb if c is not None else self._no_contacts[:12].reshape(4, 3)
-        return Estimate(x, sel.mask > 0, out[lay.out_xi].copy(), cond, sel.mode, sel.tipping,
-                        residual, out[lay.out_points].reshape(4, 3).copy(), a, b, self.backend,
-                        self._normals(state), friction)
+        friction = c.force_in_fb if c is not None else _NO_FRICTION
+        return Estimate(x, flags, row[lay.out_xi], cond, sel.mode, sel.tipping,
+                        residual, points, a, b, self.backend, self._normals(state), friction)
 
-    def _check_condition(self, sel: fd.Selectors, cond: float) -> None:
-        """Raise `SingularSystemError` for a non-tipping system above `SINGULAR_CONDITION`."""
-        if not sel.tipping and not cond < SINGULAR_CONDITION:
-            raise SingularSystemError(
-                f"{sel.mode} system is singular (1-norm condition {cond:.3g} >= "
-                f"{SINGULAR_CONDITION:.0e}); check D (={self.D}) and the contact geometry",
-                cond)
+    def _singular(self, sel: fd.Selectors, cond: float) -> None:
+        """Raise `SingularSystemError` for the non-tipping system of condition ``cond``."""
+        raise SingularSystemError(
+            f"{sel.mode} system is singular (1-norm condition {cond:.3g} >= "
+            f"{SINGULAR_CONDITION:.0e}); check D (={self.D}) and the contact geometry", cond)
 
-    def _estimate_kernel(self, inp: np.ndarray, sel: fd.Selectors,
-                         state: MachineState) -> np.ndarray:
-        """The ``nf_estimate`` output row of the packed input ``inp``, after the checks.
+    def _kernel_row(self, name: str, state: MachineState, what: str):
+        """(output row copy, `Selectors`, contact flags) of kernel ``name`` at ``state``.
 
-        Raises:
-            EstimatorInputError: The system overflows (huge finite inputs).
-            SingularSystemError: The (non-tipping) system is singular, as in `estimate`.
+        The row's checksum and condition entries (`estimators._symbolic.Layout`) are checked:
+        a non-finite system is an `EstimatorInputError`, a singular non-tipping one a
+        `SingularSystemError`, as in `estimate`. Tipping rows are returned unchecked (their
+        callers solve them in least squares).
         """
-        ein, eout, ecall = self._kernels.single("nf_estimate")
-        ein[:] = inp
-        ecall()
+        inp, out, call = self._call(name)
+        sel, flags = self._packer.fill(inp, state, self.D, self.beta)
+        call()
+        row = out.copy()
         lay = LAYOUT
-        if not np.isfinite(eout).all():
-            check_finite_result("the normal-force system", state, eout[lay.out_a],
-                                eout[lay.out_b])
-        self._check_condition(sel, float(eout[lay.out_cond]))
-        return eout
+        cond_at, sum_at = ((lay.con_cond, lay.con_sum) if name == "nf_constraint"
+                           else (lay.der_cond, lay.der_sum))
+        if not sel.tipping and not (math.isfinite(row[sum_at])
+                                    and row[cond_at] < SINGULAR_CONDITION):
+            # The estimate kernel's outputs say which: overflow or a singular system.
+            ein, eout, ecall = self._call("nf_estimate")
+            ein[:] = inp
+            ecall()
+            if not math.isfinite(eout[lay.out_sum]):
+                check_finite_result("the normal-force system", state, eout[lay.out_a],
+                                    eout[lay.out_b])
+            cond = float(eout[lay.out_cond])
+            if not cond < SINGULAR_CONDITION:
+                self._singular(sel, cond)
+            check_finite_result(what, state, row)
+        return row, sel, flags
 
     def constraint(self, state: MachineState) -> tuple[np.ndarray, np.ndarray]:
         """Affine map of the normal forces in the generalised accelerations.
@@ -277,28 +259,35 @@ class NormalForceEstimator:
         lay = LAYOUT
         if self._kernels is None:
             return self._constraint_reference(state)
-        inp, out, call = self._kernels.single("nf_constraint")
-        sel = self._fill(inp, state)
-        eout = self._estimate_kernel(inp, sel, state)
-        call()
-        g = out[lay.con_g].reshape(4, 19).copy()
-        x = out[lay.con_x].copy()
+        row, sel, _ = self._kernel_row("nf_constraint", state, "the force constraint (G, g0)")
+        g = row[lay.con_g].reshape(4, 19)
+        g0 = row[lay.con_g0]
+        if sel.tipping or self._qs is not None:
+            g, g0 = self._constraint_special(state, sel, row, g)
+        return g, g0
+
+    def _constraint_special(self, state, sel, row, g):
+        """(G, g0) of a tipping state (least squares) or of the quasi-static method."""
+        lay = LAYOUT
+        x = row[lay.con_x]
         if sel.tipping:
-            a = eout[lay.out_a].reshape(3, 4)
-            pinv = masked_pinv(a, sel.mask)
+            ein, eout, ecall = self._call("nf_estimate")
+            self._fill(ein, state)
+            ecall()
+            pinv = masked_pinv(eout[lay.out_a].reshape(3, 4), sel.mask)
             with np.errstate(invalid="ignore", over="ignore"):  # overflow: checked below
                 x = pinv @ eout[lay.out_b]
-                g = pinv @ out[lay.con_jb].reshape(3, 19)
+                g = pinv @ row[lay.con_jb].reshape(3, 19)
         if self._qs is not None:
             g = g * self._qs.accelerations
-        acc = np.concatenate([state.base_acceleration, state.qdd])
-        g0 = x - g @ acc
+        with np.errstate(invalid="ignore", over="ignore"):  # overflow: checked below
+            g0 = x - g @ state.acceleration
         check_finite_result("the force constraint (G, g0)", state, g, g0)
         return g, g0
 
     def _constraint_reference(self, state: MachineState):
         base = self.estimate(state).normal_forces
-        acc = np.concatenate([state.base_acceleration, state.qdd])
+        acc = state.acceleration
         g = np.zeros((4, 19))
         for j in range(19):
             a = acc.copy()
@@ -326,33 +315,29 @@ class NormalForceEstimator:
             SingularSystemError: The system is singular (as in `estimate`).
         """
         state, clipped = self._checked(state)
-        sel = None
         if self._kernels is not None:
-            inp, out, call = self._kernels.single("nf_derivatives")
-            sel = self._fill(inp, state)
-        if sel is None or sel.tipping:
-            est = self.estimate(state)
-            forces, in_contact, mode = est.normal_forces, est.in_contact, est.mode
-            G, _ = self.constraint(state)
-            d_q = np.column_stack([self._central_difference(state, "q", j) for j in range(13)])
-            d_qd = np.column_stack([self._central_difference(state, "qd", j)
-                                    for j in range(13)])
-        else:
-            lay = LAYOUT
-            self._estimate_kernel(inp, sel, state)
-            call()
-            in_contact, mode = sel.mask > 0, sel.mode
-            forces = out[lay.der_x].copy()
-            G = out[lay.der_a].reshape(4, 19).copy()
-            d_q = out[lay.der_q].reshape(4, 13).copy()
-            d_qd = out[lay.der_qd].reshape(4, 13).copy()
-            if self._qs is not None:
-                G *= self._qs.accelerations
-                d_qd *= self._qs.coordinates
-        g0 = forces - G @ state.acceleration
-        check_finite_result("the linearization", state, forces, G, g0, d_q, d_qd)
-        return ForceLinearization(forces, G, g0, d_q, d_qd, in_contact, mode, clipped,
-                                  state.time)
+            row, sel, flags = self._kernel_row("nf_derivatives", state, "the linearization")
+            if not sel.tipping:
+                lay = LAYOUT
+                g, g0 = row[lay.der_a].reshape(4, 19), row[lay.der_g0]
+                d_q, d_qd = row[lay.der_q].reshape(4, 13), row[lay.der_qd].reshape(4, 13)
+                if self._qs is None:
+                    return ForceLinearization.trusted(row[lay.der_x], g, g0, d_q, d_qd,
+                                                      flags, sel.mode, clipped,
+                                                      state.time)
+                g = g * self._qs.accelerations
+                d_qd = d_qd * self._qs.coordinates
+                forces = row[lay.der_x]
+                return ForceLinearization(forces, g, forces - g @ state.acceleration, d_q,
+                                          d_qd, flags, sel.mode, clipped, state.time)
+        est = self.estimate(state)
+        g, _ = self.constraint(state)
+        d_q = np.column_stack([self._central_difference(state, "q", j) for j in range(13)])
+        d_qd = np.column_stack([self._central_difference(state, "qd", j) for j in range(13)])
+        g0 = est.normal_forces - g @ state.acceleration
+        check_finite_result("the linearization", state, est.normal_forces, g, g0, d_q, d_qd)
+        return ForceLinearization(est.normal_forces, g, g0, d_q, d_qd, est.in_contact,
+                                  est.mode, clipped, state.time)
 
     def _central_difference(self, state: MachineState, name: str, j: int) -> np.ndarray:
         """``df_z/d(name)[j]`` by central differences, staying inside the stroke range."""

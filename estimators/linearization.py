@@ -75,6 +75,24 @@ class ForceLinearization:
             raise EstimatorError(f"ForceLinearization.mode {self.mode!r} not in {MODES}")
         object.__setattr__(self, "clipped", tuple(self.clipped))
 
+    @classmethod
+    def trusted(cls, normal_forces: np.ndarray, G: np.ndarray, g0: np.ndarray,  # noqa: N803
+                d_q: np.ndarray, d_qd: np.ndarray, in_contact: np.ndarray, mode: str,
+                clipped: tuple[str, ...], time: float) -> ForceLinearization:
+        """Wrap arrays the estimator's kernel made, without the checks of the constructor.
+
+        For the estimator's per-tick path: the caller guarantees the shapes, float dtype, a
+        finite kernel checksum, a valid mode and a read-only ``in_contact``; the arrays are
+        made read-only here (not copied: they are views of a row nobody else holds).
+        """
+        for a in (normal_forces, G, g0, d_q, d_qd):
+            a.flags.writeable = False
+        obj = object.__new__(cls)
+        object.__setattr__(obj, "__dict__", {
+            "normal_forces": normal_forces, "G": G, "g0": g0, "d_q": d_q, "d_qd": d_qd,
+            "in_contact": in_contact, "mode": mode, "clipped": clipped, "time": time})
+        return obj
+
     def forces_at(self, a: np.ndarray, dq: np.ndarray | None = None,
                   dqd: np.ndarray | None = None) -> np.ndarray:
         """``g0 + G a + d_q dq + d_qd dqd`` [N], shape (4,)."""

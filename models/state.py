@@ -24,6 +24,12 @@ __all__ = ["MachineState", "WheelContacts", "WHEEL_ORDER", "N_SERVO_AXES",
 
 N_SERVO_AXES = 9  # the servo-driven axes: 2 suspension strokes, 7 crane coordinates
 ROTATION_TOLERANCE = 1e-6  # max |R R^T - I| entry of a valid rotation matrix
+_F64 = np.dtype(float)
+
+
+def _all_finite(flat: np.ndarray) -> bool:
+    """Whether every entry of the 1-D float array is finite."""
+    return bool(np.isfinite(flat).all())
 
 
 def shaped_array(name: str, value, shape: tuple[int, ...], dtype=float) -> np.ndarray:
@@ -45,6 +51,14 @@ def frozen_array(name: str, value, shape: tuple[int, ...], dtype=float) -> np.nd
     Raises:
         StateError: Not numeric, wrong shape, or a NaN/inf entry (the message names the field).
     """
+    if dtype is float and type(value) is np.ndarray and value.dtype == _F64 \
+            and value.shape == shape:
+        # The common case, a float array of the right shape: a copy and one finiteness test.
+        a = value.copy()
+        if not _all_finite(a.reshape(-1)):
+            raise StateError(f"'{name}' has non-finite entries (NaN or inf): {a}")
+        a.flags.writeable = False
+        return a
     a = shaped_array(name, value, shape, dtype)
     if dtype is float and not np.all(np.isfinite(a)):
         raise StateError(f"'{name}' has non-finite entries (NaN or inf): {a}")
@@ -58,6 +72,10 @@ def contact_flags(name: str, value, shape: tuple[int, ...]) -> np.ndarray:
     Raises:
         StateError: Wrong shape, or an entry that is not a boolean, 0 or 1 (a string, 0.5, 2).
     """
+    if type(value) is np.ndarray and value.dtype == bool and value.shape == shape:
+        flags = value.copy()
+        flags.flags.writeable = False
+        return flags
     try:
         flags = np.asarray(value)
     except (TypeError, ValueError) as exc:
@@ -75,6 +93,15 @@ def contact_flags(name: str, value, shape: tuple[int, ...]) -> np.ndarray:
 
 def check_rotation(name: str, r: np.ndarray) -> None:
     """Raise `StateError` unless ``r`` (3, 3) is a proper rotation (orthonormal, det +1)."""
+    (a, b, c), (d, e, f), (g, h, i) = r.tolist()  # nine floats: cheaper than array calls
+    if max(abs(a), abs(b), abs(c), abs(d), abs(e), abs(f), abs(g), abs(h), abs(i)) \
+            <= 1.0 + ROTATION_TOLERANCE:
+        err = max(abs(a * a + b * b + c * c - 1.0), abs(d * d + e * e + f * f - 1.0),
+                  abs(g * g + h * h + i * i - 1.0), abs(a * d + b * e + c * f),
+                  abs(a * g + b * h + c * i), abs(d * g + e * h + f * i))
+        det = a * (e * i - f * h) - b * (d * i - f * g) + c * (d * h - e * g)
+        if err <= ROTATION_TOLERANCE and det > 0:
+            return
     if np.abs(r).max() > 1.0 + ROTATION_TOLERANCE:  # also keeps R R^T from overflowing
         raise StateError(f"'{name}' is not a rotation matrix (an entry of magnitude "
                          f"{np.abs(r).max():.3g} > 1; valid: orthonormal with det +1): {r}")
@@ -86,6 +113,35 @@ def check_rotation(name: str, r: np.ndarray) -> None:
 
 def _set(obj, name: str, value) -> None:
     object.__setattr__(obj, name, value)
+
+
+def _freeze_fields(obj, fields) -> None:
+    """Set each ``(name, shape)`` field of ``obj`` to its read-only, finite float array.
+
+    Float arrays of the right shape (the common case) are copied and tested for finiteness
+    together (one sum of squares); anything else goes through `frozen_array` one by one.
+    """
+    fast = []
+    for name, shape in fields:
+        v = getattr(obj, name)
+        if type(v) is np.ndarray and v.dtype == _F64 and v.shape == shape:
+            a = v.copy()
+            a.flags.writeable = False
+            fast.append(a.reshape(-1))
+        else:
+            a = frozen_array(name, v, shape)
+        _set(obj, name, a)
+    if fast:
+        flat = np.concatenate(fast)
+        if not _all_finite(flat):  # a NaN or inf somewhere: find it
+            for name, shape in fields:
+                frozen_array(name, getattr(obj, name), shape)
+
+
+_CONTACT_FIELDS = (("force_in_fb", (4, 3)), ("point_in_fb", (4, 3)), ("normal_in_fb", (4, 3)))
+_STATE_FIELDS = (("base_position", (3,)), ("base_rotation", (3, 3)), ("base_twist", (6,)),
+                 ("base_acceleration", (6,)), ("q", (N_INDEPENDENT,)),
+                 ("qd", (N_INDEPENDENT,)), ("qdd", (N_INDEPENDENT,)))
 
 
 @dataclass(frozen=True, eq=False)
@@ -107,8 +163,7 @@ class WheelContacts:
 
     def __post_init__(self):
         _set(self, "in_contact", contact_flags("in_contact", self.in_contact, (4,)))
-        for name in ("force_in_fb", "point_in_fb", "normal_in_fb"):
-            _set(self, name, frozen_array(name, getattr(self, name), (4, 3)))
+        _freeze_fields(self, _CONTACT_FIELDS)
 
     @property
     def normal_force(self) -> np.ndarray:
@@ -162,11 +217,7 @@ class MachineState:
     servo_setpoint: np.ndarray | None = None
 
     def __post_init__(self):
-        for name, shape in (("base_position", (3,)), ("base_rotation", (3, 3)),
-                            ("base_twist", (6,)), ("base_acceleration", (6,)),
-                            ("q", (N_INDEPENDENT,)), ("qd", (N_INDEPENDENT,)),
-                            ("qdd", (N_INDEPENDENT,))):
-            _set(self, name, frozen_array(name, getattr(self, name), shape))
+        _freeze_fields(self, _STATE_FIELDS)
         check_rotation("base_rotation", self.base_rotation)
         try:
             t = float(self.time)

@@ -147,3 +147,27 @@ def test_stroke_policy_clip_reports_and_raise_raises(machine):
                                clip.estimate(replace(s, q=q)).normal_forces, rtol=1e-12)
     assert clip.linearize(s).clipped == ()
     assert lo < hi
+
+
+def test_fast_path_results_are_read_only_and_equal_the_checked_constructor(machine):
+    """`linearize` wraps the kernel's row without the constructor's checks
+    (`ForceLinearization.trusted`): the same numbers, read-only, fresh arrays per call."""
+    from estimators.linearization import ForceLinearization
+
+    est = NormalForceEstimator(machine)
+    s = random_state(machine, np.random.default_rng(4), max_tilt=0.2)
+    lin, again = est.linearize(s), est.linearize(s)
+    checked = ForceLinearization(lin.normal_forces, lin.G, lin.g0, lin.d_q, lin.d_qd,
+                                 lin.in_contact, lin.mode, lin.clipped, lin.time)
+    for name in ("normal_forces", "G", "g0", "d_q", "d_qd", "in_contact"):
+        a = getattr(lin, name)
+        np.testing.assert_array_equal(a, getattr(checked, name))
+        assert not a.flags.writeable, name
+        if name != "in_contact":  # the flags of a contact pattern: one read-only array
+            assert not np.shares_memory(a, getattr(again, name)), name
+    np.testing.assert_allclose(lin.g0, lin.normal_forces - lin.G @ s.acceleration, atol=1e-6)
+    g, g0 = est.constraint(s)
+    np.testing.assert_allclose(g, lin.G, rtol=1e-12, atol=1e-9)
+    np.testing.assert_allclose(g0, lin.g0, rtol=1e-12, atol=1e-6)
+    e = est.estimate(s)
+    assert not np.shares_memory(e.normal_forces, est.estimate(s).normal_forces)

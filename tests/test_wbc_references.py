@@ -108,3 +108,18 @@ def test_ruckig_boundary_case_is_planned(limits):
     start = 0.3392170339050292
     ref.plan(0.0, [start], [0.0], [0.0], [start + d])
     assert ref.sample(10.0)[0][0] == pytest.approx(start + d, abs=1e-9)
+
+
+def test_sample_many_equals_one_sample_at_a_time(limits):
+    ref = RuckigReference(limits, CRANE_AXES)
+    start = 0.5 * (limits.position_lower + limits.position_upper)[CRANE_AXES]
+    goal = start.copy()
+    goal[1] += 0.2
+    ref.plan(1.0, start, np.zeros(7), np.zeros(7), goal)
+    times = np.array([0.0, 1.0, 1.3, 2.0, 1.0 + ref.duration + 1.0])  # before, in, after
+    many = ref.sample_many(times)
+    for k, t in enumerate(times):
+        for got, want in zip((m[k] for m in many), ref.sample(t)):
+            np.testing.assert_array_equal(got, want)
+    ref.hold(start)
+    np.testing.assert_array_equal(ref.sample_many([0.0, 2.0])[0], [start, start])

@@ -84,23 +84,25 @@ class HorizonEffortLimit(Constraint):
         which = np.minimum(np.searchsorted(steps, np.arange(N), side="right") - 1,
                            len(steps) - 1)
         ax = self.axes
-        n_rows = 2 * N * ax.size
-        G = np.zeros((n_rows, lay.n))
-        h = np.zeros(n_rows)
-        for k in range(N):
-            E, e0 = maps[which[k]]
-            Ea, e0a = E[ax], e0[ax]
-            brake = Ea @ ctx.brake_inputs[k] + e0a
-            hi = np.maximum(self.upper[ax], brake)
-            lo = np.minimum(self.lower[ax], brake)
-            r = slice(2 * k * ax.size, (2 * k + 1) * ax.size)
-            r2 = slice((2 * k + 1) * ax.size, (2 * k + 2) * ax.size)
-            # Rows scaled to the effort range (the solver's tolerance is absolute).
-            G[r, lay.step(k)] = Ea / self._scale[:, None]
-            h[r] = (hi - e0a) / self._scale
-            G[r2, lay.step(k)] = -Ea / self._scale[:, None]
-            h[r2] = (e0a - lo) / self._scale
+        na_b = ax.size
+        # Every step at once: E_k (N, bounded axes, axes) and e_0,k of the node each step uses.
+        E = np.stack([m[0] for m in maps])[which][:, ax]
+        e0 = np.stack([m[1] for m in maps])[which][:, ax]
+        brake = (E @ ctx.brake_inputs[:N, :, None])[:, :, 0] + e0
+        hi = np.maximum(self.upper[ax], brake)
+        lo = np.minimum(self.lower[ax], brake)
+        # Rows scaled to the effort range (the solver's tolerance is absolute); per step k
+        # the upper rows then the lower rows.
+        scaled = E / self._scale[:, None]
+        G = np.zeros((N, 2, na_b, lay.n))
+        cols = lay.step(0).start + np.arange(N * na).reshape(N, 1, na)
+        steps_ = np.arange(N)[:, None, None]
+        rows_ = np.arange(na_b)[None, :, None]
+        G[steps_, 0, rows_, cols] = scaled
+        G[steps_, 1, rows_, cols] = -scaled
+        h = np.stack([(hi - e0) / self._scale, (e0 - lo) / self._scale], axis=1)
+        G = G.reshape(2 * N * na_b, lay.n)
+        h = h.reshape(2 * N * na_b)
         E0, e00 = maps[0]
         self.last_efforts = E0 @ ctx.nominal_inputs[0] + e00 if N else None
-        del na
         return Inequality(G, h)

@@ -157,41 +157,45 @@ class HorizonNormalForceConstraint(ForceRowsConstraint):
         st = ctx.state
         direction = (speed_scale_direction(st, ctx.speed_scale, self.drive_time_constant)
                      if lay.scale is not None else None)
-        A = np.zeros((4 * n_eval, lay.n))
-        b = np.zeros(4 * n_eval)
         omega = st.qd[N_AXES:N_INDEPENDENT]
         if ctx.warp is not None:  # the suspension acts through the warp model only
             maps = [_without_suspension(lin) for lin in lins]
         else:
             maps = [(lin.G, lin.d_q, lin.d_qd) for lin in lins]
-        for k in range(n_eval):
-            j = steps[which[k]]
-            g0 = lins[which[k]].g0
-            G, d_q, d_qd = maps[which[k]]
-            r = slice(4 * k, 4 * k + 4)
-            dq, dqd = d_q[:, :N_AXES], d_qd[:, :N_AXES]
-            G_axes = G[:, _AXES_IN_A]
-            b[r] = g0 + d_q[:, N_AXES:] @ (omega * (times[k] - times[j]))
-            if k == 0:  # now: the measured state's forces, at the new accelerations
-                A[r, lay.step(0)] = G_axes
-            else:
-                rows = slice((k - 1) * na, k * na)
-                A[r] += dq @ pred.Pq[rows] + dqd @ pred.Pv[rows]
-                b[r] += (dq @ (ctx.free_positions[k - 1] - qn[j])
-                         + dqd @ (ctx.free_velocities[k - 1] - vn[j]))
-                if k < N:
-                    A[r, lay.step(k)] = G_axes
-                else:  # terminal: brake to rest, a = -qd_N / T_b
-                    Tb = self.terminal_brake_time
-                    A[r] -= G_axes @ pred.Pv[rows] / Tb
-                    b[r] -= G_axes @ ctx.free_velocities[k - 1] / Tb
-                if ctx.warp is not None:  # the suspension twists the chassis
-                    A[r] += ctx.warp @ pred.Pq[rows]
-                    b[r] += ctx.warp @ (ctx.free_positions[k - 1] - ctx.q)
-            if direction is not None:
-                col = (G @ direction) * np.exp(-times[k] / self.drive_time_constant)
-                A[r, lay.scale] += col
-                b[r] -= col * ctx.speed_scale
+        # Every step at once: (n_eval, 4, .) stacks of the linearization each step uses.
+        G = np.stack([m[0] for m in maps])[which]
+        d_q = np.stack([m[1] for m in maps])[which]
+        d_qd = np.stack([m[2] for m in maps])[which]
+        g0 = np.stack([lin.g0 for lin in lins])[which]
+        j = steps[which]
+        dq, dqd = d_q[:, :, :N_AXES], d_qd[:, :, :N_AXES]
+        G_axes = G[:, :, _AXES_IN_A]
+        A = np.zeros((n_eval, 4, lay.n))
+        b = g0 + (d_q[:, :, N_AXES:] @ omega) * (times[:n_eval] - times[j])[:, None]
+        # Steps k >= 1: the configuration moves along the condensed prediction.
+        later = slice(1, n_eval)
+        Pq = pred.Pq.reshape(N, na, lay.n)[:n_eval - 1]
+        Pv = pred.Pv.reshape(N, na, lay.n)[:n_eval - 1]
+        A[later] = dq[later] @ Pq + dqd[later] @ Pv
+        b[later] += (dq[later] @ (ctx.free_positions[:n_eval - 1] - qn[j[later]])[:, :, None]
+                     + dqd[later] @ (ctx.free_velocities[:n_eval - 1]
+                                     - vn[j[later]])[:, :, None])[:, :, 0]
+        n_u = min(n_eval, N)  # steps with their own input; the rest is the terminal node
+        u_cols = lay.step(0).start + np.arange(n_u * na).reshape(n_u, 1, na)
+        A[np.arange(n_u)[:, None, None], np.arange(4)[None, :, None], u_cols] = G_axes[:n_u]
+        if n_eval > N:  # terminal: brake to rest, a = -qd_N / T_b
+            Tb = self.terminal_brake_time
+            A[N] -= G_axes[N] @ pred.Pv[(N - 1) * na:N * na] / Tb
+            b[N] -= G_axes[N] @ ctx.free_velocities[N - 1] / Tb
+        if ctx.warp is not None:  # the suspension twists the chassis
+            A[later] += ctx.warp @ Pq
+            b[later] += (ctx.free_positions[:n_eval - 1] - ctx.q) @ ctx.warp.T
+        if direction is not None:
+            col = (G @ direction) * np.exp(-times[:n_eval] / self.drive_time_constant)[:, None]
+            A[:, :, lay.scale] += col
+            b -= col * ctx.speed_scale
+        A = A.reshape(4 * n_eval, lay.n)
+        b = b.reshape(4 * n_eval)
         if ctx.feedback is not None:  # the load split measured now, held over the horizon
             b += np.tile(ctx.feedback.bias, n_eval)
         if ctx.warp_drift is not None:  # the terrain keeps twisting, at the driving speed

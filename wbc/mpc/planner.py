@@ -17,7 +17,7 @@ from wbc.layout import VariableLayout
 from wbc.mpc.context import HorizonContext
 from wbc.mpc.prediction import CondensedPrediction
 from wbc.qp import build_qp
-from wbc.solvers import ProxQPWorkspace, QPSolution, QpsolversBackend
+from wbc.solvers import DaqpBackend, ProxQPWorkspace, QPSolution, QpsolversBackend
 from wbc.tasks.task import Task
 
 __all__ = ["MpcPlan", "MpcPlanner"]
@@ -53,13 +53,14 @@ class MpcPlanner:
         dt: Control period [s].
         tasks: Cost terms (horizon tasks, `SpeedScaleTask`, `SlackPenaltyTask`).
         constraints: Constraints (horizon limits, `AccelerationLimit`, force constraint).
-        solver: `ProxQPWorkspace` (warm-started) or `QpsolversBackend`.
+        solver: `DaqpBackend`, `ProxQPWorkspace` (both warm-started) or `QpsolversBackend`.
         regularization: Tikhonov term of the Hessian.
     """
 
     def __init__(self, limits: AxisLimits, layout: VariableLayout, steps, dt: float,
                  tasks: Sequence[Task], constraints: Sequence[Constraint],
-                 solver: ProxQPWorkspace | QpsolversBackend, regularization: float = 1e-9):
+                 solver: DaqpBackend | ProxQPWorkspace | QpsolversBackend,
+                 regularization: float = 1e-9):
         if layout.n_axes != N_AXES:
             raise ConfigurationError(f"MPC layout must have {N_AXES} axes, got {layout.n_axes}")
         if not (np.all(np.asarray(steps, float) > 0) and dt > 0):

@@ -160,5 +160,11 @@ class RuckigReference:
 
     def sample_many(self, times) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Samples at several times [s]: three arrays of shape (len(times), n)."""
-        out = [self.sample(t) for t in times]
-        return tuple(np.array([o[k] for o in out]) for k in range(3))
+        if not self._planned:
+            out = [self.sample(t) for t in times]
+            return tuple(np.array([o[k] for o in out]) for k in range(3))
+        at, t0 = self._traj.at_time, self.start_time
+        pva = np.array([at(max(t - t0, 0.0))[:3] for t in np.asarray(times, float).tolist()],
+                       float).reshape(-1, 3, self.n)
+        return (np.clip(pva[:, 0], self.position_lower, self.position_upper),
+                pva[:, 1].copy(), pva[:, 2].copy())

@@ -1,0 +1,100 @@
+"""One state into one kernel input row (layout `estimators._symbolic.Layout`), fast.
+
+`NormalForceEstimator` calls its compiled kernels once per state in a control loop, where the
+Python around the call costs more than the call itself. `RowPacker` keeps that part small:
+the range check reads the coordinates once as Python floats, the row is written by one
+`numpy.concatenate` into the kernel's own input buffer, and the selectors of a contact
+pattern (with D and beta appended) are built once and cached.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from estimators import full_dynamics as fd
+from estimators._symbolic import LAYOUT
+from estimators.checks import coordinate_ranges
+from estimators.errors import EstimatorInputError
+from models.description import Machine
+from models.state import MachineState
+
+__all__ = ["RANGE_TOLERANCE", "RowPacker"]
+
+RANGE_TOLERANCE = 1e-12  # [m, rad]: how far past its range a coordinate still counts as in it
+
+_ONES4 = np.ones(4)
+_ZEROS2 = np.zeros(2)
+_NO_CONTACTS = np.zeros(LAYOUT.force.stop - LAYOUT.points.start)  # points, flags, forces
+_ALL_IN = np.ones(4, bool)
+
+
+class RowPacker:
+    """Packs `MachineState`s into kernel input rows for one machine and fourth equation.
+
+    Args:
+        machine: The machine (its coordinate ranges).
+        fourth: The estimator's fourth equation (``d-beta`` or ``cylinder-force``).
+        zeroed: Input positions to zero after packing (the quasi-static method's dropped
+            terms), or None.
+    """
+
+    def __init__(self, machine: Machine, fourth: str, zeroed: np.ndarray | None = None):
+        self.fourth = fourth
+        self.zeroed = zeroed
+        self.ranges = coordinate_ranges(machine)
+        self._bounds = tuple((i, lo - RANGE_TOLERANCE, hi + RANGE_TOLERANCE)
+                             for _, _, i, lo, hi in self.ranges)
+        self._cache: dict = {}
+
+    def out_of_range(self, q: np.ndarray) -> list[tuple[str, str, int, float, float]]:
+        """The ranges (as in `estimators.checks.coordinate_ranges`) that ``q`` leaves."""
+        values = q.tolist()
+        for i, lo, hi in self._bounds:
+            if not lo <= values[i] <= hi:
+                break
+        else:
+            return []
+        return [r for r, (i, lo, hi) in zip(self.ranges, self._bounds)
+                if not lo <= values[i] <= hi]
+
+    def selectors(self, in_contact: np.ndarray, has_cylinder_force: bool, d: float,
+                  beta: float) -> tuple[np.ndarray, fd.Selectors, np.ndarray]:
+        """(packed selector block with D and beta, `Selectors`, read-only contact flags)."""
+        key = (in_contact.tobytes(), has_cylinder_force, d, beta)
+        hit = self._cache.get(key)
+        if hit is None:
+            s = fd.select_system(in_contact, self.fourth, has_cylinder_force)
+            packed = np.concatenate([s.mask, s.height_weights, [s.s_dbeta, s.s_cylinder],
+                                     s.lost, [d, beta]])
+            flags = s.mask > 0
+            flags.setflags(write=False)
+            hit = self._cache[key] = (packed, s, flags)
+        return hit
+
+    def fill(self, inp: np.ndarray, state: MachineState, d: float,
+             beta: float) -> tuple[fd.Selectors, np.ndarray]:
+        """Write ``state`` into the input row ``inp``.
+
+        Returns:
+            The `Selectors` used and the contact flags they stand for (read-only, (4,)).
+
+        Raises:
+            EstimatorInputError: The state's fields cannot be read (a malformed object).
+        """
+        try:
+            c = state.contacts
+            f = state.suspension_force
+            if c is None:
+                packed, sel, flags = self.selectors(_ALL_IN, f is not None, d, beta)
+                contacts = (_NO_CONTACTS,)
+            else:
+                packed, sel, flags = self.selectors(c.in_contact, f is not None, d, beta)
+                contacts = (c.point_in_fb.reshape(12), _ONES4, c.force_in_fb.reshape(12))
+            np.concatenate((state.base_rotation.reshape(9), state.base_twist,
+                            state.base_acceleration, state.q, state.qd, state.qdd, *contacts,
+                            packed, _ZEROS2 if f is None else f), out=inp)
+        except (ValueError, AttributeError, TypeError) as exc:
+            raise EstimatorInputError(f"cannot read the state: {exc}") from exc
+        if self.zeroed is not None:
+            inp[self.zeroed] = 0.0
+        return sel, flags

@@ -1,0 +1,92 @@
+"""`wbc.solvers.DaqpBackend`: screened rows are implied by the box; warm solves equal cold ones.
+
+Oracles: points sampled in the box (the corners included) for the screening; DAQP's own cold
+solve of the unscreened problem, and the corpus's stored reference, for the solutions.
+"""
+
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+import pytest
+import qpsolvers
+
+from benchmarks.qp_corpus import load_corpus
+from wbc.errors import ConfigurationError, QPSolveError
+from wbc.solvers import DaqpBackend
+from wbc.solvers.daqp_backend import redundant_rows
+
+
+@pytest.fixture(scope="module")
+def corpus():
+    return load_corpus()
+
+
+def test_screened_rows_hold_everywhere_in_the_box():
+    rng = np.random.default_rng(3)
+    n, m, tol = 4, 200, 1e-7
+    G = rng.normal(size=(m, n))
+    lb, ub = -rng.uniform(0.5, 2, n), rng.uniform(0.5, 2, n)
+    h = rng.uniform(0, 8, m)
+    drop = redundant_rows(G, h, lb, ub, tol)
+    assert 0 < drop.sum() < m  # both kinds occur
+    corners = np.array(list(itertools.product(*zip(lb - tol, ub + tol))))
+    inside = rng.uniform(lb, ub, size=(500, n))
+    for x in np.vstack([corners, inside]):
+        assert np.all(G[drop] @ x <= h[drop] + 1e-12)
+    # Every kept row is violated at some corner of the widened box: none is kept needlessly.
+    assert np.all((G[~drop] @ corners.T).max(axis=1) > h[~drop])
+
+
+def test_an_infinite_bound_keeps_the_rows_that_depend_on_it():
+    G = np.array([[1.0, 0.0], [0.0, 1.0], [0.0, -1.0]])
+    h = np.array([5.0, 5.0, 5.0])
+    lb, ub = np.array([-1.0, 0.0]), np.array([1.0, np.inf])
+    np.testing.assert_array_equal(redundant_rows(G, h, lb, ub, 1e-7), [True, False, True])
+    np.testing.assert_array_equal(redundant_rows(G, h, None, None, 1e-7), [False] * 3)
+
+
+def test_warm_screened_solves_equal_cold_full_ones(corpus):
+    warm, cold = DaqpBackend(), DaqpBackend(warm_start=False, screen=False)
+    n_warm, dropped = 0, 0
+    for block in corpus.blocks():
+        warm.reset()
+        for i in block:
+            p = corpus.problems[i]
+            a, b = warm.solve(p), cold.solve(p)
+            np.testing.assert_allclose(a.x, b.x, rtol=0, atol=1e-6, err_msg=str(i))
+            np.testing.assert_allclose(a.x, corpus.reference_x[i], rtol=0, atol=1e-4)
+            n_warm += a.warm_started
+            dropped += (0 if p.G is None else p.G.shape[0]) - warm.rows_kept
+    assert n_warm >= len(corpus.problems) // 2  # the warm path ran
+    assert dropped > 0  # and the screening dropped rows
+
+
+def test_warm_start_from_another_problem_is_still_right(corpus):
+    """Multipliers of an unrelated QP of the same size: a poor start, the same answer."""
+    mpc = [i for i, r in enumerate(corpus.records) if r["controller"] == "mpc-full"]
+    backend = DaqpBackend()
+    for i in mpc[::-7][:8]:
+        x = backend.solve(corpus.problems[i]).x
+        np.testing.assert_allclose(x, corpus.reference_x[i], rtol=0, atol=1e-4)
+
+
+def test_infeasible_problem_raises_and_the_next_solve_is_cold():
+    backend = DaqpBackend()
+    P, q = np.eye(2), np.zeros(2)
+    ok = qpsolvers.Problem(P, q, np.array([[1.0, 0.0]]), np.array([1.0]),
+                           lb=-np.ones(2), ub=np.ones(2))
+    backend.solve(ok)
+    bad = qpsolvers.Problem(P, q, np.array([[1.0, 0.0]]), np.array([-5.0]),
+                            lb=-np.ones(2), ub=np.ones(2))
+    with pytest.raises(QPSolveError):
+        backend.solve(bad)
+    assert not backend.solve(ok).warm_started
+
+
+def test_bad_settings_are_refused():
+    with pytest.raises(ConfigurationError):
+        DaqpBackend(primal_tol=0.0)
+    with pytest.raises(ConfigurationError):
+        DaqpBackend(iter_limit=0)

@@ -1,0 +1,124 @@
+"""DAQP called directly: redundant rows screened out, warm started from the last multipliers.
+
+DAQP (a dual active-set method) spends most of a solve of the MPC's dense QP in its setup,
+which grows with the number of inequality rows times ``n^2``, and the MPC's condensed QP
+carries many rows that cannot bind: stroke and speed limits of the predicted trajectory far
+from their ends. A row ``g x <= h`` is dropped when even the worst point of the variable box
+``lb <= x <= ub`` (widened by DAQP's primal tolerance, the most by which it lets a bound
+slip) keeps it: ``sum_i max(g_i lb_i, g_i ub_i) + |g|_1 tol <= h``. That changes nothing in
+the solution: the box implies the row. The remaining rows are warm started from the previous
+solve's multipliers (DAQP's ``dual_start``: its initial working set is the rows with nonzero
+multipliers) when the problem has the same rows; a warm solve that fails is retried cold.
+"""
+
+from __future__ import annotations
+
+import time
+from ctypes import c_int
+
+import daqp
+import numpy as np
+import qpsolvers
+
+from wbc.errors import ConfigurationError, QPSolveError
+from wbc.solvers.solution import QPSolution
+
+__all__ = ["DaqpBackend", "redundant_rows"]
+
+_BIG = 1e20  # stands in for an infinite bound in the screening sums
+_EQUALITY = 5  # DAQP's sense flags: active (1) | immutable (4)
+
+
+def redundant_rows(G: np.ndarray, h: np.ndarray, lb: np.ndarray | None,
+                   ub: np.ndarray | None, tolerance: float) -> np.ndarray:
+    """Rows of ``G x <= h`` that every ``x`` in the box (widened by ``tolerance``) satisfies.
+
+    Returns:
+        Boolean mask, shape (rows,). An infinite or missing bound keeps every row that
+        depends on its variable.
+    """
+    n = G.shape[1]
+    lo = np.full(n, -np.inf) if lb is None else np.asarray(lb, float)
+    hi = np.full(n, np.inf) if ub is None else np.asarray(ub, float)
+    box = np.isfinite(lo) & np.isfinite(hi)
+    # Over a finite interval the worst of g_i x_i is g_i mid_i + |g_i| half_i (one pass over G).
+    lo_box, hi_box = np.where(box, lo, 0.0), np.where(box, hi, 0.0)
+    mid, half = 0.5 * (lo_box + hi_box), 0.5 * (hi_box - lo_box)
+    worst = G @ mid + np.abs(G) @ (half + tolerance)
+    open_ = np.flatnonzero(~box)  # the few variables with an infinite bound, exactly
+    if open_.size:
+        g = G[:, open_]
+        worst += (np.maximum(g, 0.0) @ np.minimum(hi[open_], _BIG)
+                  + np.minimum(g, 0.0) @ np.maximum(lo[open_], -_BIG))
+    return worst <= h
+
+
+class DaqpBackend:
+    """The MPC's QP solver: DAQP with row screening and warm starts (module docstring).
+
+    Args:
+        primal_tol: DAQP's primal feasibility tolerance (the controller's ``eps_abs``).
+        iter_limit: Cap on active-set iterations.
+        warm_start: Start from the previous solve's multipliers when the rows match.
+        screen: Drop the rows the variable box makes redundant.
+    """
+
+    solver = "daqp"
+
+    def __init__(self, primal_tol: float = 1e-7, iter_limit: int = 1000,
+                 warm_start: bool = True, screen: bool = True):
+        if not (primal_tol > 0 and iter_limit >= 1):
+            raise ConfigurationError(f"need primal_tol > 0 and iter_limit >= 1, got "
+                                     f"{primal_tol}, {iter_limit}")
+        self.tolerances = {"primal_tol": float(primal_tol), "iter_limit": int(iter_limit)}
+        self.warm_start = bool(warm_start)
+        self.screen = bool(screen)
+        self.n_init = 0
+        self.rows_kept = 0
+        self._lam: np.ndarray | None = None  # multipliers of every row, dropped ones 0
+
+    def reset(self) -> None:
+        """Forget the previous multipliers (the next solve is cold)."""
+        self._lam = None
+
+    def solve(self, problem: qpsolvers.Problem) -> QPSolution:
+        """Solve; raise `QPSolveError` if DAQP finds no finite solution."""
+        t0 = time.perf_counter()
+        H, f = problem.P, problem.q
+        n = f.size
+        lb, ub = problem.lb, problem.ub
+        G = np.zeros((0, n)) if problem.G is None else problem.G
+        h = np.zeros(0) if problem.h is None else problem.h
+        A = np.zeros((0, n)) if problem.A is None else problem.A
+        b = np.zeros(0) if problem.b is None else problem.b
+        keep = (~redundant_rows(G, h, lb, ub, self.tolerances["primal_tol"])
+                if self.screen and G.shape[0] else np.ones(G.shape[0], bool))
+        rows = np.concatenate([np.flatnonzero(keep), G.shape[0] + np.arange(A.shape[0])])
+        self.rows_kept = int(keep.sum())
+        a_all = np.concatenate([G[keep], A]) if A.shape[0] else G[keep]
+        upper = np.concatenate([np.full(n, _BIG) if ub is None else np.minimum(ub, _BIG),
+                                h[keep], b])
+        lower = np.concatenate([np.full(n, -_BIG) if lb is None else np.maximum(lb, -_BIG),
+                                np.full(int(keep.sum()), -_BIG), b])
+        sense = np.zeros(upper.size, dtype=c_int)
+        sense[n + self.rows_kept:] = _EQUALITY
+        n_all = n + G.shape[0] + A.shape[0]
+        warm = (self.warm_start and self._lam is not None and self._lam.size == n_all)
+        dual = np.concatenate([self._lam[:n], self._lam[n + rows]]) if warm else None
+        x, _, flag, info = daqp.solve(H, f, a_all, upper, lower, sense.copy(), dual_start=dual,
+                                      **self.tolerances)
+        iterations = int(info["iterations"])
+        if warm and not (flag > 0 and np.all(np.isfinite(x))):
+            warm = False
+            x, _, flag, info = daqp.solve(H, f, a_all, upper, lower, sense.copy(),
+                                          **self.tolerances)
+            iterations += int(info["iterations"])
+        elapsed = time.perf_counter() - t0
+        if not (flag > 0 and np.all(np.isfinite(x))):
+            self._lam = None
+            raise QPSolveError(f"daqp found no solution (exit flag {flag})", "not_found")
+        lam = np.zeros(n_all)
+        lam[:n] = info["lam"][:n]
+        lam[n + rows] = info["lam"][n:]
+        self._lam = lam
+        return QPSolution(np.asarray(x, float), "solved", iterations, elapsed, warm)
