@@ -1,8 +1,9 @@
 """QP solvers on the controllers' own QPs: the recorded corpus (`benchmarks.qp_corpus`).
 
 Each solver replays every block of consecutive ticks in order (ProxQP warm: the project's
-`ProxQPWorkspace`, warm-started along the block, as in the controller; the others cold, as
-`QpsolversBackend` runs them). Per solver: solve time (the backend's own call, and the whole
+`ProxQPWorkspace`, warm-started along the block; DAQP screened: the controllers' default
+`DaqpBackend`, redundant rows dropped and warm-started along the block, and the same cold;
+the others cold, as `QpsolversBackend` runs them). Per solver: solve time (the backend's own call, and the whole
 call with qpsolvers' conversion), iterations, the residuals of ``qpsolvers.Solution``
 (primal, dual, duality gap), the objective and solution against the reference (ProxQP cold
 at 1e-10).
@@ -32,7 +33,7 @@ import qpsolvers
 
 from benchmarks.qp_corpus import CORPUS_PATH, load_corpus, objective, summary
 from wbc.controllers import ControllerConfig
-from wbc.solvers import ProxQPWorkspace, backend_settings
+from wbc.solvers import DaqpBackend, ProxQPWorkspace, backend_settings
 
 PRIMAL_TOL = 1e-6
 OBJECTIVE_TOL = 1e-6
@@ -59,7 +60,8 @@ def _quiet_stdout():
             os.close(saved)
 
 
-def _workspace_solve(ws: ProxQPWorkspace, problem) -> tuple[qpsolvers.Solution, float, int]:
+def _workspace_solve(ws: ProxQPWorkspace | DaqpBackend,
+                     problem) -> tuple[qpsolvers.Solution, float, int]:
     sol = qpsolvers.Solution(problem)
     t0 = time.perf_counter()
     try:
@@ -89,7 +91,9 @@ def _iterations(sol) -> int:
 def _solvers(eps_abs: float, eps_rel: float, max_iter: int) -> dict:
     """name -> (kind, settings)."""
     out = {"proxqp-warm": ("workspace", {"warm_start": True}),
-           "proxqp-cold": ("workspace", {"warm_start": False})}
+           "proxqp-cold": ("workspace", {"warm_start": False}),
+           "daqp-screened-warm": ("daqp", {}),
+           "daqp-screened-cold": ("daqp", {"warm_start": False})}
     for name in BACKENDS:
         if name in qpsolvers.available_solvers:
             settings = backend_settings(name, eps_abs, eps_rel)
@@ -105,6 +109,7 @@ def replay(corpus, name: str, kind: str, settings: dict, cfg: ControllerConfig) 
     for block in corpus.blocks():
         ws = (ProxQPWorkspace(eps_abs=cfg.eps_abs, eps_rel=cfg.eps_rel, max_iter=cfg.max_iter,
                               retry_infeasible=True, **settings) if kind == "workspace"
+              else DaqpBackend(primal_tol=cfg.eps_abs, **settings) if kind == "daqp"
               else None)
         for i in block:
             p = corpus.problems[i]

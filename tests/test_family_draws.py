@@ -16,14 +16,7 @@ REGRESSION_SEED = 11
 DURATION = 5.0  # [s] after ready: covers the heavy pick (at 2 s) and the first goal
 
 
-_HEAVY_PICK_OPEN = pytest.mark.xfail(
-    strict=True, reason="open (issue 9): standing on a rough side slope with the grapple at "
-    "long reach downhill, the uphill front wheel dips below the threshold for 2-4 ms")
-
-
-@pytest.mark.parametrize("family", [pytest.param(f, marks=_HEAVY_PICK_OPEN)
-                                    if f == "heavy-pick-downhill" else f
-                                    for f in sorted(FAMILIES)])
+@pytest.mark.parametrize("family", sorted(FAMILIES))
 def test_a_seeded_draw_of_every_family_runs_safely(family):
     d = draw(family, 0, REGRESSION_SEED)
     m = run_closed_loop(d.scenario, None, "mpc-full", seed=d.terrain_seed,

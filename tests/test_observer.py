@@ -25,20 +25,23 @@ def _observer(machine, suite="realistic", seed=2, prior=None):
     return Observer(machine, sensor_suite(suite, seed), closure, initial_payload=prior)
 
 
-@pytest.mark.xfail(strict=True, reason="open (issue 8): with the cylinders' 1.3 kN seal "
-                   "friction and the boom's bounce after a sudden 230 kg pick the estimate "
-                   "reaches ~200 kg (-16 %) 3 s after the pick; the closed-loop picks "
-                   "(pick-in-motion) end within 3 %")
-def test_payload_within_5_percent_2_s_after_a_pick():
+@pytest.mark.parametrize("seed,mass,slope", [(2, 240.0, -5.0), (17, 300.0, -8.0)],
+                         ids=["240kg", "300kg-held-out"])
+def test_payload_within_5_percent_2_s_after_a_pick(seed, mass, slope):
+    """A sudden pick from an empty grapple, held still 0.2 s (the seals stick), then lifted.
+
+    Seed 2 is the one the regression filter and the event test were tuned on; seed 17 with
+    300 kg on a steeper slope was not.
+    """
     machine = build_reference_machine(payload_mass=10.0)
-    sim = Simulator(machine, T.side_slope(-5.0))
+    sim = Simulator(machine, T.side_slope(slope))
     sim.reset(PICK_POSE.q(machine), (8.0, 0.0, 0.0))
-    sensors = SensorSimulator(sim, sensor_suite("realistic", 2))
+    sensors = SensorSimulator(sim, sensor_suite("realistic", seed))
     obs = _observer(machine, prior=10.0)
     events = []
-    for k in range(500):  # 5 s: pick (10 -> 240 kg) at 2 s, then the operator lifts it
+    for k in range(500):  # 5 s: pick (10 kg -> mass) at 2 s, then the operator lifts it
         if k == 200:
-            _set_payload(sim, 240.0)
+            _set_payload(sim, mass)
         if k == 220:
             sim.set_command(cylinder_rates={"lift": 0.02, "tilt": 0.02})
         sim.step(5)
@@ -46,14 +49,14 @@ def test_payload_within_5_percent_2_s_after_a_pick():
         if e.payload_event:
             events.append((k, e.payload_event))
         if k == 199:
-            assert e.payload_mass == pytest.approx(10.0, abs=0.05 * 240.0)
+            assert e.payload_mass == pytest.approx(10.0, abs=0.05 * mass)
         if k == 399:
             within_2s = e.payload_mass
-    assert e.payload_mass == pytest.approx(240.0, rel=0.05)  # 3 s after the pick
-    assert within_2s == pytest.approx(240.0, rel=0.05)
-    assert any(kind == "pick" and 200 <= k <= 400 for k, kind in events)
-    # Within 2 s of the pick (k = 200 .. 400) it is there and stays.
-    assert 0.0 < e.payload_std < 0.05 * 240.0
+    assert within_2s == pytest.approx(mass, rel=0.05)
+    assert e.payload_mass == pytest.approx(mass, rel=0.05)  # 3 s after the pick
+    assert [kind for _, kind in events] == ["pick"]  # one event, no false release
+    assert 200 <= events[0][0] <= 230
+    assert 0.0 < e.payload_std < 0.05 * mass
 
 
 def test_contact_flags_right_where_the_force_is_clear():

@@ -60,6 +60,10 @@ CONTACT_ON_N = 800.0  # [N] above this on `CONTACT_TICKS` ticks in a row it is b
 CONTACT_TICKS = 3
 WHEEL_ACCELERATION_TIME_CONSTANT = 0.05  # [s]
 _LIFT, _TILT = 3, 4  # independent coordinates of the lift and tilt cylinders
+SLIDING_SPEED = 4e-3  # [m/s] stroke speed above which a seal slides (the observer's estimate)
+SLIDING_FRICTION_STD = 0.2  # std of a sliding seal's friction about its rating [-]
+PAYLOAD_FILTER_TIME = 0.05  # [s] low-pass of the payload regression (`Observer._filtered`)
+EVENT_VARIANCE_SCALE = 0.1  # filtered over raw innovation variance: 0.01 still, 0.05-0.08 moving
 _PRESS_LIFT_TILT = [PRESSURE_CYLINDERS.index("lift"), PRESSURE_CYLINDERS.index("tilt")]
 
 
@@ -115,10 +119,13 @@ class Observer:
         n_press = max(1, round(spec.pressure.rate * 0.01))
         self._force_std = a_norm * spec.pressure.sample_std / math.sqrt(n_press)
         self._force_bias = a_norm * spec.pressure.bias
-        # The seals' friction is between the pressures' force and the mechanism's, of
-        # unknown sign and size up to its rating: uniform, std F_c / sqrt(3).
-        self._friction_std = np.array([machine.chains[c].cylinder.seal_friction
-                                       for c in PRESSURE_CYLINDERS]) / math.sqrt(3.0)
+        # The seals' friction is between the pressures' force and the mechanism's. Standing
+        # still: unknown sign and size up to its rating (for the normal-force uncertainty:
+        # uniform, std F_c / sqrt(3); for the payload: a dead band). Sliding
+        # (`SLIDING_SPEED`): the rating against the motion, known to `SLIDING_FRICTION_STD`.
+        self._seal = np.array([machine.chains[c].cylinder.seal_friction
+                               for c in PRESSURE_CYLINDERS])
+        self._friction_std = self._seal / math.sqrt(3.0)
         body = next(b for b in machine.bodies if b.name == machine.payload)
         m0 = body.inertia.mass if initial_payload is None else float(initial_payload)
         # The lift and tilt forces the model predicts carry the joint accelerations' errors
@@ -132,8 +139,10 @@ class Observer:
         lt = _PRESS_LIFT_TILT
         self.payload = PayloadRLS(
             m0, initial_payload_std,
-            np.sqrt(self._force_std[lt] ** 2 + model_std ** 2 + self._friction_std[lt] ** 2),
-            self._force_bias[lt])
+            np.sqrt(self._force_std[lt] ** 2 + model_std ** 2
+                    + (SLIDING_FRICTION_STD * self._seal[lt]) ** 2),
+            self._force_bias[lt], event_variance_scale=EVENT_VARIANCE_SCALE)
+        self._regression: np.ndarray | None = None
         self._wheel_angle = np.zeros(4)
         self._wheel_rate = np.zeros(4)
         self._wheel_acc = np.zeros(4)
@@ -229,8 +238,10 @@ class Observer:
             suspension_force=forces[:2], servo_setpoint=r.servo_setpoint)
         # Payload from the lift and tilt cylinders.
         f0, y = self.efforts.payload_regressor(state)
-        self.payload.update(t, dt, forces[_PRESS_LIFT_TILT], f0[[_LIFT, _TILT]],
-                            y[[_LIFT, _TILT]])
+        measured, band = self._without_seal_friction(forces[_PRESS_LIFT_TILT],
+                                                     state.qd[[_LIFT, _TILT]])
+        self.payload.update(t, dt, *self._filtered(dt, measured, f0[[_LIFT, _TILT]],
+                                                   y[[_LIFT, _TILT]]), band)
         mass = min(max(self.payload.mass, 0.0), 1e4)
         self.force_model.payload_mass = mass
         est = self.force_model.estimate(state)
@@ -255,6 +266,35 @@ class Observer:
         self._last = ObserverEstimate(state, mass, self.payload.std, self.payload.event, unc,
                                       four, stale)
         return self._last
+
+    def _filtered(self, dt: float, measured, f0, y):
+        """The payload regression's three sides through one first-order low-pass.
+
+        ``F = F_0 + m Y`` holds after the same linear filter on both sides while ``m`` is
+        constant; it takes out most of the white noise the joint accelerations' estimates
+        put into ``F_0`` and ``Y`` (the boom's inertia reflected onto the lift stroke makes
+        0.04 m/s^2 of noise several kN).
+        """
+        now = np.concatenate([measured, f0, y])
+        if self._regression is None or not dt > 0:
+            self._regression = now
+        else:
+            a = dt / (PAYLOAD_FILTER_TIME + dt)
+            self._regression = self._regression + a * (now - self._regression)
+        z = self._regression
+        return z[:2], z[2:4], z[4:]
+
+    def _without_seal_friction(self, forces: np.ndarray, speeds: np.ndarray):
+        """The lift and tilt forces less their seals' friction, and the dead band left [N].
+
+        A sliding cylinder's pressures also push its seals' friction, the rating against the
+        motion: subtracted, no band. A cylinder standing still holds anything up to the
+        rating: a band of the rating about the measured force.
+        """
+        seal = self._seal[_PRESS_LIFT_TILT]
+        sliding = np.abs(speeds) > SLIDING_SPEED
+        corrected = forces - np.where(sliding, seal * np.sign(speeds), 0.0)
+        return corrected, np.where(sliding, 0.0, seal)
 
     def _longitudinal(self, forces: np.ndarray) -> np.ndarray:
         """Each wheel's longitudinal ground force [N] (fb x), from its side's drive torque.

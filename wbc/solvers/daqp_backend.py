@@ -76,10 +76,22 @@ class DaqpBackend:
         self.n_init = 0
         self.rows_kept = 0
         self._lam: np.ndarray | None = None  # multipliers of every row, dropped ones 0
+        self._n: int | None = None
 
     def reset(self) -> None:
         """Forget the previous multipliers (the next solve is cold)."""
         self._lam = None
+
+    @property
+    def multipliers(self) -> tuple[np.ndarray | None, np.ndarray | None]:
+        """``(z, z_box)`` of the last solve (None before one).
+
+        DAQP's sign convention (qpsolvers' too); ``z`` holds the inequality rows and then
+        the equality rows, the screened rows' multipliers 0.
+        """
+        if self._lam is None or self._n is None:
+            return None, None
+        return self._lam[self._n:], self._lam[:self._n]
 
     def solve(self, problem: qpsolvers.Problem) -> QPSolution:
         """Solve; raise `QPSolveError` if DAQP finds no finite solution."""
@@ -120,5 +132,5 @@ class DaqpBackend:
         lam = np.zeros(n_all)
         lam[:n] = info["lam"][:n]
         lam[n + rows] = info["lam"][n:]
-        self._lam = lam
+        self._lam, self._n = lam, n
         return QPSolution(np.asarray(x, float), "solved", iterations, elapsed, warm)
