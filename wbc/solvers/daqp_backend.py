@@ -14,7 +14,6 @@ multipliers) when the problem has the same rows; a warm solve that fails is retr
 from __future__ import annotations
 
 import time
-from ctypes import c_int
 
 import daqp
 import numpy as np
@@ -112,7 +111,7 @@ class DaqpBackend:
                                 h[keep], b])
         lower = np.concatenate([np.full(n, -_BIG) if lb is None else np.maximum(lb, -_BIG),
                                 np.full(int(keep.sum()), -_BIG), b])
-        sense = np.zeros(upper.size, dtype=c_int)
+        sense = np.zeros(upper.size, dtype=np.intc)
         sense[n + self.rows_kept:] = _EQUALITY
         n_all = n + G.shape[0] + A.shape[0]
         warm = (self.warm_start and self._lam is not None and self._lam.size == n_all)
