@@ -3,10 +3,10 @@
 Each solver replays every block of consecutive ticks in order (ProxQP warm: the project's
 `ProxQPWorkspace`, warm-started along the block; DAQP screened: the controllers' default
 `DaqpBackend`, redundant rows dropped and warm-started along the block, and the same cold;
-the others cold, as `QpsolversBackend` runs them). Per solver: solve time (the backend's own call, and the whole
-call with qpsolvers' conversion), iterations, the residuals of ``qpsolvers.Solution``
-(primal, dual, duality gap), the objective and solution against the reference (ProxQP cold
-at 1e-10).
+the others cold, as `QpsolversBackend` runs them). Per solver: solve time (the backend's own
+call, and the whole call with qpsolvers' conversion), iterations, the residuals of
+``qpsolvers.Solution`` (primal, dual, duality gap), the objective and solution against the
+reference (ProxQP cold at 1e-10).
 
 "Solves" (`solved`): found, primal residual <= 1e-6 and objective at most 1e-6 relative
 above the reference (absolute below an objective of 1): not suboptimal. An objective *below*

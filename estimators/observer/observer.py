@@ -65,6 +65,8 @@ SLIDING_FRICTION_STD = 0.2  # std of a sliding seal's friction about its rating 
 PAYLOAD_FILTER_TIME = 0.05  # [s] low-pass of the payload regression (`Observer._filtered`)
 EVENT_VARIANCE_SCALE = 0.1  # filtered over raw innovation variance: 0.01 still, 0.05-0.08 moving
 _PRESS_LIFT_TILT = [PRESSURE_CYLINDERS.index("lift"), PRESSURE_CYLINDERS.index("tilt")]
+_CRANE_CYLINDERS = np.array([2, 3, 4])  # slew, lift, tilt: independent coordinates
+_PRESS_CRANE = [PRESSURE_CYLINDERS.index(c) for c in ("slew", "lift", "tilt")]
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -102,6 +104,8 @@ class Observer:
             None: the description's.
         initial_payload_std: Its std [kg].
     """
+
+    crane_from_pressures = True  # `_crane_accelerations`; False: the encoders' alone
 
     def __init__(self, machine: Machine, spec: SensorSpec, force_model,
                  initial_payload: float | None = None, initial_payload_std: float = 150.0):
@@ -243,6 +247,9 @@ class Observer:
         self.payload.update(t, dt, *self._filtered(dt, measured, f0[[_LIFT, _TILT]],
                                                    y[[_LIFT, _TILT]]), band)
         mass = min(max(self.payload.mass, 0.0), 1e4)
+        if self.crane_from_pressures:
+            state = dataclasses.replace(state, qdd=self._crane_accelerations(state, forces,
+                                                                             mass))
         self.force_model.payload_mass = mass
         est = self.force_model.estimate(state)
         four = np.asarray(est.normal_forces, float)
@@ -266,6 +273,39 @@ class Observer:
         self._last = ObserverEstimate(state, mass, self.payload.std, self.payload.event, unc,
                                       four, stale)
         return self._last
+
+    def _crane_accelerations(self, state: MachineState, forces: np.ndarray,
+                             mass: float) -> np.ndarray:
+        """``state.qdd``, the sliding slew, lift and tilt cylinders' from their pressures.
+
+        The crane's dynamics (`estimators.efforts`, at the estimated payload) give each
+        cylinder's force affine in the axes' accelerations, ``F = E u + e_0``; a sliding
+        cylinder's pressures report ``F`` plus its seals' friction against the motion. The
+        sliding cylinders' ``u`` solve their rows with every other axis at the encoders'
+        estimate. The encoders' second difference lags and is noisy (the Kalman filter's
+        0.04 m/s^2); the boom's large reflected inertia turns the pressures' ~1 kN noise into
+        a few mm/s^2. A cylinder standing still keeps the encoders' value (its seals hold an
+        unknown force up to their rating).
+        """
+        speeds = state.qd[_CRANE_CYLINDERS]
+        sliding = np.abs(speeds) > SLIDING_SPEED
+        qdd = state.qdd.copy()
+        if not sliding.any():
+            return qdd
+        self.efforts.payload_mass = mass
+        e, e0 = self.efforts.affine(state)
+        rows = _CRANE_CYLINDERS[sliding]
+        known = np.setdiff1d(np.arange(N_SERVO_AXES), rows)
+        seal = self._seal[_PRESS_CRANE][sliding]
+        rhs = (forces[_PRESS_CRANE][sliding] - seal * np.sign(speeds[sliding]) - e0[rows]
+               - e[np.ix_(rows, known)] @ qdd[known])
+        try:
+            u = np.linalg.solve(e[np.ix_(rows, rows)], rhs)
+        except np.linalg.LinAlgError:
+            return qdd
+        if np.all(np.isfinite(u)):
+            qdd[rows] = u
+        return qdd
 
     def _filtered(self, dt: float, measured, f0, y):
         """The payload regression's three sides through one first-order low-pass.
