@@ -118,6 +118,10 @@ class Interpreted:
         loc = self._local
         loc.out[:] = np.asarray(self.fun(loc.inp)).ravel()
 
+    def bound_call(self):
+        """A no-argument callable evaluating this thread's buffers."""
+        return self.call_buffers
+
     def batch(self, inp: np.ndarray, out: np.ndarray) -> None:
         """Evaluate the rows of ``inp`` into ``out``."""
         if inp.shape[0] == 0:

@@ -334,7 +334,7 @@ class Kernels:
         """(input buffer, output buffer, call) of kernel ``name`` for this thread."""
         k = self.kernel(name)
         inp, out = k.buffers()
-        return inp, out, getattr(k, "bound_call", lambda: k.call_buffers)()
+        return inp, out, k.bound_call()
 
     def pool(self, threads: int) -> ThreadPoolExecutor:
         """A thread pool shared by batch evaluations (compiled kernels release the GIL)."""

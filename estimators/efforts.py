@@ -60,6 +60,8 @@ class ActuatorEfforts:
     def __init__(self, machine: Machine, payload_mass: float | None = None):
         self.machine = machine
         self._pair = payload_pair(machine)
+        self._motion_of: MachineState | None = None  # `_tree_motion`'s last state and result
+        self._motion: tuple | None = None
         body = next(b for b in machine.bodies if b.name == machine.payload)
         self.payload_mass = body.inertia.mass if payload_mass is None else payload_mass
 
@@ -78,8 +80,13 @@ class ActuatorEfforts:
     def _tree_motion(self, state: MachineState):
         """(q, v, a, J_axes): Pinocchio's configuration with the axes' accelerations zero.
 
-        Every chain's state is evaluated once (the chains' kinematics are the costly part).
+        Every chain's state is evaluated once (the chains' kinematics are the costly part),
+        and the last state's result is kept: the observer asks `payload_regressor` and
+        `affine` about the same state each tick (states are immutable; callers must not
+        write into the arrays).
         """
+        if self._motion_of is state:
+            return self._motion
         pm = self._pair[0]
         coords = pm.coordinates
         q_ind, qd_ind = state.q, state.qd
@@ -110,7 +117,8 @@ class ActuatorEfforts:
         qdd_rest = np.array(state.qdd, float)
         qdd_rest[:N_SERVO_AXES] = 0.0
         a[pm._tree_v_idx] = jac @ qdd_rest + jdot_qd
-        return q, v, a, jac[:, :N_SERVO_AXES]
+        self._motion_of, self._motion = state, (q, v, a, jac[:, :N_SERVO_AXES])
+        return self._motion
 
     @staticmethod
     def _one(pm, q, v, a, ja) -> tuple[np.ndarray, np.ndarray]:

@@ -16,6 +16,7 @@ the force margin. No kernel is compiled after construction, whatever the mass.
 from __future__ import annotations
 
 import dataclasses
+import math
 
 import numpy as np
 
@@ -30,6 +31,7 @@ from models.state import MachineState
 __all__ = ["SPAN", "PayloadEstimator", "with_payload_mass"]
 
 SPAN = 100.0  # [kg] m_b - m_a
+_LINEAR_FIELDS = ("normal_forces", "G", "g0", "d_q", "d_qd")  # what a mix interpolates
 
 
 def with_payload_mass(machine: Machine, mass: float) -> Machine:
@@ -109,10 +111,11 @@ class PayloadEstimator:
         if self._w == 0.0:
             return la
         lb = self._b.linearize(state)
-        return dataclasses.replace(
-            la, normal_forces=self._mix(la.normal_forces, lb.normal_forces),
-            G=self._mix(la.G, lb.G), g0=self._mix(la.g0, lb.g0),
-            d_q=self._mix(la.d_q, lb.d_q), d_qd=self._mix(la.d_qd, lb.d_qd))
+        mixed = [self._mix(getattr(la, f), getattr(lb, f)) for f in _LINEAR_FIELDS]
+        if all(math.isfinite(x.sum()) for x in mixed):  # a finite mix of checked rows
+            return ForceLinearization.trusted(*mixed, la.in_contact, la.mode, la.clipped,
+                                              la.time)
+        return dataclasses.replace(la, **dict(zip(_LINEAR_FIELDS, mixed)))  # checks, raises
 
     def normal_forces_batch(self, batch, payload, strict: bool = False) -> np.ndarray:
         """Normal forces [N] (N, 4) of a `StateBatch`, each row at its own payload [kg] (N,).

@@ -295,7 +295,9 @@ class Observer:
         self.efforts.payload_mass = mass
         e, e0 = self.efforts.affine(state)
         rows = _CRANE_CYLINDERS[sliding]
-        known = np.setdiff1d(np.arange(N_SERVO_AXES), rows)
+        free = np.zeros(N_SERVO_AXES, bool)
+        free[rows] = True
+        known = np.flatnonzero(~free)
         seal = self._seal[_PRESS_CRANE][sliding]
         rhs = (forces[_PRESS_CRANE][sliding] - seal * np.sign(speeds[sliding]) - e0[rows]
                - e[np.ix_(rows, known)] @ qdd[known])
