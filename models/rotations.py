@@ -10,7 +10,13 @@ import math
 
 import numpy as np
 
-__all__ = ["axis_rotation", "rpy_rotation", "se3", "se3_inverse", "skew"]
+__all__ = ["axis_rotation", "cross3", "rpy_rotation", "se3", "se3_inverse", "skew"]
+
+
+def cross3(a, b) -> np.ndarray:
+    """``a x b`` of two 3-vectors (numpy's ``cross`` costs ~10 us a call)."""
+    return np.array([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2],
+                     a[0] * b[1] - a[1] * b[0]])
 
 
 def skew(v) -> np.ndarray:

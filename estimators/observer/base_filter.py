@@ -25,17 +25,12 @@ import numpy as np
 
 from estimators.errors import EstimatorError
 from models.rotations import axis_rotation
+from models.rotations import cross3 as _cross
 
 __all__ = ["ANGULAR_ACCELERATION_TIME_CONSTANT", "ATTITUDE_TIME_CONSTANT", "BaseFilter"]
 
 ATTITUDE_TIME_CONSTANT = 2.0  # [s] the accelerometer's pull on the attitude
 ANGULAR_ACCELERATION_TIME_CONSTANT = 0.03  # [s]
-
-
-def _cross(a, b) -> np.ndarray:
-    """``a x b`` of two 3-vectors (numpy's ``cross`` costs ~10 us a call)."""
-    return np.array([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2],
-                     a[0] * b[1] - a[1] * b[0]])
 
 
 def _exp(w_dt: np.ndarray) -> np.ndarray:
