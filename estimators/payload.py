@@ -97,6 +97,13 @@ class PayloadEstimator:
             residual=self._mix(ea.residual, eb.residual),
             system_rhs=self._mix(ea.system_rhs, eb.system_rhs))
 
+    def contact_points(self, state: MachineState) -> np.ndarray:
+        """`Estimate.contact_points` of ``state`` (4, 3) [m].
+
+        Geometry, whatever the payload: one estimate at the first mass gives them.
+        """
+        return self._a.estimate(state).contact_points
+
     def constraint(self, state: MachineState) -> tuple[np.ndarray, np.ndarray]:
         """`NormalForceEstimator.constraint` at the current payload mass."""
         ga, ha = self._a.constraint(state)

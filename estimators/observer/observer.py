@@ -99,8 +99,9 @@ class Observer:
     Args:
         machine: The machine description.
         spec: The sensor suite (its error model sets the filters and the uncertainty).
-        force_model: An estimator with a settable ``payload_mass`` and the cylinder-force
-            fourth row (`estimators.payload.PayloadEstimator`), run once per tick.
+        force_model: An estimator with a settable ``payload_mass``, ``contact_points`` and
+            the cylinder-force fourth row (`estimators.payload.PayloadEstimator`), run once
+            per tick.
         initial_payload: Prior of the payload [kg] (the empty grapple's mass is a fair one);
             None: the description's.
         initial_payload_std: Its std [kg].
@@ -254,10 +255,10 @@ class Observer:
         self.force_model.payload_mass = mass
         if len(r.drive_torques):
             self._drive = r.drive_torques.value.mean(axis=0)
-        # The wheels' centres from the geometry (an estimate without contacts gives their
+        # The wheels' centres from the geometry (without contacts the estimator gives their
         # lowest points), the contact points below them along the ground's normal, then the
         # four-wheel forces at those points for the flags.
-        lowest = self.force_model.estimate(state).contact_points
+        lowest = self.force_model.contact_points(state)
         points, normal = self._contact_points(lowest, base.rotation)
         normals = np.tile(normal, (4, 1))
         previous = self._last.forces_four if self._last is not None else np.ones(4)
