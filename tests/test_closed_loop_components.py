@@ -205,6 +205,43 @@ def test_horizon_forces_with_feedback_warp_drift_and_terminal_rows(machine):
         np.testing.assert_allclose(f[k], expect, rtol=1e-9, atol=1e-6, err_msg=f"step {k}")
 
 
+def test_lifted_wheel_frees_the_warp_and_loads_its_neighbours(machine):
+    ctrl, model, st = _mpc_with_feedback(machine)
+    plant = KinematicPlant(st, DT)
+    for _ in range(3):
+        plant.apply(ctrl.step(plant.state))
+    s4 = plant.state
+    lifted = WheelContacts(np.array([True, False, True, True]), np.zeros((4, 3)),
+                           np.zeros((4, 3)), np.tile([0.0, 0.0, 1.0], (4, 1)))
+    s3 = dataclasses.replace(s4, contacts=lifted)
+    drift = np.linspace(0.0, 800.0, ctrl.layout.n_steps + 1)
+    ctx4 = dataclasses.replace(ctrl.context(s4), warp_drift=drift)
+    ctx3 = dataclasses.replace(ctrl.context(s3), warp_drift=drift)
+    con = ctrl.force_constraint
+    A4, b4 = con.forces_map(ctx4)
+    A3, b3 = con.forces_map(ctx3)
+    # On three wheels the suspension's warp and the terrain's twist move no load: the
+    # difference is exactly the warp model's terms.
+    x = np.random.default_rng(4).standard_normal(ctx4.layout.n) * 0.1
+    u = x[ctx4.layout.accelerations].reshape(ctx4.n_steps, N_AXES)
+    Q, _ = ctx4.prediction.trajectory(ctx4.q, ctx4.qd, u)
+    W = warp_matrix(ctrl.config.force.warp_stiffness)
+    diff = ((A4 - A3) @ x + b4 - b3).reshape(-1, 4)
+    np.testing.assert_allclose(diff[0], drift[0] * DIAGONAL, atol=1e-6)
+    for k in range(1, diff.shape[0]):
+        np.testing.assert_allclose(diff[k], W @ (Q[k - 1] - ctx4.q) + drift[k] * DIAGONAL,
+                                   rtol=1e-9, atol=1e-6)
+    # The rows: RL's threshold is added to its neighbours FL and RR, none for RL itself.
+    f_min = con.thresholds
+    ineq = con.compute(ctx3)
+    rows = ineq.h.size // 3
+    h = ineq.h.reshape(rows, 3) * con.force_scale
+    f3 = b3.reshape(-1, 4)[con._constrained_nodes(ctx3, b3.size // 4)[0]]
+    np.testing.assert_allclose(f3[:, [0, 2, 3]] - h,
+                               np.tile(f_min[[0, 2, 3]] + f_min[1] * np.array([1, 0, 1]),
+                                       (rows, 1)), atol=1e-6)
+
+
 def test_force_rows_start_at_the_configured_time(machine):
     ctrl, _, st = _mpc_with_feedback(machine, force_constraint_start=0.05)
     ctrl.step(st)

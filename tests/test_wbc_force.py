@@ -27,6 +27,7 @@ from wbc import (
     build_qp,
     load_estimator,
 )
+from wbc.constraints.force_rows import lifted_wheel_thresholds
 from wbc.force_models import ForceLinearization, linearize_forces
 
 DT = 0.01
@@ -124,6 +125,27 @@ def test_only_wheels_in_contact_are_constrained(machine, limits):
                                np.tile([0.0, 0.0, 1.0], (4, 1)))
     ctx, con, prob, _ = _telescope_problem(machine, limits, model, contacts=off)
     assert prob.G is None and con.compute(ctx) is None
+
+
+def test_lifted_wheel_threshold_goes_to_its_neighbours(machine, limits):
+    t = np.array([1000.0, 2000.0, 3000.0, 4000.0])  # FL, RL, FR, RR
+    np.testing.assert_array_equal(lifted_wheel_thresholds(t, np.ones(4, bool)), t)
+    # RL lifted: its neighbours are FL and RR (the other diagonal), not its partner FR.
+    np.testing.assert_array_equal(lifted_wheel_thresholds(t, [True, False, True, True]),
+                                  [3000.0, 2000.0, 3000.0, 6000.0])
+    np.testing.assert_array_equal(lifted_wheel_thresholds(t, [False, True, True, False]),
+                                  [1000.0, 7000.0, 8000.0, 4000.0])
+    # In the QP: extending the telescope unloads FL, f_FL = 3000 - 4000 a >= f_min.
+    st = make_state(machine)
+    G = np.zeros((4, 19))
+    G[0, 6 + TEL] = -4000.0
+    model = AffineForceModel([3000.0, 10000.0, 10000.0, 10000.0], st.q, np.zeros((4, 13)), G)
+    _, _, _, x = _telescope_problem(machine, limits, model)
+    assert x[TEL] == pytest.approx(0.5, abs=1e-6)
+    contacts = models.WheelContacts(np.array([True, False, True, True]), np.zeros((4, 3)),
+                                    np.zeros((4, 3)), np.tile([0.0, 0.0, 1.0], (4, 1)))
+    _, _, _, x = _telescope_problem(machine, limits, model, contacts=contacts)
+    assert x[TEL] == pytest.approx(0.25, abs=1e-6)  # FL keeps 1000 N more for RL
 
 
 def test_lookahead_uses_the_configuration_derivative(machine, limits):

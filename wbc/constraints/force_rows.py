@@ -8,9 +8,10 @@ import numpy as np
 
 from wbc.constraints.constraint import Constraint, Inequality
 from wbc.errors import ConfigurationError
+from wbc.force_models.feedback import DIAGONAL
 from wbc.force_models.protocol import NormalForceModel, contact_flags
 
-__all__ = ["ForceRowsConstraint", "check_thresholds"]
+__all__ = ["ForceRowsConstraint", "check_thresholds", "lifted_wheel_thresholds"]
 
 
 def check_thresholds(thresholds) -> np.ndarray:
@@ -21,8 +22,27 @@ def check_thresholds(thresholds) -> np.ndarray:
     return t
 
 
+def lifted_wheel_thresholds(thresholds: np.ndarray, in_contact) -> np.ndarray:
+    r"""The thresholds with each lifted wheel's added to its two neighbours', shape (4,).
+
+    On three wheels the forces are those of the four-contact statics with the lifted wheel's
+    force zero; the free (warp) direction `DIAGONAL` moves load between the diagonals, one
+    unit from each of the lifted wheel's neighbours (the other diagonal) to the lifted wheel
+    and its partner. The suspension can set the wheel down with ``f_min,i`` on it only if
+    each neighbour carries ``f_min,i`` more than its own threshold: a wheel in the air asks
+    its neighbours, not its partner, for the load it needs.
+    """
+    t = np.array(thresholds, dtype=float)
+    for i in np.flatnonzero(~np.asarray(in_contact, dtype=bool)):
+        t[DIAGONAL != DIAGONAL[i]] += thresholds[i]
+    return t
+
+
 class ForceRowsConstraint(Constraint):
     r"""``f_z,i(t_k) >= f_min,i`` at some nodes k, for every wheel i in contact now.
+
+    A lifted wheel's threshold is added to its two neighbours' (`lifted_wheel_thresholds`):
+    they must carry the load the wheel needs when the suspension sets it down.
 
     A subclass predicts the forces of all four wheels at its nodes, ``A x + b`` node-major
     (`forces_map`), and says which nodes get rows (`_constrained_nodes`). The rows are
@@ -52,8 +72,12 @@ class ForceRowsConstraint(Constraint):
         self.last_in_contact: np.ndarray | None = None
 
     @abc.abstractmethod
-    def forces_map(self, ctx) -> tuple[np.ndarray, np.ndarray]:
-        """``(A, b)``: predicted forces ``A x + b`` [N], four rows per node."""
+    def forces_map(self, ctx, in_contact=None) -> tuple[np.ndarray, np.ndarray]:
+        """``(A, b)``: predicted forces ``A x + b`` [N], four rows per node.
+
+        ``in_contact``: the contact flags now, (4,), if the caller has them (else the
+        subclass asks `contact_flags` when it needs them).
+        """
 
     def _constrained_nodes(self, ctx, n_nodes: int) -> tuple[np.ndarray, np.ndarray]:
         """``(nodes, later)``: the nodes that get rows and whether each lies after now."""
@@ -61,16 +85,17 @@ class ForceRowsConstraint(Constraint):
 
     def compute(self, ctx) -> Inequality | None:
         """Rows ``-(A x + b) / f_s - eps <= -f_min / f_s`` of the wheels in contact now."""
-        A, b = self.forces_map(ctx)
         flags = contact_flags(self.model, ctx.state)
+        A, b = self.forces_map(ctx, flags)
         self.last_forces_map, self.last_in_contact = (A, b), flags
         wheels = np.flatnonzero(flags)
         if wheels.size == 0:
             return None
+        thresholds = lifted_wheel_thresholds(self.thresholds, flags)
         nodes, later = self._constrained_nodes(ctx, A.shape[0] // 4)
         rows = (4 * nodes[:, None] + wheels[None, :]).ravel()
         G = -A[rows] / self.force_scale
-        h = (b[rows] - np.tile(self.thresholds[wheels], nodes.size)) / self.force_scale
+        h = (b[rows] - np.tile(thresholds[wheels], nodes.size)) / self.force_scale
         if ctx.layout.slack is not None:
             col = ctx.layout.slack.start + np.tile(wheels, nodes.size)
             if ctx.layout.n_slack == 8:  # the later nodes' own slacks

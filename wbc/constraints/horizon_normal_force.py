@@ -12,7 +12,7 @@ from wbc.constraints.force_rows import ForceRowsConstraint
 from wbc.drive_model import speed_scale_direction
 from wbc.errors import ConfigurationError
 from wbc.force_models.feedback import DIAGONAL
-from wbc.force_models.protocol import NormalForceModel, linearize_forces
+from wbc.force_models.protocol import NormalForceModel, contact_flags, linearize_forces
 from wbc.mpc.prediction import predict_base_pose
 
 __all__ = ["HorizonNormalForceConstraint"]
@@ -53,9 +53,10 @@ class HorizonNormalForceConstraint(ForceRowsConstraint):
     configuration enters to first order.
 
     With ``ctx.feedback`` (`wbc.force_models.feedback`) its bias, the measured load split
-    minus the model's, is added at every step (exact at step 0), and with ``ctx.warp`` the
-    chassis warp ``W (q_k - q_0)`` of the suspension setpoints is added at steps k >= 1
-    (the model's own suspension columns are then dropped, `_without_suspension`);
+    minus the model's, is added at every step (exact at step 0), and with ``ctx.warp`` and
+    all four wheels in contact the chassis warp ``W (q_k - q_0)`` of the suspension setpoints
+    is added at steps k >= 1 (the model's own suspension columns are dropped whenever there
+    is a warp model, `_without_suspension`: on three wheels the warp is free);
     ``ctx.warp_drift`` adds the terrain's predicted twist along the diagonal, proportional
     to the wheel-speed scale (``drift * s / s_prev``). A terminal node (``T_b``) constrains
     the forces while every axis brakes to rest after the horizon (`forces_map`).
@@ -137,7 +138,7 @@ class HorizonNormalForceConstraint(ForceRowsConstraint):
             lins.append(linearize_forces(self.model, st))
         return steps, lins, qn, vn
 
-    def forces_map(self, ctx) -> tuple[np.ndarray, np.ndarray]:
+    def forces_map(self, ctx, in_contact=None) -> tuple[np.ndarray, np.ndarray]:
         """``(A, b)``: predicted forces ``A x + b`` [N], step-major.
 
         Rows ``4k..4k+3`` are step k = 0..N-1; with a terminal brake time ``T_b`` four more
@@ -158,6 +159,11 @@ class HorizonNormalForceConstraint(ForceRowsConstraint):
         direction = (speed_scale_direction(st, ctx.speed_scale, self.drive_time_constant)
                      if lay.scale is not None else None)
         omega = st.qd[N_AXES:N_INDEPENDENT]
+        # On three wheels the warp is free: the suspension sets the lifted wheel down
+        # without moving load (`lifted_wheel_thresholds` keeps the load it will need).
+        if in_contact is None:
+            in_contact = contact_flags(self.model, st)
+        warp = ctx.warp if np.all(in_contact) else None
         if ctx.warp is not None:  # the suspension acts through the warp model only
             maps = [_without_suspension(lin) for lin in lins]
         else:
@@ -187,7 +193,7 @@ class HorizonNormalForceConstraint(ForceRowsConstraint):
             Tb = self.terminal_brake_time
             A[N] -= G_axes[N] @ pred.Pv[(N - 1) * na:N * na] / Tb
             b[N] -= G_axes[N] @ ctx.free_velocities[N - 1] / Tb
-        if ctx.warp is not None:  # the suspension twists the chassis
+        if warp is not None:  # the suspension twists the chassis
             A[later] += ctx.warp @ Pq
             b[later] += (ctx.free_positions[:n_eval - 1] - ctx.q) @ ctx.warp.T
         if direction is not None:
@@ -198,7 +204,7 @@ class HorizonNormalForceConstraint(ForceRowsConstraint):
         b = b.reshape(4 * n_eval)
         if ctx.feedback is not None:  # the load split measured now, held over the horizon
             b += np.tile(ctx.feedback.bias, n_eval)
-        if ctx.warp_drift is not None:  # the terrain keeps twisting, at the driving speed
+        if warp is not None and ctx.warp_drift is not None:  # the terrain keeps twisting
             drift = np.kron(ctx.warp_drift[:n_eval], DIAGONAL)
             b += drift
             if lay.scale is not None:

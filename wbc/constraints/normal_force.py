@@ -55,7 +55,7 @@ class NormalForceConstraint(ForceRowsConstraint):
         super().__init__(model, thresholds, force_scale, drive_time_constant)
         self.lookahead = float(lookahead)
 
-    def forces_map(self, ctx) -> tuple[np.ndarray, np.ndarray]:
+    def forces_map(self, ctx, in_contact=None) -> tuple[np.ndarray, np.ndarray]:
         """``(A, b)``: predicted forces ``A x + b`` [N], A shape (4, n), b (4,)."""
         st, lay = ctx.state, ctx.layout
         T = self.lookahead
