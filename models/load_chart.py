@@ -105,7 +105,7 @@ def _contact_matrix(pm: PinocchioMachine, state: MachineState) -> np.ndarray:
 
 
 def rated_payload(machine: Machine, q, threshold_n: float,
-                  base_rotation=None) -> RatedLoad:
+                  base_rotation=None, effort_fraction: float = 1.0) -> RatedLoad:
     """The largest payload the machine can hold at the pose ``q`` (module docstring).
 
     Args:
@@ -113,13 +113,18 @@ def rated_payload(machine: Machine, q, threshold_n: float,
         q: Independent coordinates, shape (13,).
         threshold_n: The smallest normal force every wheel must keep [N].
         base_rotation: Base attitude (world <- fb), (3, 3); level if None.
+        effort_fraction: The share of each effort range the servos may use, in (0, 1]: a
+            controller that keeps a margin on its cylinders' forces holds this much.
 
     Raises:
-        ModelError: ``threshold_n`` not a finite number >= 0.
+        ModelError: ``threshold_n`` not a finite number >= 0, or ``effort_fraction`` not
+            in (0, 1].
     """
     if not (isinstance(threshold_n, (int, float)) and np.isfinite(threshold_n)
             and threshold_n >= 0):
         raise ModelError(f"threshold_n must be a finite force >= 0 [N], got {threshold_n!r}")
+    if not (isinstance(effort_fraction, (int, float)) and 0 < effort_fraction <= 1):
+        raise ModelError(f"effort_fraction must be in (0, 1], got {effort_fraction!r}")
     rot = np.eye(3) if base_rotation is None else np.asarray(base_rotation, float)
     zero = np.zeros(13)
     state = MachineState(np.zeros(3), rot, np.zeros(6), np.zeros(6), q, zero, zero)
@@ -133,6 +138,7 @@ def rated_payload(machine: Machine, q, threshold_n: float,
     null = np.linalg.svd(a)[2][-1]
     f0, f1 = pinv @ w_at0[[2, 3, 4]], pinv @ dw[[2, 3, 4]]
     lo, hi = effort_ranges(machine)
+    lo, hi = effort_fraction * lo, effort_fraction * hi
     names = machine.coordinates.independent_names
     # Each servo alone: lo <= e0 + m de <= hi bounds m from above (m >= 0).
     best, limit = _MAX_PAYLOAD, "none"

@@ -21,9 +21,11 @@ Families (ranges drawn uniformly; slopes in degrees, the side slope's downhill s
 Every goal is checked at construction against the limits the controller uses
 (`check_reachable`): an unreachable goal is a `ScenarioFileError` before the run. Goals are
 also drawn where the crane can hold the heaviest payload of the draw (its rated payload on
-level ground from the load chart, `models.load_chart.rated_payload`, at least
-1 / `HOLD_FRACTION` times that mass): an operator does not command a pose the cylinders cannot
-hold; whether the machine stays on four wheels there is the controller's business.
+level ground from the load chart, `models.load_chart.rated_payload`, with the cylinder forces
+the MPC allows itself, `EFFORT_FRACTION` of each range, at least 1 / `HOLD_FRACTION` times
+that mass): an operator does not command a pose the cylinders cannot hold, and the
+controller would not move the load there; whether the machine stays on four wheels there is
+the controller's business.
 """
 
 from __future__ import annotations
@@ -39,15 +41,17 @@ from models.description import Machine
 from models.load_chart import rated_payload
 from scenarios.errors import RunInputError, ScenarioFileError
 from scenarios.scenario import TRANSPORT, ClosedLoopScenario, CranePose
+from wbc.controllers.config import MpcConfig
 
-__all__ = ["FAMILIES", "GRAPPLE_MASS", "HOLD_FRACTION", "POSITION_MARGIN", "Draw",
-           "check_reachable", "draw"]
+__all__ = ["EFFORT_FRACTION", "FAMILIES", "GRAPPLE_MASS", "HOLD_FRACTION", "POSITION_MARGIN",
+           "Draw", "check_reachable", "draw"]
 
 GRAPPLE_MASS = 10.0  # [kg] an empty grapple
 POSITION_MARGIN = 0.01  # the controller's margin (`wbc.ControllerConfig.position_margin`)
 _EDGE = 0.03  # goals keep this fraction of each range from its ends (inside the margin)
 _WRIST_LIMIT_DEG = 88.0  # the wrist keeps the tool vertical: |lift + tilt| within this
 HOLD_FRACTION = 0.8  # a goal's payload is at most this fraction of its rated payload
+EFFORT_FRACTION = 1.0 - MpcConfig().effort_margin  # of each force range, as the MPC's bounds
 
 
 @dataclass(frozen=True)
@@ -92,7 +96,8 @@ def _pose_in_workspace(rng: np.random.Generator, machine: Machine, slew_deg=None
         telescope = rng.uniform(t_lo + max(_EDGE, reach[0]) * span,
                                 t_lo + min(1 - _EDGE, reach[1]) * span)
         pose = CranePose(*angles, telescope)
-        if hold > 0 and rated_payload(machine, pose.q(machine), 0.0).mass * HOLD_FRACTION < hold:
+        if hold > 0 and HOLD_FRACTION * rated_payload(
+                machine, pose.q(machine), 0.0, effort_fraction=EFFORT_FRACTION).mass < hold:
             continue
         return pose
     raise RunInputError(f"no crane pose found in the workspace that holds {hold:.0f} kg "

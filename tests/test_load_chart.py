@@ -67,6 +67,25 @@ def test_the_chart_falls_with_reach_and_tipping_binds_on_a_slope():
 def test_bad_threshold_raises():
     with pytest.raises(ModelError, match="threshold_n"):
         rated_payload(MACHINE, MACHINE.coordinates.home(), float("nan"))
+    for bad in (0.0, 1.5, float("nan")):
+        with pytest.raises(ModelError, match="effort_fraction"):
+            rated_payload(MACHINE, MACHINE.coordinates.home(), THRESHOLD,
+                          effort_fraction=bad)
+
+
+def test_an_effort_fraction_puts_the_limiting_force_at_that_share_of_its_range():
+    q = _pose(0.8)
+    full = rated_payload(MACHINE, q, THRESHOLD)
+    part = rated_payload(MACHINE, q, THRESHOLD, effort_fraction=0.9)
+    assert part.limit == full.limit == "lift" and part.mass < full.mass
+    zero = np.zeros(13)
+    state = MachineState(np.zeros(3), np.eye(3), np.zeros(6), np.zeros(6), q, zero, zero)
+    p0, p1 = _models(MACHINE)
+    e0, _ = _efforts_and_wrench(p0, state)
+    e1, _ = _efforts_and_wrench(p1, state)
+    lift = MACHINE.coordinates.independent_names.index("lift")
+    at = e0[lift] + (part.mass - 1.0) * (e1[lift] - e0[lift])  # p0 carries 1 kg
+    assert at == pytest.approx(0.9 * MACHINE.chains["lift"].cylinder.force_range[1], rel=1e-9)
 
 
 def test_wbc_machine_load_chart_prints_and_plots(tmp_path, capsys):
