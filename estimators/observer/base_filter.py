@@ -24,8 +24,7 @@ from __future__ import annotations
 import numpy as np
 
 from estimators.errors import EstimatorError
-from models.rotations import axis_rotation
-from models.rotations import cross3 as _cross
+from models.rotations import axis_rotation, cross3
 
 __all__ = ["ANGULAR_ACCELERATION_TIME_CONSTANT", "ATTITUDE_TIME_CONSTANT", "BaseFilter"]
 
@@ -89,13 +88,13 @@ class BaseFilter:
             up_meas = self._f_slow / np.linalg.norm(self._f_slow)
             up_est = self.rotation[2]  # R^T e_z
             # Rotate the estimate by the small angle between the two up directions.
-            self.rotation = self.rotation @ _exp(b * _cross(up_meas, up_est))
+            self.rotation = self.rotation @ _exp(b * cross3(up_meas, up_est))
             self.rotation = _orthonormal(self.rotation)
         self.rate = w
         self._last_rate = w
         self._last_time = time
         alpha, p = self.angular_acceleration, self.p
-        self.specific_force = f_p - _cross(alpha, p) - _cross(w, _cross(w, p))
+        self.specific_force = f_p - cross3(alpha, p) - cross3(w, cross3(w, p))
         if wheel_speeds is not None and np.all(np.isfinite(wheel_speeds)):
             self.velocity = np.array([self.r_wheel * 0.5 * (wheel_speeds[0]
                                                             + wheel_speeds[1]), 0.0, 0.0])
@@ -108,7 +107,7 @@ class BaseFilter:
     @property
     def acceleration(self) -> np.ndarray:
         """The twist derivative the dynamics get (module docstring), (6,)."""
-        v_dot = (self.specific_force - _cross(self.rate, self.velocity)
+        v_dot = (self.specific_force - cross3(self.rate, self.velocity)
                  - self.g * self.rotation[2])
         return np.concatenate([v_dot, self.angular_acceleration])
 
@@ -118,7 +117,7 @@ def _orthonormal(r: np.ndarray) -> np.ndarray:
     z = r[2] / np.linalg.norm(r[2])
     x = r[0] - (r[0] @ z) * z
     x /= np.linalg.norm(x)
-    return np.vstack([x, _cross(z, x), z])
+    return np.vstack([x, cross3(z, x), z])
 
 
 def _level(f: np.ndarray) -> np.ndarray:
@@ -126,5 +125,5 @@ def _level(f: np.ndarray) -> np.ndarray:
     up = f / np.linalg.norm(f)  # R^T e_z: the third row of R
     x = np.array([1.0, 0.0, 0.0]) - up[0] * up
     x /= np.linalg.norm(x)
-    y = _cross(up, x)
+    y = cross3(up, x)
     return np.vstack([x, y, up])
