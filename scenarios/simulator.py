@@ -33,6 +33,7 @@ from models.coordinates import N_INDEPENDENT
 from models.description import Machine
 from models.mujoco import (
     DEFAULT_TIMESTEP,
+    DampingSchedule,
     MujocoIndex,
     build_model,
     home_keyframe,
@@ -102,7 +103,8 @@ class Simulator:
         self._rate_range = np.array([sp.rate_range for sp in servos])
         self._wheel_range = self.model.actuator_ctrlrange[self.index.wheel_actuators].T.copy()
         self._stroke_range = np.array([sp.stroke_range for sp in servos])
-        self._damping_lead = np.array([sp.kv / sp.kp for sp in servos])  # [s]
+        self._damping = DampingSchedule(self.model, self.index, machine, servos,
+                                        self.model.opt.timestep)
         servos_ids = self.index.servos
         if not np.array_equal(servos_ids, np.arange(servos_ids[0], servos_ids[0] + len(servos))):
             raise SimulatorError("the servo actuators must be consecutive")
@@ -238,8 +240,7 @@ class Simulator:
         if n > n_decay * _WINDUP_STEPS:
             self.step(n - n_decay * _WINDUP_STEPS)
         d.time = 0.0
-        d.ctrl[self._servo_ctrl] = self._setpoint - self._damping_lead * d.qvel[
-            self.index.servo_dof]
+        d.ctrl[self._servo_ctrl] = self._setpoint - self._lead() * d.qvel[self.index.servo_dof]
         mujoco.mj_forward(m, d)
         self._take_snapshot()
         self._check_warnings()
@@ -258,7 +259,7 @@ class Simulator:
             raise SimulatorError(f"n must be a positive integer, got {n!r}")
         m, d, ix = self.model, self.data, self.index
         lo, hi = self._stroke_range[:, 0], self._stroke_range[:, 1]
-        band, lead = self._windup_band, self._damping_lead
+        band = self._windup_band
         servo_ctrl, servo_dof = d.ctrl[self._servo_ctrl], ix.servo_dof
         done = 0
         while done < n:
@@ -267,6 +268,7 @@ class Simulator:
             # deflection from the stroke (anti-windup of a stalled cylinder, applied after
             # every _WINDUP_STEPS steps).
             chunk = min(_WINDUP_STEPS, n - done)
+            lead = self._lead()  # the damping this pose allows (`DampingSchedule`)
             path = self._setpoint + np.outer(np.arange(chunk + 1), self.timestep * self._rates)
             path = np.minimum(np.maximum(path, lo), hi)
             for k in range(chunk):
@@ -286,6 +288,9 @@ class Simulator:
             self._setpoint = np.minimum(np.maximum(path[chunk], x - band), x + band)
             done += chunk
         self._check_warnings()
+
+    def _lead(self) -> np.ndarray:
+        return self._damping.lead(self.data, self.data.qpos[self.index.independent_qpos])
 
     def _hold_wheels(self) -> None:
         d = self.data

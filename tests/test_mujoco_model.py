@@ -310,3 +310,49 @@ def test_place_on_a_side_slope_tilts_the_base():
 def test_bad_input_raises_typed_errors(call, error):
     with pytest.raises(error):
         call()
+
+
+def _crane_pose(machine, lift_deg: float, tilt_deg: float, telescope: float) -> np.ndarray:
+    """Independent coordinates at home with the crane's lift, tilt and telescope set."""
+    q = machine.coordinates.home()
+    chains = machine.chains
+    q[3] = chains["lift"].chain.stroke_from_angle(math.radians(lift_deg))
+    q[4] = chains["tilt"].chain.stroke_from_angle(math.radians(tilt_deg))
+    q[5] = telescope
+    return q
+
+
+@pytest.mark.parametrize("payload_mass", [10.0, 300.0])
+def test_damping_schedule_keeps_the_explicit_servo_step_stable_at_every_pose(payload_mass):
+    """The designed damping is unstable with the crane upright; the scheduled one is not.
+
+    Oracle: the spectral radius of the linearised explicit step (`explicit_step_radius`) on
+    the bare tree's reduced inertia at each pose, independent of the schedule's own mass
+    matrix (the compiled machine model's, from MuJoCo's state).
+    """
+    machine = build_reference_machine(payload_mass=payload_mass)
+    model = mm.build_model(machine, T.flat())
+    data = mujoco.MjData(model)
+    specs = mm.servo_specs(machine)
+    schedule = mm.DampingSchedule(model, mm.MujocoIndex(model, machine), machine, specs,
+                                  model.opt.timestep)
+    kp = np.array([s.kp for s in specs])
+    h = mm.DEFAULT_TIMESTEP
+    poses = [(45.0, -90.0, 0.5), (87.0, -18.0, 0.0), (87.0, -18.0, 1.0), (60.0, -18.0, 0.0),
+             (87.0, -60.0, 0.0), (30.0, -140.0, 1.1), (0.0, -90.0, 0.0), (70.0, -40.0, 0.5)]
+    designed = []
+    for lift, tilt, tele in poses:
+        q = _crane_pose(machine, lift, tilt, tele)
+        data.qpos[:], _ = mm.home_keyframe(machine, T.flat(), q)
+        mujoco.mj_forward(model, data)
+        kv = schedule.damping(data, q)
+        assert np.all(kv <= schedule.designed) and np.all(kv > 0)
+        reduced = mm.servos.reduced_inertia(machine, q)
+        assert mm.servos.explicit_step_radius(reduced, kp, kv, h) <= 1 + 1e-7, (lift, tilt, tele)
+        designed.append(mm.servos.explicit_step_radius(reduced, kp, schedule.designed, h))
+    # Home: the designed damping, untouched; upright: the designed damping diverges.
+    q = COORDS.home()
+    data.qpos[:], _ = mm.home_keyframe(machine, T.flat(), q)
+    mujoco.mj_forward(model, data)
+    np.testing.assert_array_equal(schedule.damping(data, q), schedule.designed)
+    assert designed[0] <= 1 + 1e-7 and designed[1] > 1.5

@@ -37,8 +37,10 @@ The model, and why (figures measured for the reference machine, see the tests an
   `HydraulicCylinder.velocity_range`, kept within the stroke range and within full-force
   deflection of the stroke (anti-windup). Explicit damping is bounded by stability, so the
   crane's lift, tilt and telescope servos end up lightly damped (``zeta`` 0.04-0.08); see
-  `servo_specs`. Standalone (in a viewer) ``ctrl`` is the stroke setpoint and the servos are
-  undamped.
+  `servo_specs`. The bound depends on the pose (the slew's free inertia falls 15-fold with
+  the crane upright), so the simulator caps each servo's damping at every few steps at what
+  the current pose allows (`DampingSchedule`); elsewhere the designed damping applies.
+  Standalone (in a viewer) ``ctrl`` is the stroke setpoint and the servos are undamped.
 * **Telescope and wrist**: the same servo on their joints (``position`` actuators), limits
   from `Machine.direct_drives`.
 * **Wheels**: ``velocity`` actuators ``tau = kv (u - omega)``, ``kv`` = `WHEEL_VELOCITY_GAIN`,
@@ -73,10 +75,17 @@ from models.mujoco.elements import body_poses_in_fb
 from models.mujoco.index import MujocoIndex
 from models.mujoco.mjcf import machine_xml, scene_xml
 from models.mujoco.placement import home_keyframe, place_on_terrain
-from models.mujoco.servos import ServoSpec, gravity_loads, reflected_inertia, servo_specs
+from models.mujoco.servos import (
+    DampingSchedule,
+    ServoSpec,
+    gravity_loads,
+    reflected_inertia,
+    servo_specs,
+)
 
 __all__ = [
-    "CONTACT_SOLIMP", "CONTACT_SOLREF", "DEFAULT_TIMESTEP", "EQUALITY_SOLIMP", "MujocoIndex",
+    "CONTACT_SOLIMP", "CONTACT_SOLREF", "DEFAULT_TIMESTEP", "DampingSchedule", "EQUALITY_SOLIMP",
+    "MujocoIndex",
     "SERVO_DAMPING_RATIO", "SERVO_POSITION_ERROR", "ServoSpec", "WHEEL_VELOCITY_GAIN",
     "body_poses_in_fb", "build_model", "build_spec", "default_terrains", "gravity_loads",
     "home_keyframe", "machine_xml", "place_on_terrain", "reflected_inertia", "scene_xml",

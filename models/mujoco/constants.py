@@ -13,6 +13,7 @@ SERVO_POSITION_ERROR = {"slide": 2e-3, "hinge": 1e-2}  # [m], [rad] deflection a
 SERVO_DAMPING_RATIO = 0.5  # [-] target at the locked reflected inertia (see servo_specs)
 SERVO_EXPLICIT_DAMPING = 0.3  # [-] cap of h kv / m_free (one explicit damper: stable < 2)
 SERVO_STABILITY_MARGIN = 1.25  # explicit damping must stay stable at this times the timestep
+SERVO_EXPLICIT_LIMIT = 1.0  # [-] cap of h kv / m_free at the current pose (see DampingSchedule)
 WHEEL_VELOCITY_GAIN = 5e3  # [N m s/rad]
 SOLVER_TOLERANCE = 1e-10  # Newton converges in the same 2-4 iterations; forces repeatable
 TERRAIN_BASE_DEPTH = 1.0  # [m] thickness of the height field below its lowest point

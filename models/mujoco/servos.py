@@ -1,7 +1,8 @@
 """Servo design from the tree's inertia.
 
-Reflected inertias and gravity loads of the tree (MuJoCo's), and the proportional gains and
-explicit damping of every axis servo (`servo_specs`).
+Reflected inertias and gravity loads of the tree (MuJoCo's), the proportional gains and
+explicit damping of every axis servo (`servo_specs`), and the damping each servo can take at
+the pose the machine is in (`DampingSchedule`).
 """
 
 from __future__ import annotations
@@ -21,6 +22,7 @@ from models.mujoco.constants import (
     JOINT_TYPE,
     SERVO_DAMPING_RATIO,
     SERVO_EXPLICIT_DAMPING,
+    SERVO_EXPLICIT_LIMIT,
     SERVO_POSITION_ERROR,
     SERVO_STABILITY_MARGIN,
     check_timestep,
@@ -87,9 +89,12 @@ def reflected_inertia(machine: Machine, q_ind=None) -> tuple[np.ndarray, np.ndar
         independent order.
     """
     reduced = reduced_inertia(machine, q_ind)
-    locked = np.diag(reduced)[6:].copy()
-    free = 1.0 / np.diag(np.linalg.inv(reduced))[6:]
-    return locked, free
+    return np.diag(reduced)[6:].copy(), free_inertia(reduced)
+
+
+def free_inertia(reduced: np.ndarray) -> np.ndarray:
+    """``1 / (M_r^-1)[i, i]`` of each independent coordinate of a (19, 19) reduced inertia."""
+    return 1.0 / np.diag(np.linalg.inv(reduced))[6:]
 
 
 def gravity_loads(machine: Machine, q_ind=None, base_rotation=None) -> np.ndarray:
@@ -227,7 +232,7 @@ def servo_specs(machine: Machine, timestep: float = DEFAULT_TIMESTEP) -> tuple[S
     limits = servo_limits(machine)
     n = len(limits)
     locked = np.diag(reduced)[6:6 + n]
-    free = 1.0 / np.diag(np.linalg.inv(reduced))[6:6 + n]
+    free = free_inertia(reduced)[:n]
     kp = np.array([lim["kp"] for lim in limits])
     critical = 2.0 * np.sqrt(kp * locked)
     # Designed at the default step or the given one, whichever is longer, so that smaller
@@ -251,3 +256,65 @@ def servo_specs(machine: Machine, timestep: float = DEFAULT_TIMESTEP) -> tuple[S
         scale = lo
     return tuple(ServoSpec(**lim, kv=float(scale * k), damping_ratio=float(scale * k / c))
                  for lim, k, c in zip(limits, kv, critical))
+
+
+class DampingSchedule:
+    """Each servo's explicit damping, capped at what the pose the machine is in allows.
+
+    `servo_specs` designs the damping at the home pose, where the crane is folded over the
+    chassis. Elsewhere a coordinate's free reflected inertia can be far smaller: with the boom
+    and jib upright the slew's is 938 kg against 13 948 kg at home, and the slew damper's
+    ``h kv / m_free`` is 3.2, past the explicit step's limit of 2: the slew then rings at
+    half the step rate and the wheels' forces jump between 0 and 38 kN from step to step. So
+    at every call the damping is ``min(kv, c m_free(q) / h)`` with ``c`` =
+    `SERVO_EXPLICIT_LIMIT` and the free inertia from MuJoCo's mass matrix of the current
+    state (payload included) mapped through the chains (`TreeCoordinates.jacobian`): the
+    designed damping wherever it is stable, the most an explicit damper can take where it is
+    not. ``h`` is the design step of `servo_specs`.
+
+    Args:
+        model: The machine's MuJoCo model.
+        index: Its addresses (`MujocoIndex`).
+        machine: The machine description.
+        specs: The servos (`servo_specs`), independent order.
+        timestep: Simulation timestep [s].
+    """
+
+    def __init__(self, model: mujoco.MjModel, index, machine: Machine,
+                 specs: tuple[ServoSpec, ...], timestep: float):
+        self._model = model
+        self._coordinates = machine.coordinates
+        self._tree_dof = index.tree_dof
+        self._kp = np.array([sp.kp for sp in specs])
+        self._kv = np.array([sp.kv for sp in specs])
+        self._n = len(specs)
+        self._stroke_range = np.array([sp.stroke_range for sp in specs]).T
+        self._q = np.zeros(N_INDEPENDENT)
+        self._limit = SERVO_EXPLICIT_LIMIT / max(check_timestep(timestep), DEFAULT_TIMESTEP)
+        self._jac = np.zeros((model.nv, 6 + N_INDEPENDENT))
+        self._jac[index.base_dof, :6] = np.eye(6)
+        self._mass = np.zeros((model.nv, model.nv))
+
+    @property
+    def designed(self) -> np.ndarray:
+        """The designed damping gains ``kv`` [N s/m or N m s/rad], shape (9,) (a copy)."""
+        return self._kv.copy()
+
+    def damping(self, data: mujoco.MjData, q_ind) -> np.ndarray:
+        """Damping gains ``kv`` at ``data``'s state with independent coordinates ``q_ind``.
+
+        MuJoCo's mass matrix in ``data`` must be current (after `mujoco.mj_step` or
+        `mujoco.mj_forward`). Strokes a little past their range (MuJoCo's limits are soft)
+        are taken at the range's end.
+        """
+        q = self._q
+        q[:] = q_ind
+        np.clip(q[:self._n], self._stroke_range[0], self._stroke_range[1], out=q[:self._n])
+        self._jac[self._tree_dof, 6:], _ = self._coordinates.jacobian(q)
+        mujoco.mj_fullM(self._model, data, self._mass)
+        free = free_inertia(self._jac.T @ self._mass @ self._jac)[:self._n]
+        return np.minimum(self._kv, self._limit * free)
+
+    def lead(self, data: mujoco.MjData, q_ind) -> np.ndarray:
+        """``kv / kp`` [s] at ``data``'s state: the simulator's ``u = s - lead x_dot``."""
+        return self.damping(data, q_ind) / self._kp
