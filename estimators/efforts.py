@@ -22,6 +22,8 @@ ground); the MPC bounds the crane's efforts.
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 import pinocchio as pin
 
@@ -33,6 +35,12 @@ from models.pinocchio_model import PAYLOAD_PAIR_MASSES, payload_pair
 from models.state import N_SERVO_AXES, MachineState
 
 __all__ = ["ActuatorEfforts", "effort_ranges"]
+
+
+@functools.cache
+def _upper(n: int) -> np.ndarray:
+    """Mask of the upper triangle (diagonal included) of an (n, n) matrix."""
+    return np.triu(np.ones((n, n), bool))
 
 
 def effort_ranges(machine: Machine) -> tuple[np.ndarray, np.ndarray]:
@@ -124,16 +132,11 @@ class ActuatorEfforts:
     def _one(pm, q, v, a, ja) -> tuple[np.ndarray, np.ndarray]:
         idx = pm._tree_v_idx
         tau = pin.rnea(pm.model, pm.data, q, v, a)[idx]
-        # E column by column from RNEA (linear in the acceleration): Pinocchio's CRBA
-        # (4.1) leaves some free-flyer couplings of this tree at zero.
-        zero = np.zeros(pm.model.nv)
-        g = pin.rnea(pm.model, pm.data, q, zero, zero)[idx].copy()
-        cols = np.empty((ja.shape[0], N_SERVO_AXES))
-        da = np.zeros(pm.model.nv)
-        for k in range(N_SERVO_AXES):
-            da[idx] = ja[:, k]
-            cols[:, k] = pin.rnea(pm.model, pm.data, q, zero, da)[idx] - g
-        return ja.T @ cols, ja.T @ tau
+        # E = J_a^T M J_a from Pinocchio's CRBA, whose upper triangle is what it guarantees
+        # (the model's joints are depth-first, as CRBA needs).
+        mass = pin.crba(pm.model, pm.data, q)
+        mass = np.where(_upper(mass.shape[0]), mass, mass.T)[np.ix_(idx, idx)]
+        return ja.T @ mass @ ja, ja.T @ tau
 
     def affine(self, state: MachineState) -> tuple[np.ndarray, np.ndarray]:
         """``(E (9, 9), e_0 (9,))`` at ``state`` for the current payload mass.

@@ -302,6 +302,25 @@ class Machine:
                 raise ModelError(f"duplicate body name '{b.name}'")
             seen.add(b.name)
 
+    @functools.cached_property
+    def depth_first(self) -> tuple[Body, ...]:
+        """The bodies in depth-first order: each subtree contiguous, children as listed.
+
+        MuJoCo's body arrays follow it, and so must Pinocchio's joints: its algorithms over
+        subtrees (CRBA) assume them contiguous; in ``bodies`` order a cylinder's barrel and
+        piston sit between a crane joint and its descendants.
+        """
+        children: dict[str | None, list[Body]] = {}
+        for b in self.bodies:
+            children.setdefault(b.parent, []).append(b)
+        order: list[Body] = []
+        stack = list(reversed(children.get(None, [])))
+        while stack:
+            b = stack.pop()
+            order.append(b)
+            stack.extend(reversed(children.get(b.name, [])))
+        return tuple(order)
+
     def body(self, name: str) -> Body:
         """Body by name."""
         for b in self.bodies:

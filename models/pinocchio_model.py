@@ -64,7 +64,7 @@ class PinocchioMachine:
         # Body name -> (joint id, placement of the body frame in the joint frame).
         where: dict[str, tuple[int, pin.SE3]] = {}
         self.frame_id: dict[str, int] = {}
-        for body in machine.bodies:
+        for body in machine.depth_first:  # subtrees contiguous, as CRBA needs
             inertia = pin.Inertia(body.inertia.mass, np.asarray(body.inertia.com),
                                   np.asarray(body.inertia.inertia))
             local = pin.SE3(np.asarray(body.rotation), np.asarray(body.position))

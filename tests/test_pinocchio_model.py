@@ -79,3 +79,27 @@ def test_static_base_wrench_is_weight(pm, machine):
     w = pm.base_wrench(st)
     assert np.isclose(w[2], machine.total_mass * machine.gravity, rtol=1e-12)
     np.testing.assert_allclose(w[[0, 1, 5]], 0, atol=1e-9)
+
+
+def test_joints_are_depth_first_so_crba_is_the_mass_matrix(pm, machine):
+    """CRBA walks contiguous subtrees; RNEA's columns ``M e_k`` are the oracle.
+
+    With the description's body order (a cylinder's barrel and piston between a crane joint
+    and its descendants) CRBA left couplings such as slew-wrist roll at zero (111 kg m^2).
+    """
+    parents = list(pm.model.parents)
+    for j in range(1, pm.model.njoints):  # each joint's subtree is the joints right after it
+        sub = list(pm.model.subtrees[j])
+        assert sub == list(range(j, j + len(sub))), pm.model.names[j]
+    assert all(parents[j] < j for j in range(1, pm.model.njoints))
+    rng = np.random.default_rng(3)
+    nv = pm.model.nv
+    for _ in range(5):
+        q, _, _ = pm.configuration(random_state(machine, rng))
+        zero = np.zeros(nv)
+        g = pin.rnea(pm.model, pm.data, q, zero, zero).copy()
+        columns = np.column_stack([pin.rnea(pm.model, pm.data, q, zero, e) - g
+                                   for e in np.eye(nv)])
+        upper = np.triu(pin.crba(pm.model, pm.data, q))
+        np.testing.assert_allclose(upper + np.triu(upper, 1).T, columns,
+                                   atol=1e-9 * np.abs(columns).max())

@@ -39,17 +39,7 @@ def children_of(machine: Machine) -> dict[str | None, list[str]]:
 
 def dfs_bodies(machine: Machine) -> list[str]:
     """Body names in MJCF (depth-first) order: the order of MuJoCo's body and joint arrays."""
-    children = children_of(machine)
-    order: list[str] = []
-
-    def visit(name: str) -> None:
-        order.append(name)
-        for child in children.get(name, []):
-            visit(child)
-
-    for root in children.get(None, []):
-        visit(root)
-    return order
+    return [b.name for b in machine.depth_first]
 
 
 def root_body(machine: Machine) -> str:
