@@ -27,49 +27,48 @@ __all__ = ["PERIMETER", "force_angle_and_zmp"]
 PERIMETER = (0, 2, 3, 1)  # FL, FR, RR, RL (package order FL, RL, FR, RR)
 
 
-def _margins(points: np.ndarray, forces: np.ndarray, in_contact: np.ndarray,
-             com: np.ndarray) -> tuple[float, float, float]:
-    """(beta [N m], smallest theta [rad], ZMP margin [m]) of one sample (world frame)."""
-    ring = [k for k in PERIMETER if in_contact[k]]
-    if len(ring) < 3:
-        return 0.0, 0.0, 0.0
-    f_r = -forces[ring].sum(axis=0)
-    norm_f = float(np.linalg.norm(f_r))
-    if norm_f == 0.0:
-        return 0.0, 0.0, 0.0
-    down = f_r / norm_f
-    p = points[ring]
-    # Orient the ring counter-clockwise seen against f_r (from "above").
-    centre = p.mean(axis=0)
-    area = sum(np.cross(p[i] - centre, p[(i + 1) % len(p)] - centre) @ -down
-               for i in range(len(p)))
-    if area < 0:
-        p = p[::-1]
-    fz = np.maximum(-(forces[ring] @ down), 0.0)  # pressure along f_r
-    cop = (fz @ points[ring]) / fz.sum() if fz.sum() > 0 else centre
-    beta, theta_min, zmp = np.inf, np.inf, np.inf
-    for i in range(len(p)):
-        a = p[(i + 1) % len(p)] - p[i]
-        a /= np.linalg.norm(a)
-        proj = np.eye(3) - np.outer(a, a)
-        rel = com - p[i]
-        lv = proj @ rel
-        fi = proj @ f_r
-        ln, fn = np.linalg.norm(lv), np.linalg.norm(fi)
-        if ln == 0.0 or fn == 0.0:
-            continue
-        # Inward normal of the edge in the ground plane (counter-clockwise ring).
-        inward = np.cross(-down, a)
-        # Signed angle from -l (centre of mass towards the axis) to f_i, positive towards
-        # the inside of the polygon: f_i through the edge is theta = 0.
-        u = -lv / ln
-        w = inward - (inward @ u) * u
-        w /= np.linalg.norm(w)
-        theta = float(np.arctan2(fi @ w, fi @ u))
-        beta = min(beta, theta * ln * norm_f)
-        theta_min = min(theta_min, theta)
-        zmp = min(zmp, float((cop - p[i]) @ inward))
-    return float(beta), float(theta_min), float(zmp)
+def _ring_margins(p: np.ndarray, f: np.ndarray, com: np.ndarray) -> np.ndarray:
+    """(beta, smallest theta, ZMP margin) of samples that share one ring, world frame.
+
+    ``p``, ``f``: the ring's contact points and forces in perimeter order, (M, k, 3), k >= 3;
+    ``com`` (M, 3). Returns (M, 3); zeros where the ground pushes with no net force.
+    """
+    f_r = -f.sum(axis=1)
+    norm_f = np.linalg.norm(f_r, axis=1)
+    ok = norm_f > 0.0
+    down = f_r / np.where(ok, norm_f, 1.0)[:, None]
+    # Orient each ring counter-clockwise seen against f_r (from "above").
+    centre = p.mean(axis=1)
+    rel = p - centre[:, None]
+    area = np.einsum("mkj,mj->m", np.cross(rel, np.roll(rel, -1, axis=1)), -down)
+    p_ccw = np.where((area < 0)[:, None, None], p[:, ::-1], p)
+    fz = np.maximum(-np.einsum("mkj,mj->mk", f, down), 0.0)  # pressure along f_r
+    total = fz.sum(axis=1)
+    cop = np.where((total > 0)[:, None],
+                   np.einsum("mk,mkj->mj", fz, p) / np.where(total > 0, total, 1.0)[:, None],
+                   centre)
+    a = np.roll(p_ccw, -1, axis=1) - p_ccw  # each edge, (M, k, 3)
+    a /= np.linalg.norm(a, axis=2, keepdims=True)
+    rel = com[:, None] - p_ccw
+    lv = rel - a * np.einsum("mkj,mkj->mk", a, rel)[..., None]
+    fi = f_r[:, None] - a * np.einsum("mkj,mj->mk", a, f_r)[..., None]
+    ln, fn = np.linalg.norm(lv, axis=2), np.linalg.norm(fi, axis=2)
+    edge = (ln > 0.0) & (fn > 0.0)
+    # Inward normal of each edge in the ground plane (counter-clockwise ring); the signed
+    # angle from -l (centre of mass towards the axis) to f_i, positive towards the inside:
+    # f_i through the edge is theta = 0.
+    inward = np.cross(-down[:, None], a)
+    u = -lv / np.where(edge, ln, 1.0)[..., None]
+    w = inward - u * np.einsum("mkj,mkj->mk", inward, u)[..., None]
+    w /= np.linalg.norm(w, axis=2, keepdims=True)
+    theta = np.arctan2(np.einsum("mkj,mkj->mk", fi, w), np.einsum("mkj,mkj->mk", fi, u))
+    inf = np.full_like(theta, np.inf)
+    out = np.stack([np.where(edge, theta * ln * norm_f[:, None], inf).min(axis=1),
+                    np.where(edge, theta, inf).min(axis=1),
+                    np.where(edge, np.einsum("mkj,mkj->mk", cop[:, None] - p_ccw, inward),
+                             inf).min(axis=1)], axis=1)
+    out[~ok] = 0.0
+    return out
 
 
 def force_angle_and_zmp(base_position: np.ndarray, base_rotation: np.ndarray,
@@ -92,6 +91,13 @@ def force_angle_and_zmp(base_position: np.ndarray, base_rotation: np.ndarray,
     out = np.zeros((n, 3))
     pts = np.einsum("nij,nkj->nki", base_rotation, point_in_fb) + base_position[:, None]
     frc = np.einsum("nij,nkj->nki", base_rotation, force_in_fb)
-    for i in range(n):
-        out[i] = _margins(pts[i], frc[i], np.asarray(in_contact[i], bool), com_world[i])
+    contact = np.asarray(in_contact, bool)
+    # Samples grouped by which wheels touch: one ring each (fewer than three: zeros).
+    for pattern in np.unique(contact, axis=0):
+        ring = [k for k in PERIMETER if pattern[k]]
+        if len(ring) < 3:
+            continue
+        rows = np.flatnonzero((contact == pattern).all(axis=1))
+        out[rows] = _ring_margins(pts[rows][:, ring], frc[rows][:, ring],
+                                  np.asarray(com_world, float)[rows])
     return {"beta_Nm": out[:, 0], "theta_rad": out[:, 1], "zmp_margin_m": out[:, 2]}
