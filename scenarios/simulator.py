@@ -54,6 +54,9 @@ _SETTLE_DECAY_FRACTION = 2.0 / 3.0  # of the settling time spent with decaying v
 _SETTLE_DECAY_PER_STEP = 0.02  # velocity lost per step meanwhile
 _SETTLED_CACHE = 4  # settled states kept by reset()
 _WINDUP_STEPS = 5  # anti-windup applied every this many steps
+# The servos' damping cap (`DampingSchedule`) follows the pose every this many steps: the
+# inertias change over seconds of crane motion, and the cap keeps a factor 2 to the limit.
+_DAMPING_UPDATE_STEPS = 25
 # With a zero drive command on both sides the hydrostatic drive holds the wheels where they
 # stand (zero swashplate angle, then the parking brake): each wheel's velocity servo is
 # given ``WHEEL_HOLD_GAIN (angle_held - angle)`` [rad/s], a stiff position hold within the
@@ -105,6 +108,8 @@ class Simulator:
         self._stroke_range = np.array([sp.stroke_range for sp in servos])
         self._damping = DampingSchedule(self.model, self.index, machine, servos,
                                         self.model.opt.timestep)
+        self._damping_lead = np.zeros(len(servos))
+        self._damping_age = _DAMPING_UPDATE_STEPS  # steps since the lead was computed
         servos_ids = self.index.servos
         if not np.array_equal(servos_ids, np.arange(servos_ids[0], servos_ids[0] + len(servos))):
             raise SimulatorError("the servo actuators must be consecutive")
@@ -213,6 +218,7 @@ class Simulator:
         if key in self._settled:
             settled, setpoint = self._settled[key]
             mujoco.mj_copyData(d, m, settled)
+            self._damping_age = _DAMPING_UPDATE_STEPS  # recomputed at the settled pose
             self._setpoint = setpoint.copy()
             self._hold = None
             self.apply(ActuatorCommand.zero())
@@ -223,6 +229,7 @@ class Simulator:
         d.qpos[:] = qpos
         self._hold = None
         self.apply(ActuatorCommand.zero())
+        self._damping_age = _DAMPING_UPDATE_STEPS
         for _ in range(5):  # MuJoCo's own distances: lift out of any residual penetration
             mujoco.mj_forward(m, d)
             dist = [d.contact[i].dist for i in range(d.ncon)]
@@ -240,6 +247,7 @@ class Simulator:
         if n > n_decay * _WINDUP_STEPS:
             self.step(n - n_decay * _WINDUP_STEPS)
         d.time = 0.0
+        self._damping_age = _DAMPING_UPDATE_STEPS  # as after restoring the settled state
         d.ctrl[self._servo_ctrl] = self._setpoint - self._lead() * d.qvel[self.index.servo_dof]
         mujoco.mj_forward(m, d)
         self._take_snapshot()
@@ -269,6 +277,7 @@ class Simulator:
             # every _WINDUP_STEPS steps).
             chunk = min(_WINDUP_STEPS, n - done)
             lead = self._lead()  # the damping this pose allows (`DampingSchedule`)
+            self._damping_age += chunk
             path = self._setpoint + np.outer(np.arange(chunk + 1), self.timestep * self._rates)
             path = np.minimum(np.maximum(path, lo), hi)
             for k in range(chunk):
@@ -290,7 +299,11 @@ class Simulator:
         self._check_warnings()
 
     def _lead(self) -> np.ndarray:
-        return self._damping.lead(self.data, self.data.qpos[self.index.independent_qpos])
+        if self._damping_age >= _DAMPING_UPDATE_STEPS:
+            self._damping_lead = self._damping.lead(self.data,
+                                                    self.data.qpos[self.index.independent_qpos])
+            self._damping_age = 0
+        return self._damping_lead
 
     def _hold_wheels(self) -> None:
         d = self.data
