@@ -78,7 +78,7 @@ the force limit the actuator saturates and ``compliance_forces`` clips the same 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import mujoco
 import numpy as np
@@ -350,8 +350,8 @@ class ComplianceEstimator:
         self.specs = servo_specs(machine)
 
     def _with_forces(self, state: MachineState) -> MachineState:
-        return replace(state, suspension_force=compliance_forces(self.machine, state,
-                                                                 self.specs))
+        return state.replace(suspension_force=compliance_forces(self.machine, state,
+                                                                self.specs))
 
     def estimate(self, state: MachineState):
         """The closure's `Estimate` with the predicted cylinder forces."""

@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import math
 import threading
-from dataclasses import replace
 
 import numpy as np
 
@@ -120,7 +119,7 @@ class NormalForceEstimator:
         for name, _, i, lo, hi in bad:
             q[i] = min(max(q[i], lo), hi)
         self.n_clipped += 1
-        return replace(state, q=q), tuple(name for name, *_ in bad)
+        return state.replace(q=q), tuple(name for name, *_ in bad)
 
     def _fill(self, inp: np.ndarray, state: MachineState) -> fd.Selectors:
         """Pack ``state`` into a kernel input row; returns the `Selectors` used."""
@@ -292,7 +291,7 @@ class NormalForceEstimator:
         for j in range(19):
             a = acc.copy()
             a[j] += 1.0  # exact: the map is affine
-            s = replace(state, base_acceleration=a[:6], qdd=a[6:])
+            s = state.replace(base_acceleration=a[:6], qdd=a[6:])
             g[:, j] = self.estimate(s).normal_forces - base
         return g, base - g @ acc
 
@@ -352,7 +351,7 @@ class NormalForceEstimator:
         for step in (lo, hi):
             v = x.copy()
             v[j] += step
-            vals.append(self.estimate(replace(state, **{name: v})).normal_forces)
+            vals.append(self.estimate(state.replace(**{name: v})).normal_forces)
         return (vals[1] - vals[0]) / (hi - lo)
 
     def estimate_batch(self, states, *, strict: bool = True, chunk: int = 4096,

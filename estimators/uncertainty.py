@@ -27,7 +27,7 @@ The controller turns ``sigma`` into its per-wheel margin ``z sigma`` (`force_mar
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from statistics import NormalDist
 
 import numpy as np
@@ -93,7 +93,7 @@ def suspension_sensitivity(estimator, state: MachineState) -> np.ndarray:
     for s in range(2):
         fs = np.array(state.suspension_force, float)
         fs[s] += _SUSPENSION_STEP
-        f1 = estimator.estimate(replace(state, suspension_force=fs)).normal_forces
+        f1 = estimator.estimate(state.replace(suspension_force=fs)).normal_forces
         out[:, s] = (np.asarray(f1, float) - f0) / _SUSPENSION_STEP
     return out
 

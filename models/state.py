@@ -142,6 +142,8 @@ _CONTACT_FIELDS = (("force_in_fb", (4, 3)), ("point_in_fb", (4, 3)), ("normal_in
 _STATE_FIELDS = (("base_position", (3,)), ("base_rotation", (3, 3)), ("base_twist", (6,)),
                  ("base_acceleration", (6,)), ("q", (N_INDEPENDENT,)),
                  ("qd", (N_INDEPENDENT,)), ("qdd", (N_INDEPENDENT,)))
+_STATE_NAMES = tuple(n for n, _ in _STATE_FIELDS) + ("time", "contacts", "suspension_force",
+                                                     "servo_setpoint")
 
 
 @dataclass(frozen=True, eq=False)
@@ -217,24 +219,52 @@ class MachineState:
     servo_setpoint: np.ndarray | None = None
 
     def __post_init__(self):
-        _freeze_fields(self, _STATE_FIELDS)
-        check_rotation("base_rotation", self.base_rotation)
-        try:
-            t = float(self.time)
-        except (TypeError, ValueError):
-            raise StateError(f"'time' must be a finite number [s], got {self.time!r}") from None
-        if not np.isfinite(t):
-            raise StateError(f"'time' must be a finite number [s], got {t}")
-        _set(self, "time", t)
-        if self.contacts is not None and not isinstance(self.contacts, WheelContacts):
+        self._check(_STATE_NAMES)
+
+    def _check(self, names) -> None:
+        """Validate and freeze the fields ``names`` (`StateError` names the bad one)."""
+        arrays = [(n, shape) for n, shape in _STATE_FIELDS if n in names]
+        if arrays:
+            _freeze_fields(self, arrays)
+        if "base_rotation" in names:
+            check_rotation("base_rotation", self.base_rotation)
+        if "time" in names:
+            try:
+                t = float(self.time)
+            except (TypeError, ValueError):
+                raise StateError(f"'time' must be a finite number [s], got "
+                                 f"{self.time!r}") from None
+            if not np.isfinite(t):
+                raise StateError(f"'time' must be a finite number [s], got {t}")
+            _set(self, "time", t)
+        if "contacts" in names and self.contacts is not None and not isinstance(
+                self.contacts, WheelContacts):
             raise StateError(f"'contacts' must be a WheelContacts or None, got "
                              f"{type(self.contacts).__name__}")
-        if self.suspension_force is not None:
+        if "suspension_force" in names and self.suspension_force is not None:
             _set(self, "suspension_force",
                  frozen_array("suspension_force", self.suspension_force, (2,)))
-        if self.servo_setpoint is not None:
+        if "servo_setpoint" in names and self.servo_setpoint is not None:
             _set(self, "servo_setpoint",
                  frozen_array("servo_setpoint", self.servo_setpoint, (N_SERVO_AXES,)))
+
+    def replace(self, **changes) -> MachineState:
+        """A copy with ``changes``, as `dataclasses.replace`, checking only what changed.
+
+        The other fields were checked and frozen when this state was built and are shared.
+
+        Raises:
+            StateError: A changed field is invalid, or not a field of `MachineState`.
+        """
+        unknown = sorted(set(changes) - set(_STATE_NAMES))
+        if unknown:
+            raise StateError(f"MachineState has no field {unknown[0]!r}; fields: "
+                             f"{', '.join(_STATE_NAMES)}")
+        new = object.__new__(MachineState)
+        for name in _STATE_NAMES:
+            _set(new, name, changes[name] if name in changes else getattr(self, name))
+        new._check(changes)
+        return new
 
     @property
     def acceleration(self) -> np.ndarray:

@@ -64,6 +64,30 @@ def test_not_a_rotation(est, state):
         replace(state, base_rotation=2.0 * np.eye(3))
 
 
+@pytest.mark.parametrize("field,bad,match", [
+    ("qdd", np.full(13, np.nan), "'qdd'"), ("qd", np.zeros(5), r"'qd' must have shape \(13,\)"),
+    ("base_rotation", 2.0 * np.eye(3), "base_rotation"), ("time", float("inf"), "'time'"),
+    ("contacts", "four", "'contacts'"), ("suspension_force", np.zeros(3), "suspension_force"),
+    ("payload", 1.0, "no field 'payload'")])
+def test_state_replace_checks_what_changed(state, field, bad, match):
+    """`MachineState.replace` raises as the constructor does on the changed field."""
+    with pytest.raises(StateError, match=match):
+        state.replace(**{field: bad})
+
+
+def test_state_replace_equals_dataclasses_replace(state):
+    qdd = np.arange(13.0)
+    fast, slow = state.replace(qdd=qdd, time=2), replace(state, qdd=qdd, time=2)
+    for name in ("base_position", "base_rotation", "base_twist", "base_acceleration", "q",
+                 "qd", "qdd", "suspension_force", "servo_setpoint"):
+        a, b = getattr(fast, name), getattr(slow, name)
+        assert (a is None and b is None) or (np.array_equal(a, b) and not a.flags.writeable)
+    assert fast.time == slow.time == 2.0 and type(fast.time) is float
+    assert fast.q is state.q  # unchanged fields are shared (frozen)
+    qdd[0] = 99.0
+    assert fast.qdd[0] == 0.0  # the changed one is copied
+
+
 def test_not_a_state(est):
     with pytest.raises(EstimatorInputError, match="MachineState"):
         est.estimate({"q": np.zeros(13)})

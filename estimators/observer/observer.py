@@ -250,8 +250,7 @@ class Observer:
                                                    y[[_LIFT, _TILT]]), band)
         mass = min(max(self.payload.mass, 0.0), 1e4)
         if self.crane_from_pressures:
-            state = dataclasses.replace(state, qdd=self._crane_accelerations(state, forces,
-                                                                             mass))
+            state = state.replace(qdd=self._crane_accelerations(state, forces, mass))
         self.force_model.payload_mass = mass
         if len(r.drive_torques):
             self._drive = r.drive_torques.value.mean(axis=0)
@@ -265,13 +264,13 @@ class Observer:
         traction = np.zeros((4, 3))
         traction[:, 0] = self._longitudinal(previous)
         all_four = WheelContacts(np.ones(4, bool), traction, points, normals)
-        est = self.force_model.estimate(dataclasses.replace(state, contacts=all_four))
+        est = self.force_model.estimate(state.replace(contacts=all_four))
         four = np.asarray(est.normal_forces, float)
         self._contacts(four)
         traction = np.zeros((4, 3))
         traction[:, 0] = self._longitudinal(four)
         contacts = WheelContacts(self._in_contact.copy(), traction, points, normals)
-        state = dataclasses.replace(state, contacts=contacts)
+        state = state.replace(contacts=contacts)
         accel_std, qd_std = self._uncertainty_const
         unc = StateUncertainty(
             acceleration=accel_std, qd=qd_std,
