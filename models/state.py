@@ -11,7 +11,7 @@ validates the new value.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 
 import numpy as np
 
@@ -142,8 +142,6 @@ _CONTACT_FIELDS = (("force_in_fb", (4, 3)), ("point_in_fb", (4, 3)), ("normal_in
 _STATE_FIELDS = (("base_position", (3,)), ("base_rotation", (3, 3)), ("base_twist", (6,)),
                  ("base_acceleration", (6,)), ("q", (N_INDEPENDENT,)),
                  ("qd", (N_INDEPENDENT,)), ("qdd", (N_INDEPENDENT,)))
-_STATE_NAMES = tuple(n for n, _ in _STATE_FIELDS) + ("time", "contacts", "suspension_force",
-                                                     "servo_setpoint")
 
 
 @dataclass(frozen=True, eq=False)
@@ -270,3 +268,6 @@ class MachineState:
     def acceleration(self) -> np.ndarray:
         """The generalised accelerations ``a = [base_acceleration (6), qdd (13)]``, (19,)."""
         return np.concatenate([self.base_acceleration, self.qdd])
+
+
+_STATE_NAMES = tuple(f.name for f in fields(MachineState))  # checked by `MachineState._check`
