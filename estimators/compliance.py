@@ -43,7 +43,7 @@ with ``d(r)`` MuJoCo's polynomial sigmoid. No approximation of the contact law i
 ``A_hat`` is MuJoCo's ``body_invweight0`` of the wheel body (the mean translational inverse
 inertia at the model's ``qpos0``, computed by MuJoCo's compiler from the inertias of the
 description; the world adds nothing). The tyre stiffness is the tangent ``dF/dr`` at the
-wheel's load: about 4.5e7 N/m at 12.5 kN, ~10x the servos' ``k_s``.
+wheel's load: about 6.0e7 N/m at 12.5 kN, ~14x the servos' ``k_s`` (4.4e6 N/m).
 
 **2. The compliance fourth row** (`compliance_forces`, `ComplianceEstimator`): the bogie
 moment balances of the ``cylinder-force`` closure, with the suspension cylinder forces

@@ -11,6 +11,10 @@ drives FL and RL, right drives FR and RR). Each servo is a valve-controlled cyli
 rate range and the stroke range, and the cylinder follows with ``F = kp (s - x) - kv x_dot``
 up to its force limit; the damping term is applied here, explicitly, before every step.
 
+Contacts: MuJoCo steps through `models.mujoco.ContactMerge`, which keeps one contact per wheel
+and terrain face where the height field reports several coincident ones (one per triangle
+prism the wheel reaches).
+
 Consistent instants. `mujoco.mj_step` first evaluates the dynamics at the current state
 ``(q, v)`` (accelerations, actuator and contact forces, body poses) and then integrates to
 ``(q', v')``. After a step MuJoCo's derived quantities therefore belong to the state *before*
@@ -33,6 +37,7 @@ from models.coordinates import N_INDEPENDENT
 from models.description import Machine
 from models.mujoco import (
     DEFAULT_TIMESTEP,
+    ContactMerge,
     DampingSchedule,
     MujocoIndex,
     build_model,
@@ -109,6 +114,8 @@ class Simulator:
         self._damping = DampingSchedule(self.model, self.index, machine, servos,
                                         self.model.opt.timestep)
         self._damping_lead = np.zeros(len(servos))
+        # MuJoCo's step and forward with each wheel's coincident height-field contacts merged
+        self._contact_merge = ContactMerge(self.model, self.index.wheel_geoms)
         self._damping_age = _DAMPING_UPDATE_STEPS  # steps since the lead was computed
         servos_ids = self.index.servos
         if not np.array_equal(servos_ids, np.arange(servos_ids[0], servos_ids[0] + len(servos))):
@@ -231,7 +238,7 @@ class Simulator:
         self.apply(ActuatorCommand.zero())
         self._damping_age = _DAMPING_UPDATE_STEPS
         for _ in range(5):  # MuJoCo's own distances: lift out of any residual penetration
-            mujoco.mj_forward(m, d)
+            self._contact_merge.forward(d)
             dist = [d.contact[i].dist for i in range(d.ncon)]
             if not dist or min(dist) >= -1e-6:
                 break
@@ -249,7 +256,7 @@ class Simulator:
         d.time = 0.0
         self._damping_age = _DAMPING_UPDATE_STEPS  # as after restoring the settled state
         d.ctrl[self._servo_ctrl] = self._setpoint - self._lead() * d.qvel[self.index.servo_dof]
-        mujoco.mj_forward(m, d)
+        self._contact_merge.forward(d)
         self._take_snapshot()
         self._check_warnings()
         if key is not None:
@@ -265,7 +272,7 @@ class Simulator:
         """
         if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
             raise SimulatorError(f"n must be a positive integer, got {n!r}")
-        m, d, ix = self.model, self.data, self.index
+        d, ix = self.data, self.index
         lo, hi = self._stroke_range[:, 0], self._stroke_range[:, 1]
         band = self._windup_band
         servo_ctrl, servo_dof = d.ctrl[self._servo_ctrl], ix.servo_dof
@@ -292,7 +299,7 @@ class Simulator:
                 if self._listeners:
                     self._step_with_listeners()
                 else:
-                    mujoco.mj_step(m, d)
+                    self._contact_merge.step(d)
             x = d.qpos[ix.servo_qpos]
             self._setpoint = np.minimum(np.maximum(path[chunk], x - band), x + band)
             done += chunk
@@ -334,7 +341,7 @@ class Simulator:
         qpos, qvel, t = d.qpos.copy(), d.qvel.copy(), float(d.time)
         qpos.flags.writeable = False
         qvel.flags.writeable = False
-        mujoco.mj_step(self.model, d)
+        self._contact_merge.step(d)
         for listener in self._listeners:
             listener(self, qpos, qvel, t)
 

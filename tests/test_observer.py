@@ -63,7 +63,7 @@ def test_contact_flags_right_where_the_force_is_clear():
     """A wheel lifts (crane out at full reach on a side slope): every sample with a true
     force above 1 kN is flagged in contact, every sample at zero force out of contact."""
     machine = build_reference_machine(payload_mass=150.0)
-    sim = Simulator(machine, T.side_slope(-8.0))
+    sim = Simulator(machine, T.side_slope(-12.0))
     sim.reset(None, (8.0, 0.0, 0.0))
     sensors = SensorSimulator(sim, sensor_suite("realistic", 4))
     obs = _observer(machine, prior=150.0)

@@ -9,6 +9,7 @@ import numpy as np
 
 from models.description import Machine
 from models.mujoco.constants import (
+    CONTACT_IMPRATIO,
     CONTACT_SOLIMP,
     CONTACT_SOLREF,
     DEFAULT_TIMESTEP,
@@ -63,7 +64,8 @@ def machine_xml(machine: Machine, timestep: float = DEFAULT_TIMESTEP) -> str:
     ET.SubElement(root, "compiler", angle="radian", autolimits="true", inertiafromgeom="false")
     option = ET.SubElement(root, "option", timestep=fmt(timestep), integrator="implicitfast",
                            cone="elliptic", tolerance=fmt(SOLVER_TOLERANCE),
-                           gravity=fmt((0.0, 0.0, -machine.gravity)))
+                           gravity=fmt((0.0, 0.0, -machine.gravity)),
+                           impratio=fmt(CONTACT_IMPRATIO))
     ET.SubElement(option, "flag", island="disable")  # one machine: one island, 5 % faster
     defaults = ET.SubElement(ET.SubElement(root, "default"), "default", {"class": "machine"})
     ET.SubElement(defaults, "geom", contype="0", conaffinity="0")
