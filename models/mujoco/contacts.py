@@ -67,8 +67,10 @@ class ContactMerge:
         self.merged = 0  # contacts excluded so far (a count for diagnostics)
 
     def step(self, data: mujoco.MjData) -> None:
-        """`mujoco.mj_step` with the coincident contacts merged (Euler and implicit
-        integrators, as `mujoco.mj_step2`)."""
+        """`mujoco.mj_step` with the coincident contacts merged.
+
+        For the Euler and implicit integrators, as `mujoco.mj_step2`.
+        """
         m = self._model
         mujoco.mj_step1(m, data)
         if self.merge(data):
