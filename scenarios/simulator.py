@@ -114,9 +114,9 @@ class Simulator:
         self._damping = DampingSchedule(self.model, self.index, machine, servos,
                                         self.model.opt.timestep)
         self._damping_lead = np.zeros(len(servos))
+        self._damping_age = _DAMPING_UPDATE_STEPS  # steps since the lead was computed
         # MuJoCo's step and forward with each wheel's coincident height-field contacts merged
         self._contact_merge = ContactMerge(self.model, self.index.wheel_geoms)
-        self._damping_age = _DAMPING_UPDATE_STEPS  # steps since the lead was computed
         servos_ids = self.index.servos
         if not np.array_equal(servos_ids, np.arange(servos_ids[0], servos_ids[0] + len(servos))):
             raise SimulatorError("the servo actuators must be consecutive")

@@ -92,12 +92,12 @@ def force_angle_and_zmp(base_position: np.ndarray, base_rotation: np.ndarray,
     pts = np.einsum("nij,nkj->nki", base_rotation, point_in_fb) + base_position[:, None]
     frc = np.einsum("nij,nkj->nki", base_rotation, force_in_fb)
     contact = np.asarray(in_contact, bool)
+    com = np.asarray(com_world, float)
     # Samples grouped by which wheels touch: one ring each (fewer than three: zeros).
     for pattern in np.unique(contact, axis=0):
         ring = [k for k in PERIMETER if pattern[k]]
         if len(ring) < 3:
             continue
         rows = np.flatnonzero((contact == pattern).all(axis=1))
-        out[rows] = _ring_margins(pts[rows][:, ring], frc[rows][:, ring],
-                                  np.asarray(com_world, float)[rows])
+        out[rows] = _ring_margins(pts[rows][:, ring], frc[rows][:, ring], com[rows])
     return {"beta_Nm": out[:, 0], "theta_rad": out[:, 1], "zmp_margin_m": out[:, 2]}

@@ -64,7 +64,6 @@ class ContactMerge:
         self._n_wheels = geoms.size
         self._cos = math.cos(angle)
         self._distance2 = distance * distance
-        self.merged = 0  # contacts excluded so far (a count for diagnostics)
 
     def step(self, data: mujoco.MjData) -> None:
         """`mujoco.mj_step` with the coincident contacts merged.
@@ -119,7 +118,6 @@ class ContactMerge:
         if drop.size:
             con.exclude[drop] = 1
             con.efc_address[drop] = -1
-            self.merged += int(drop.size)
         return int(drop.size)
 
     def _rebuild(self, data: mujoco.MjData) -> None:
