@@ -89,40 +89,65 @@ def effort_ranges(machine: Machine) -> tuple[np.ndarray, np.ndarray]:
     return lo, hi
 
 
-def _contact_matrix(pm: PinocchioMachine, state: MachineState) -> np.ndarray:
-    """The equilibrium rows (3, 4) at the wheels' lowest points (fb, flat ground)."""
+def _ground_rows(pm: PinocchioMachine, state: MachineState) -> tuple[np.ndarray, float]:
+    """The equilibrium rows (3, 4) of the normal forces, and the contact points' height.
+
+    The ground is a plane under the wheels parallel to the chassis (its normal fb's z axis,
+    as on a slope the chassis stands on): each wheel touches it at its centre less one radius
+    along fb's z, and its normal force acts along fb's z. Returns the rows ``(1, p_y,
+    -p_x)`` per wheel and the mean contact height ``z_c`` in fb [m] (`_normal_rows`).
+    """
     machine = pm.machine
     q, _, _ = pm.configuration(state)
     pin.framesForwardKinematics(pm.model, pm.data, q)
     base = pm.data.oMf[pm.frame_id[machine.bodies[0].name]]
-    down = -(state.base_rotation.T @ np.array([0.0, 0.0, 1.0]))
     rows = np.zeros((3, 4))
+    heights = np.zeros(4)
     for k, wheel in enumerate(machine.wheels):
-        centre = base.actInv(pm.data.oMf[pm.frame_id[wheel]]).translation
-        p = centre + machine.wheel_radius * down
+        p = base.actInv(pm.data.oMf[pm.frame_id[wheel]]).translation.copy()
+        p[2] -= machine.wheel_radius
         rows[:, k] = (1.0, p[1], -p[0])
-    return rows
+        heights[k] = p[2]
+    return rows, float(heights.mean())
 
 
-def rated_payload(machine: Machine, q, threshold_n: float,
+def _normal_rows(wrench: np.ndarray, contact_height: float) -> np.ndarray:
+    """The right-hand side of the normal forces' rows from the ground wrench (fb, at fb).
+
+    The ground's tangential forces (friction, carrying the weight's share along a slope;
+    their sums are the wrench's ``f_x, f_y``) act at the contact points' height ``z_c``, so
+    their moment moves the roll and pitch rows: ``sum p_y f_z = m_x + z_c f_y``,
+    ``-sum p_x f_z = m_y - z_c f_x``. Left out, a 10 deg side slope moves 2 kN from each
+    wheel of one side to the other (MuJoCo, `tests/test_load_chart.py`).
+    """
+    fx, fy, fz, mx, my = wrench[:5]
+    return np.array([fz, mx + contact_height * fy, my - contact_height * fx])
+
+
+def rated_payload(machine: Machine, q, threshold_n,
                   base_rotation=None, effort_fraction: float = 1.0) -> RatedLoad:
     """The largest payload the machine can hold at the pose ``q`` (module docstring).
 
     Args:
         machine: The machine description (its payload's shape; its mass is not used).
         q: Independent coordinates, shape (13,).
-        threshold_n: The smallest normal force every wheel must keep [N].
+        threshold_n: The smallest normal force every wheel must keep [N]: one for all, or
+            one per wheel (4,) (a controller's threshold plus its per-wheel margins).
         base_rotation: Base attitude (world <- fb), (3, 3); level if None.
         effort_fraction: The share of each effort range the servos may use, in (0, 1]: a
             controller that keeps a margin on its cylinders' forces holds this much.
 
     Raises:
-        ModelError: ``threshold_n`` not a finite number >= 0, or ``effort_fraction`` not
-            in (0, 1].
+        ModelError: ``threshold_n`` not a finite force >= 0 (or four of them), or
+            ``effort_fraction`` not in (0, 1].
     """
-    if not (isinstance(threshold_n, (int, float)) and np.isfinite(threshold_n)
-            and threshold_n >= 0):
-        raise ModelError(f"threshold_n must be a finite force >= 0 [N], got {threshold_n!r}")
+    try:
+        thr = np.asarray(threshold_n, float)
+    except (TypeError, ValueError):
+        thr = np.array(np.nan)
+    if thr.shape not in ((), (4,)) or not (np.all(np.isfinite(thr)) and np.all(thr >= 0)):
+        raise ModelError(f"threshold_n must be a finite force >= 0 [N] or four of them, got "
+                         f"{threshold_n!r}")
     if not (isinstance(effort_fraction, (int, float)) and 0 < effort_fraction <= 1):
         raise ModelError(f"effort_fraction must be in (0, 1], got {effort_fraction!r}")
     rot = np.eye(3) if base_rotation is None else np.asarray(base_rotation, float)
@@ -133,10 +158,10 @@ def rated_payload(machine: Machine, q, threshold_n: float,
     e1, w1 = _efforts_and_wrench(p1, state)
     de, dw = (e1 - e0) / (_M1 - _M0), (w1 - w0) / (_M1 - _M0)
     e_at0, w_at0 = e0 - _M0 * de, w0 - _M0 * dw  # affine maps at zero payload
-    a = _contact_matrix(p0, state)
+    a, height = _ground_rows(p0, state)
     pinv = np.linalg.pinv(a)
     null = np.linalg.svd(a)[2][-1]
-    f0, f1 = pinv @ w_at0[[2, 3, 4]], pinv @ dw[[2, 3, 4]]
+    f0, f1 = pinv @ _normal_rows(w_at0, height), pinv @ _normal_rows(dw, height)
     lo, hi = effort_ranges(machine)
     lo, hi = effort_fraction * lo, effort_fraction * hi
     names = machine.coordinates.independent_names
@@ -151,7 +176,7 @@ def rated_payload(machine: Machine, q, threshold_n: float,
                 best, limit = room / slope, names[i]
     # Tipping with the best split: max m s.t. f0 + m f1 + t n >= f_min (variables m, t).
     res = linprog(c=[-1.0, 0.0], A_ub=np.column_stack([-f1, -null]),
-                  b_ub=f0 - threshold_n, bounds=[(0.0, _MAX_PAYLOAD), (None, None)],
+                  b_ub=f0 - thr, bounds=[(0.0, _MAX_PAYLOAD), (None, None)],
                   method="highs")
     if res.status != 0:
         return RatedLoad(0.0, "tipping", f0.copy(), f1)
