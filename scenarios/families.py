@@ -44,7 +44,7 @@ from scenarios.scenario import TRANSPORT, ClosedLoopScenario, CranePose
 from wbc.controllers.config import MpcConfig
 
 __all__ = ["EFFORT_FRACTION", "FAMILIES", "GRAPPLE_MASS", "HOLD_FRACTION", "POSITION_MARGIN",
-           "Draw", "check_reachable", "draw"]
+           "SUMMARIES", "Draw", "check_reachable", "draw"]
 
 GRAPPLE_MASS = 10.0  # [kg] an empty grapple
 POSITION_MARGIN = 0.01  # the controller's margin (`wbc.ControllerConfig.position_margin`)
@@ -209,6 +209,15 @@ def _standing_rough(rng, machine, name):
 
 FAMILIES = {"random": _random, "heavy-pick-downhill": _heavy_pick,
             "fast-swing-steep": _fast_swing, "standing-on-rough": _standing_rough}
+SUMMARIES = {  # one line each, for `wbc list` (the ranges: module docstring)
+    "random": "side slope 0-12 deg, rough 0-20 deg, 50-300 kg, driving 0-0.6 m/s or "
+              "standing, 1-3 goals, picks and releases",
+    "heavy-pick-downhill": "standing on a 5-12 deg side slope, the empty grapple grabs "
+                           "230-300 kg at long reach downhill",
+    "fast-swing-steep": "driving 0.3-0.6 m/s on an 8-12 deg side slope, 10-20 deg rough, "
+                        "fast swings side to side at long reach",
+    "standing-on-rough": "standing on 12-20 deg rough ground, 1-3 goals",
+}
 
 
 def draw(family: str, index: int, master_seed: int = 0,

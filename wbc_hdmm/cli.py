@@ -87,7 +87,7 @@ def list_cmd() -> None:
     for kind, scenarios in describe().items():
         click.echo(f"{kind} scenarios:")
         for name, text in scenarios.items():
-            click.echo(f"  {name:18s} {text}")
+            click.echo(f"  {name:20s} {text}")
     descriptions = {
         "tracking": "whole-body QP that tracks the operator's motion, no force constraint",
         "mpc-quasi-static": "MPC with the quasi-static normal-force estimator",
@@ -95,10 +95,19 @@ def list_cmd() -> None:
     }
     click.echo(f"controllers (closed-loop scenarios; default {DEFAULT_CONTROLLER}):")
     for name in CONTROLLER_NAMES:
-        click.echo(f"  {name:18s} {descriptions.get(name, '')}")
-    click.echo("scenario families and sensor suites: none yet (scenarios are the built-in "
-               "ones above; sensors are exact or the 'default' noise preset, see wbc run "
-               "--noise)")
+        click.echo(f"  {name:20s} {descriptions.get(name, '')}")
+    from models.sensor_suites import SUITES
+    from scenarios.families import SUMMARIES
+
+    click.echo("scenario families (wbc sweep --family NAME):")
+    for name, text in SUMMARIES.items():
+        click.echo(f"  {name:20s} {text}")
+    suites = {"oracle": "the simulator's exact state, payload told at a pick (comparison only)",
+              "ideal": "the machine's sensors without their errors, through the observer",
+              "realistic": "the sensors with their datasheet errors (default; docs/sensors.md)"}
+    click.echo("sensor suites (wbc run / sweep --sensors NAME):")
+    for name in SUITES:
+        click.echo(f"  {name:20s} {suites.get(name, '')}")
 
 
 def _scenario_argument(scenario, scenario_file):
