@@ -1,11 +1,15 @@
 """The estimator over a log of states (`NormalForceEstimator.estimate_batch`).
 
 Packing the kernel inputs of many states, running the compiled kernel over chunks (in
-threads), and the least-squares rows.
+threads), and the least-squares rows. The kernel writes every chunk straight into one output
+block whose columns the `BatchEstimate` fields view (no copy, no scatter), each thread packs
+its chunks into one reused input buffer, and the contact modes come from a table of the 16
+contact patterns.
 """
 
 from __future__ import annotations
 
+import threading
 from collections.abc import Mapping, Sequence
 
 import numpy as np
@@ -22,6 +26,7 @@ from models.state_batch import StateBatch
 __all__ = ["as_batch", "estimate_batch", "pack_rows", "validate_batch"]
 
 SINGULAR_CONDITION = 1e12  # 1-norm condition number above which a system counts as singular
+_PATTERNS = ((np.arange(16)[:, None] >> np.arange(4)) & 1).astype(bool)  # row k: bits of k
 
 
 def estimate_batch(est, states, *, strict: bool = True, chunk: int = 4096,
@@ -34,33 +39,31 @@ def estimate_batch(est, states, *, strict: bool = True, chunk: int = 4096,
     validate_batch(est, sb)
     lay = LAYOUT
     n = len(sb)
-    x = np.zeros((n, 4))
-    xi = np.zeros((n, 6))
-    a = np.zeros((n, 3, 4))
-    b = np.zeros((n, 3))
-    cond = np.zeros(n)
-    residual = np.zeros((n, 3))
-    points = np.zeros((n, 4, 3))
+    out = np.empty((n, lay.out_size))  # every row is written by the kernel
     kernel = est._kernels.kernel("nf_estimate") if est._kernels is not None else None
     ic = sb.in_contact if sb.in_contact is not None else np.ones((n, 4), bool)
-    systems = fd.select_systems(ic, est.fourth, sb.suspension_force is not None)
+    # Row-wise arithmetic: selecting the 16 patterns' systems and indexing them by each row's
+    # pattern gives the values `select_systems(ic, ...)` gives.
+    table = fd.select_systems(_PATTERNS, est.fourth, sb.suspension_force is not None)
+    pattern = np.packbits(ic, axis=1, bitorder="little")[:, 0]  # bit k: wheel k in contact
+    systems = fd.Selectors(table.mode[pattern], table.mask[pattern],
+                           table.height_weights[pattern], table.s_dbeta[pattern],
+                           table.s_cylinder[pattern], table.lost[pattern],
+                           table.tipping[pattern])
+    local = threading.local()
 
     def run(lo: int) -> None:
         sl = slice(lo, min(lo + chunk, n))
-        inp, sel = pack_rows(est, sb, sl, systems)
         if kernel is not None:
-            out = np.empty((inp.shape[0], lay.out_size))
-            kernel.batch(inp, out)
+            buf = getattr(local, "inp", None)
+            if buf is None:
+                buf = local.inp = np.empty((min(chunk, n), lay.size))
+            inp, _ = pack_rows(est, sb, sl, systems, buf[:sl.stop - sl.start])
+            kernel.batch(inp, out[sl])
         else:
-            out = np.array([est._reference_row(row, sel.row(i))
-                            for i, row in enumerate(inp)]).reshape(-1, lay.out_size)
-        x[sl] = out[:, lay.out_x]
-        xi[sl] = out[:, lay.out_xi]
-        a[sl] = out[:, lay.out_a].reshape(-1, 3, 4)
-        b[sl] = out[:, lay.out_b]
-        cond[sl] = out[:, lay.out_cond]
-        residual[sl] = out[:, lay.out_residual]
-        points[sl] = out[:, lay.out_points].reshape(-1, 4, 3)
+            inp, sel = pack_rows(est, sb, sl, systems)
+            out[sl] = np.array([est._reference_row(row, sel.row(i))
+                                for i, row in enumerate(inp)]).reshape(-1, lay.out_size)
 
     starts = range(0, n, max(1, int(chunk)))
     if threads > 1 and kernel is not None and len(starts) > 1:
@@ -68,19 +71,33 @@ def estimate_batch(est, states, *, strict: bool = True, chunk: int = 4096,
     else:
         for lo in starts:
             run(lo)
-    check_finite_result("the normal-force systems", sb, a, b, xi)
+    x = out[:, lay.out_x]
+    xi = out[:, lay.out_xi]
+    a = out[:, lay.out_a].reshape(-1, 3, 4)
+    b = out[:, lay.out_b]
+    cond = out[:, lay.out_cond]
+    residual = out[:, lay.out_residual]
+    points = out[:, lay.out_points].reshape(-1, 4, 3)
+    # Each row's checksum is finite exactly when all its outputs are: one column to test.
+    finite = bool(np.isfinite(out[:, lay.out_sum]).all())
+    if not finite:
+        check_finite_result("the normal-force systems", sb, a, b, xi)
     tip = systems.tipping
-    mode = systems.mode.astype(object)
+    mode = table.mode.astype(object)[pattern]
     singular = ~tip & ~(cond < SINGULAR_CONDITION)
     if strict and singular.any():
         i = int(np.flatnonzero(singular)[0])
         raise SingularSystemError(
             f"row {i}: {mode[i]} system is singular (1-norm condition "
             f"{cond[i]:.3g}); {int(singular.sum())} singular rows in all", cond[i])
-    for i in np.flatnonzero(tip | singular):
+    solved = np.flatnonzero(tip | singular)
+    for i in solved:
         x[i], cond[i] = least_squares(a[i], b[i], ic[i].astype(float))
         residual[i] = a[i] @ x[i] - b[i]
-    check_finite_result("the normal forces", sb, x, residual, points)
+    if not finite:
+        check_finite_result("the normal forces", sb, x, residual, points)
+    elif solved.size:  # the other rows are the kernel's, finite
+        check_finite_result("the normal forces", sb, x[solved], residual[solved])
     # Without logged normals, the world z axis in fb for all four wheels: a read-only view.
     normals = sb.normal_in_fb if sb.normal_in_fb is not None else np.broadcast_to(
         sb.base_rotation[:, 2][:, None, :], (n, 4, 3))
@@ -104,15 +121,22 @@ def validate_batch(est, sb: StateBatch) -> None:
                 + range_message(name, unit, i, float(x[k]), (lo, hi)))
 
 
-def pack_rows(est, sb: StateBatch, sl: slice, systems: fd.Selectors):
+def pack_rows(est, sb: StateBatch, sl: slice, systems: fd.Selectors,
+              out: np.ndarray | None = None):
     """Kernel input rows and selectors of the states ``sl`` of a validated batch.
 
-    ``systems`` are the whole batch's `full_dynamics.select_systems`.
+    ``systems`` are the whole batch's `full_dynamics.select_systems`; ``out``, if given, a
+    C-contiguous (rows of ``sl``, input size) buffer to write the rows into.
     """
     lay = LAYOUT
     r = sb.base_rotation[sl]
     n = r.shape[0]
-    inp = np.zeros((n, lay.size))
+    if out is None:
+        inp = np.zeros((n, lay.size))
+    else:
+        inp = out  # zero the columns written below only if logged
+        inp[:, lay.points.start:lay.force.stop] = 0.0
+        inp[:, lay.suspension_force] = 0.0
     inp[:, lay.rotation] = r.reshape(n, 9)
     twist, acc, qd, qdd = (sb.base_twist[sl], sb.base_acceleration[sl], sb.qd[sl],
                            sb.qdd[sl])

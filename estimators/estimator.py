@@ -41,6 +41,36 @@ _FD_STEP = 1e-6  # [m, rad], [m/s, rad/s]: central-difference step where no exac
 _NO_FRICTION = np.zeros((4, 3))
 _NO_FRICTION.setflags(write=False)
 
+_L = LAYOUT
+# The `Estimate` fields of an ``nf_estimate`` output row, made on first access (see
+# `estimators.results.RowFields`); ``_rotation`` gives the flat-ground normals of a state
+# without measured contacts (world z in fb for every wheel).
+_ESTIMATE_VIEWS = {
+    "normal_forces": lambda d: d["_row"][_L.out_x],
+    "wrench_xi": lambda d: d["_row"][_L.out_xi],
+    "condition": lambda d: float(d["_row"][_L.out_cond]),
+    "residual": lambda d: d["_row"][_L.out_residual],
+    "contact_points": lambda d: d["_row"][_L.out_points].reshape(4, 3),
+    "system_matrix": lambda d: d["_row"][_L.out_a].reshape(3, 4),
+    "system_rhs": lambda d: d["_row"][_L.out_b],
+    "normals": lambda d: np.repeat(d["_rotation"][2:3], 4, axis=0),
+}
+# The `ForceLinearization` arrays of an ``nf_derivatives`` output row.
+_LINEARIZATION_VIEWS = {
+    "normal_forces": lambda d: d["_row"][_L.der_x],
+    "G": lambda d: d["_row"][_L.der_a].reshape(4, 19),
+    "g0": lambda d: d["_row"][_L.der_g0],
+    "d_q": lambda d: d["_row"][_L.der_q].reshape(4, 13),
+    "d_qd": lambda d: d["_row"][_L.der_qd].reshape(4, 13),
+}
+_OUT_SUM, _OUT_COND = _L.out_sum, _L.out_cond
+# Views of a kernel's output buffer that `constraint` copies out: (G, g0).
+_OUT_VIEWS = {"nf_constraint": lambda out: (out[_L.con_g].reshape(4, 19), out[_L.con_g0])}
+# (condition, checksum) positions in each kernel's output row.
+_ROW_CHECKS = {"nf_estimate": (_L.out_cond, _L.out_sum),
+               "nf_constraint": (_L.con_cond, _L.con_sum),
+               "nf_derivatives": (_L.der_cond, _L.der_sum)}
+
 
 class NormalForceEstimator:
     """Wheel-ground normal forces of a machine state (paper Sec. III).
@@ -95,6 +125,8 @@ class NormalForceEstimator:
             zeroed = np.concatenate([np.arange(LAYOUT.twist.start, LAYOUT.acceleration.stop),
                                      LAYOUT.qd.start + drop, LAYOUT.qdd.start + drop])
         self._packer = RowPacker(machine, fourth, zeroed)
+        self._pack = self._packer.fill  # bound once: the per-call path looks them up often
+        self._bounds = self._packer.bounds
         self._ranges = self._packer.ranges
         self._calls = threading.local()
 
@@ -108,10 +140,14 @@ class NormalForceEstimator:
         """
         if not isinstance(state, MachineState):
             raise EstimatorInputError(f"state must be a MachineState, got {type(state).__name__}")
-        bad = self._packer.out_of_range(state.q)
-        if not bad:
-            return state, ()
         q = state.q
+        values = q.tolist()
+        for i, lo, hi in self._bounds:  # `RowPacker.out_of_range`, inlined: every call runs it
+            if not lo <= values[i] <= hi:
+                break
+        else:
+            return state, ()
+        bad = self._packer.out_of_range(q)
         if self.strokes == "raise":
             name, unit, i, lo, hi = bad[0]
             raise EstimatorInputError(range_message(name, unit, i, float(q[i]), (lo, hi)))
@@ -126,11 +162,17 @@ class NormalForceEstimator:
         return self._packer.fill(inp, state, self.D, self.beta)[0]
 
     def _call(self, name: str):
-        """(input buffer, output buffer, call) of the compiled kernel ``name``, this thread."""
+        """(input buffer, output buffer, call, input bytes, output views) of kernel ``name``.
+
+        This thread's: the input bytes (a memoryview of the buffer) are what `RowPacker.fill`
+        writes; the output views (`_OUT_VIEWS`), made once, are what a caller copies out.
+        """
         calls = self._calls.__dict__
         hit = calls.get(name)
         if hit is None:
-            hit = calls[name] = self._kernels.single(name)
+            inp, out, call = self._kernels.single(name)
+            views = _OUT_VIEWS[name](out) if name in _OUT_VIEWS else ()
+            hit = calls[name] = (inp, out, call, memoryview(inp).cast("B"), views)
         return hit
 
     def _reference_row(self, inp: np.ndarray, sel: fd.Selectors) -> np.ndarray:
@@ -171,17 +213,35 @@ class NormalForceEstimator:
             SingularSystemError: The system is singular (condition number above 1e12).
         """
         state, _ = self._checked(state)
-        lay = LAYOUT
         if self._kernels is not None:
-            inp, out, call = self._call("nf_estimate")
-            sel, flags = self._packer.fill(inp, state, self.D, self.beta)
+            inp, out, call, raw, _ = self._call("nf_estimate")
+            sel, flags = self._pack(inp, state, self.D, self.beta, raw)
             call()
             row = out.copy()
         else:
-            inp = np.zeros(lay.size)
-            sel, flags = self._packer.fill(inp, state, self.D, self.beta)
+            inp = np.zeros(LAYOUT.size)
+            sel, flags = self._pack(inp, state, self.D, self.beta)
             row = self._reference_row(inp, sel)
-        # One row, one copy: the fields are views into it.
+        if sel.tipping or not (math.isfinite(row[_OUT_SUM])
+                               and row[_OUT_COND] < SINGULAR_CONDITION):
+            return self._estimate_special(state, row, sel, flags)
+        # The common case: a finite, regular four- or three-wheel system. One row, one copy;
+        # the array fields are views into it, made when first read.
+        c = state.contacts
+        if c is None:
+            fields = {"in_contact": flags, "mode": sel.mode, "tipping": sel.tipping,
+                      "backend": self.backend, "friction": _NO_FRICTION,
+                      "_rotation": state.base_rotation}
+        else:
+            fields = {"in_contact": flags, "mode": sel.mode, "tipping": sel.tipping,
+                      "backend": self.backend, "normals": c.normal_in_fb,
+                      "friction": c.force_in_fb}
+        return Estimate.from_row(fields, _ESTIMATE_VIEWS, row)
+
+    def _estimate_special(self, state: MachineState, row: np.ndarray, sel: fd.Selectors,
+                          flags: np.ndarray) -> Estimate:
+        """`estimate` of a tipping, singular or non-finite row: solved or checked, or raised."""
+        lay = LAYOUT
         x = row[lay.out_x]
         a = row[lay.out_a].reshape(3, 4)
         b = row[lay.out_b]
@@ -210,24 +270,25 @@ class NormalForceEstimator:
             f"{SINGULAR_CONDITION:.0e}); check D (={self.D}) and the contact geometry", cond)
 
     def _kernel_row(self, name: str, state: MachineState, what: str):
-        """(output row copy, `Selectors`, contact flags) of kernel ``name`` at ``state``.
+        """(output row, `Selectors`, contact flags) of kernel ``name`` at ``state``.
+
+        The row is this thread's output buffer of the kernel, valid until the kernel runs
+        again on this thread: callers copy what they keep.
 
         The row's checksum and condition entries (`estimators._symbolic.Layout`) are checked:
         a non-finite system is an `EstimatorInputError`, a singular non-tipping one a
         `SingularSystemError`, as in `estimate`. Tipping rows are returned unchecked (their
         callers solve them in least squares).
         """
-        inp, out, call = self._call(name)
-        sel, flags = self._packer.fill(inp, state, self.D, self.beta)
+        inp, row, call, raw, _ = self._call(name)
+        sel, flags = self._pack(inp, state, self.D, self.beta, raw)
         call()
-        row = out.copy()
-        lay = LAYOUT
-        cond_at, sum_at = ((lay.con_cond, lay.con_sum) if name == "nf_constraint"
-                           else (lay.der_cond, lay.der_sum))
+        cond_at, sum_at = _ROW_CHECKS[name]
         if not sel.tipping and not (math.isfinite(row[sum_at])
                                     and row[cond_at] < SINGULAR_CONDITION):
             # The estimate kernel's outputs say which: overflow or a singular system.
-            ein, eout, ecall = self._call("nf_estimate")
+            lay = LAYOUT
+            ein, eout, ecall, *_ = self._call("nf_estimate")
             ein[:] = inp
             ecall()
             if not math.isfinite(eout[lay.out_sum]):
@@ -255,22 +316,20 @@ class NormalForceEstimator:
             SingularSystemError: The system is singular (the same test as `estimate`).
         """
         state, _ = self._checked(state)
-        lay = LAYOUT
         if self._kernels is None:
             return self._constraint_reference(state)
         row, sel, _ = self._kernel_row("nf_constraint", state, "the force constraint (G, g0)")
-        g = row[lay.con_g].reshape(4, 19)
-        g0 = row[lay.con_g0]
         if sel.tipping or self._qs is not None:
-            g, g0 = self._constraint_special(state, sel, row, g)
-        return g, g0
+            return self._constraint_special(state, sel, row, row[_L.con_g].reshape(4, 19))
+        g_out, g0_out = self._call("nf_constraint")[4]
+        return g_out.copy(), g0_out.copy()
 
     def _constraint_special(self, state, sel, row, g):
         """(G, g0) of a tipping state (least squares) or of the quasi-static method."""
         lay = LAYOUT
         x = row[lay.con_x]
         if sel.tipping:
-            ein, eout, ecall = self._call("nf_estimate")
+            ein, eout, ecall, *_ = self._call("nf_estimate")
             self._fill(ein, state)
             ecall()
             pinv = masked_pinv(eout[lay.out_a].reshape(3, 4), sel.mask)
@@ -315,15 +374,18 @@ class NormalForceEstimator:
         """
         state, clipped = self._checked(state)
         if self._kernels is not None:
-            row, sel, flags = self._kernel_row("nf_derivatives", state, "the linearization")
+            out, sel, flags = self._kernel_row("nf_derivatives", state, "the linearization")
             if not sel.tipping:
+                if self._qs is None:
+                    # A read-only copy of the row (one call); the arrays are its views, made
+                    # on first access, read-only like those of `ForceLinearization.trusted`.
+                    return ForceLinearization.from_row(
+                        {"in_contact": flags, "mode": sel.mode, "clipped": clipped,
+                         "time": state.time}, _LINEARIZATION_VIEWS, np.frombuffer(out.tobytes()))
+                row = out.copy()
                 lay = LAYOUT
                 g, g0 = row[lay.der_a].reshape(4, 19), row[lay.der_g0]
                 d_q, d_qd = row[lay.der_q].reshape(4, 13), row[lay.der_qd].reshape(4, 13)
-                if self._qs is None:
-                    return ForceLinearization.trusted(row[lay.der_x], g, g0, d_q, d_qd,
-                                                      flags, sel.mode, clipped,
-                                                      state.time)
                 g = g * self._qs.accelerations
                 d_qd = d_qd * self._qs.coordinates
                 forces = row[lay.der_x]

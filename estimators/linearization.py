@@ -20,6 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from estimators.errors import EstimatorError
+from estimators.results import RowFields
 from models.coordinates import N_INDEPENDENT
 
 __all__ = ["N_GENERALIZED", "ForceLinearization"]
@@ -39,7 +40,7 @@ def _frozen(name: str, value, shape, dtype=float) -> np.ndarray:
 
 
 @dataclass(frozen=True, eq=False)
-class ForceLinearization:
+class ForceLinearization(RowFields):
     """The normal forces linearized at one state.
 
     Attributes:
@@ -84,6 +85,8 @@ class ForceLinearization:
         For the estimator's per-tick path: the caller guarantees the shapes, float dtype, a
         finite kernel checksum, a valid mode and a read-only ``in_contact``; the arrays are
         made read-only here (not copied: they are views of a row nobody else holds).
+        The estimator's own per-tick path is `RowFields.from_row` on a read-only row: the
+        arrays are then views of it, made on first access.
         """
         for a in (normal_forces, G, g0, d_q, d_qd):
             a.flags.writeable = False

@@ -11,8 +11,53 @@ from estimators.errors import EstimatorInputError
 __all__ = ["BatchEstimate", "Estimate"]
 
 
-@dataclass(slots=True)
-class Estimate:
+class RowFields:
+    """Mixin: fields made from a kernel output row on first access (the per-call path).
+
+    Each numpy view of the row costs about as much as the kernel call's own Python, and a
+    controller reads two or three fields of a result; so `from_row` keeps the row and a
+    table ``views`` (field name -> function of the instance ``__dict__``), and
+    `__getattr__`, which Python calls only for an attribute not yet in ``__dict__``, makes
+    the field once and stores it there. Values and types are those of an eagerly built
+    result; the public constructor stays as it was.
+    """
+
+    __slots__ = ()
+
+    @classmethod
+    def from_row(cls, fields: dict, views: dict, row: np.ndarray):
+        """An instance with ``fields`` set and the others made by ``views`` from ``row``."""
+        fields["_views"] = views
+        fields["_row"] = row
+        obj = object.__new__(cls)
+        object.__setattr__(obj, "__dict__", fields)  # also for frozen dataclasses
+        return obj
+
+    def __getstate__(self) -> dict:
+        """Every field made, without the row and the table (whose functions don't pickle)."""
+        d = self.__dict__
+        for name in d.get("_views", _NO_VIEWS):
+            getattr(self, name)
+        return {k: v for k, v in d.items() if k not in _LAZY_KEYS}
+
+    def __setstate__(self, state: dict) -> None:
+        object.__setattr__(self, "__dict__", dict(state))  # also for frozen dataclasses
+
+    def __getattr__(self, name: str):
+        d = self.__dict__
+        view = d.get("_views", _NO_VIEWS).get(name)
+        if view is None:
+            raise AttributeError(f"{type(self).__name__!r} object has no attribute {name!r}")
+        value = d[name] = view(d)
+        return value
+
+
+_NO_VIEWS: dict = {}
+_LAZY_KEYS = ("_views", "_row", "_rotation")  # `from_row`'s own entries (and an input)
+
+
+@dataclass
+class Estimate(RowFields):
     """Normal forces of one state.
 
     Attributes:

@@ -185,3 +185,19 @@ def test_quasi_static_equals_full_without_base_and_suspension_motion(machine):
                               moving.qdd * qs._qs.coordinates)
     np.testing.assert_allclose(qs.estimate(moving).normal_forces,
                                qs.estimate(same_crane).normal_forces, rtol=1e-12)
+
+
+def test_results_pickle_with_every_field():
+    """The per-call results make their fields on first access; a pickle carries them all."""
+    import dataclasses
+    import pickle
+
+    machine = build_reference_machine()
+    est = NormalForceEstimator(machine)
+    state = random_state(machine, np.random.default_rng(3), max_tilt=0.2)
+    for result in (est.estimate(state), est.linearize(state)):
+        copy = pickle.loads(pickle.dumps(result))
+        assert type(copy) is type(result)
+        for field in dataclasses.fields(result):
+            a, b = getattr(result, field.name), getattr(copy, field.name)
+            assert np.array_equal(a, b) if isinstance(a, np.ndarray) else a == b, field.name
