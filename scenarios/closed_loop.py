@@ -119,7 +119,7 @@ def run_closed_loop(scenario: ClosedLoopScenario | str, out_dir: Path | None = N
                     config: ControllerConfig | None = None,
                     inform_payload: bool = True, threshold_n: float | None = None,
                     sensors: str = "realistic", sensor_seed: int | None = None,
-                    confidence: float = FORCE_CONFIDENCE, pick_reserve: bool = False) -> dict:
+                    confidence: float = FORCE_CONFIDENCE, pick_reserve: bool = True) -> dict:
     """Run a closed-loop scenario; write ``log.npz`` and ``metrics.json`` to ``out_dir``.
 
     Args:
@@ -142,9 +142,8 @@ def run_closed_loop(scenario: ClosedLoopScenario | str, out_dir: Path | None = N
         confidence: The MPC keeps each wheel's force above its threshold plus ``z sigma``
             of the force's uncertainty, ``z`` of this one-sided confidence
             (`estimators.uncertainty.force_margin`).
-        pick_reserve: Arm the pick reserve at the grapple command (`wbc.pick_reserve`; off
-            by default: it cut the heavy picks' dips on standing draws but took a wheel to
-            0 N for 12 ms in ``pick-in-motion``, which is safe without it).
+        pick_reserve: The MPC controllers arm the pick reserve at the operator's grapple
+            command before a pick (`wbc.pick_reserve`); False: they do not (for comparison).
 
     Returns:
         The metrics (also written to ``metrics.json``), with ``"partial": False``.
@@ -253,7 +252,7 @@ def run_closed_loop(scenario: ClosedLoopScenario | str, out_dir: Path | None = N
                     if reserve is not None:
                         margin = margin + reserve.update(
                             t, seen.state.q, seen.state.base_rotation, seen.payload_mass,
-                            seen.payload_std, seen.payload_event or told)
+                            seen.payload_std, seen.payload_event or told, margin)
                     ctrl.set_force_margin(margin)
                 cmd = ctrl.step(seen.state)
                 step_s[k] = time.perf_counter() - t0 + obs.observer_seconds

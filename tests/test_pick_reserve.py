@@ -6,7 +6,14 @@ import pytest
 from models import build_reference_machine
 from models.load_chart import rated_payload
 from wbc.errors import ConfigurationError
-from wbc.pick_reserve import MIN_HOLD_SECONDS, SETTLED_STD_KG, TIMEOUT_SECONDS, PickReserve
+from wbc.pick_reserve import (
+    MIN_HOLD_SECONDS,
+    PICK_SEEN_KG,
+    RAMP_SECONDS,
+    SETTLED_STD_KG,
+    TIMEOUT_SECONDS,
+    PickReserve,
+)
 
 MACHINE = build_reference_machine()
 THRESHOLD = 1262.0
@@ -22,16 +29,40 @@ def _pose() -> np.ndarray:
     return q
 
 
-def test_no_margin_until_the_grapple_closes_then_the_rated_loads():
+def test_no_margin_until_the_grapple_closes_then_the_rated_loads_ramped_in():
     q, rot = _pose(), np.eye(3)
     res = PickReserve(MACHINE, THRESHOLD)
     assert not res.update(0.0, q, rot, 10.0, 5.0, None).any()
     res.close_grapple(1.0)
-    margin = res.update(1.0, q, rot, 10.0, 5.0, None)
+    assert not res.update(1.0, q, rot, 10.0, 5.0, None).any()  # the ramp starts at zero
+    half = res.update(1.0 + RAMP_SECONDS / 2, q, rot, 10.0, 5.0, None)
+    margin = res.update(1.0 + RAMP_SECONDS, q, rot, 10.0, 5.0, None)
     rated = rated_payload(MACHINE, q, THRESHOLD, rot)
     expected = np.maximum(-rated.sensitivity * (rated.mass - 10.0), 0.0)
     np.testing.assert_allclose(margin, expected)
+    np.testing.assert_allclose(half, expected / 2)
     assert margin.max() > 1000.0 and (margin == 0).sum() >= 1  # only the unloaded wheels
+
+
+def test_the_rating_keeps_the_other_margins_and_holds_from_the_grapple_command():
+    """Rated with the controller's margins on top of the threshold, at the pick's pose."""
+    c, s = np.cos(-0.15), np.sin(-0.15)  # a side slope on which the margins bind
+    q, rot = _pose(), np.array([[1, 0, 0], [0, c, -s], [0, s, c]])
+    plain, kept = PickReserve(MACHINE, THRESHOLD), PickReserve(MACHINE, THRESHOLD)
+    for res in (plain, kept):
+        res.close_grapple(0.0)
+    plain.update(0.0, q, rot, 10.0, 5.0, None)
+    kept.update(0.0, q, rot, 10.0, 5.0, None, margin=np.full(4, 2000.0))
+    assert plain.rated == pytest.approx(rated_payload(MACHINE, q, THRESHOLD, rot).mass)
+    assert kept.rated == pytest.approx(rated_payload(MACHINE, q, THRESHOLD + 2000.0, rot).mass)
+    assert kept.rated < plain.rated
+    inward = q.copy()
+    inward[5] = 0.1  # the telescope pulled in: a higher rating there, but the pick's holds
+    plain.update(1.0, inward, rot, 10.0, 5.0, None)
+    assert plain.rated == pytest.approx(rated_payload(MACHINE, q, THRESHOLD, rot).mass)
+    assert rated_payload(MACHINE, inward, THRESHOLD, rot).mass > plain.rated
+    np.testing.assert_allclose(plain.sensitivity,
+                               rated_payload(MACHINE, inward, THRESHOLD, rot).sensitivity)
 
 
 def test_the_estimate_takes_over_once_the_pick_is_seen_and_settled():
@@ -44,6 +75,19 @@ def test_the_estimate_takes_over_once_the_pick_is_seen_and_settled():
     assert res.update(t, q, rot, 250.0, SETTLED_STD_KG / 2, None).any()  # too early
     t = 1.0 + MIN_HOLD_SECONDS
     assert not res.update(t, q, rot, 250.0, SETTLED_STD_KG / 2, None).any()
+    assert not res.active
+
+
+def test_a_pick_without_an_event_is_seen_by_the_estimate_and_handed_over():
+    """A load taken up gradually raises no event; the estimate's rise says it was picked."""
+    q, rot = _pose(), np.eye(3)
+    res = PickReserve(MACHINE, THRESHOLD)
+    res.close_grapple(0.0)
+    res.update(0.0, q, rot, 10.0, 5.0, None)  # the estimate at the grapple command
+    assert res.update(1.0, q, rot, 10.0 + PICK_SEEN_KG / 2, 5.0, None).any()  # not yet
+    assert res.update(1.5, q, rot, 10.0 + 2 * PICK_SEEN_KG, 5.0, None).any()  # seen: held
+    assert not res.update(1.5 + MIN_HOLD_SECONDS, q, rot, 10.0 + 2 * PICK_SEEN_KG, 5.0,
+                          None).any()
     assert not res.active
 
 
