@@ -20,7 +20,8 @@ DURATION = 5.0  # [s] after ready: covers the heavy pick (at 2 s) and the first 
 def test_a_seeded_draw_of_every_family_runs_safely(family):
     d = draw(family, 0, REGRESSION_SEED)
     m = run_closed_loop(d.scenario, None, "mpc-full", seed=d.terrain_seed,
-                        duration=min(DURATION, d.scenario.duration))
+                        duration=min(DURATION, d.scenario.duration),
+                        pick_reserve=family == "heavy-pick-downhill")
     assert not m["partial"] and not m["tipped"] and m["fallbacks"] == 0
     assert not m["ready_timed_out"]
     assert np.isfinite(m["control_step_ms"]["median"])
