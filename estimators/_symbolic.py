@@ -20,7 +20,6 @@ CasADi's virtual machine (slower, same numbers).
 from __future__ import annotations
 
 import ctypes
-import hashlib
 import logging
 import os
 import subprocess
@@ -35,6 +34,7 @@ import numpy as np
 from estimators._kernel_calls import BATCH_C, Compiled, Interpreted
 from estimators.full_dynamics import normal_force_system
 from estimators.tree import TreeModel
+from models.cbuild import compile_shared
 from models.coordinates import N_INDEPENDENT
 
 __all__ = ["CasadiOps", "Kernels", "Layout", "build_kernels"]
@@ -231,14 +231,6 @@ def build_kernels(tree: TreeModel) -> dict[str, ca.Function]:
     }
 
 
-def _cache_dir() -> Path:
-    env = os.environ.get("WBC_HDMM_CACHE")
-    if env:
-        return Path(env)
-    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
-    return Path(base) / "wbc-hdmm"
-
-
 class Kernels:
     """The estimator's compiled (or interpreted) kernels for one tree.
 
@@ -314,21 +306,7 @@ class Kernels:
         src += BATCH_C.format(name=name, sz_arg=max(fun.sz_arg(), 1),
                                sz_res=max(fun.sz_res(), 1), n_in=fun.size1_in(0),
                                n_out=fun.size1_out(0))
-        cc = os.environ.get("CC", "cc")
-        digest = hashlib.sha256((src + cc + opt).encode()).hexdigest()[:20]
-        cache = _cache_dir()
-        lib = cache / f"{name}_{digest}.so"
-        if lib.exists():
-            return lib
-        cache.mkdir(parents=True, exist_ok=True)
-        with tempfile.TemporaryDirectory(dir=cache) as tmp:
-            c_file = Path(tmp, name + ".c")
-            c_file.write_text(src)
-            tmp_lib = Path(tmp, lib.name)
-            subprocess.run([cc, opt, "-fPIC", "-shared", "-o", str(tmp_lib), str(c_file),
-                            "-lm"], check=True, capture_output=True, timeout=600)
-            os.replace(tmp_lib, lib)  # atomic: concurrent builders agree on the content
-        return lib
+        return compile_shared(src, name, opt)
 
     def single(self, name: str):
         """(input buffer, output buffer, call) of kernel ``name`` for this thread."""

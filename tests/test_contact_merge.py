@@ -170,3 +170,36 @@ def test_bad_arguments_raise_model_errors(kwargs, match):
     args = {"wheel_geoms": [tyre], **kwargs}
     with pytest.raises(ModelError, match=match):
         ContactMerge(model, **args)
+
+
+def test_the_compiled_merge_excludes_what_the_numpy_rule_does():
+    """The machine driving on rough ground, every step merged both ways: the same contacts.
+
+    Oracle: `ContactMerge.merge_reference` (numpy) on a copy of each step's collision.
+    """
+    from models import build_reference_machine
+    from models import terrain as T
+    from scenarios.simulator import Simulator
+
+    sim = Simulator(build_reference_machine(), T.rough(5, max_slope_deg=20))
+    merge = sim._contact_merge
+    if not merge.compiled:
+        pytest.skip("no C compiler: the numpy rule runs")
+    sim.reset()
+    m, d = sim.model, sim.data
+    rng = np.random.default_rng(0)
+    check = mujoco.MjData(m)
+    excluded = 0
+    for k in range(60):
+        sim.set_command(rng.uniform(-0.05, 0.05, 6), rng.uniform(-0.2, 0.2, 3),
+                        rng.uniform(-1, 2, 2))
+        sim.step(10)
+        mujoco.mj_copyData(check, m, d)
+        mujoco.mj_step1(m, d)
+        mujoco.mj_step1(m, check)
+        assert merge.merge(d) == merge.merge_reference(check)
+        np.testing.assert_array_equal(d.contact.exclude[:d.ncon], check.contact.exclude[:d.ncon])
+        np.testing.assert_array_equal(d.contact.efc_address[:d.ncon],
+                                      check.contact.efc_address[:d.ncon])
+        excluded += int(d.contact.exclude[:d.ncon].sum())
+    assert excluded > 0  # the ground made coincident contacts to merge
