@@ -25,6 +25,7 @@ from estimators.full_dynamics import D_BETA_COEFFICIENTS
 __all__ = [
     "CalibrationResult",
     "SlidingCalibration",
+    "calibrate_batch",
     "calibrate_d_beta",
     "calibrate_d_beta_sliding",
     "forces_d_beta",
@@ -234,3 +235,18 @@ def calibrate_d_beta_sliding(a: np.ndarray, b: np.ndarray, normal_forces_gt: np.
         out["D"][w], out["beta"][w], out["cost"][w], out["rmse"][w] = r.D, r.beta, r.cost, r.rmse
     return SlidingCalibration(starts, np.minimum(starts + window, n_total), out["D"],
                               out["beta"], out["cost"], out["rmse"], counts)
+
+
+def calibrate_batch(res, normal_forces_gt: np.ndarray, window: int | None = None,
+                    stride: int | None = None, solver: str = "scipy"):
+    """`NormalForceEstimator.calibrate` on its `BatchEstimate` ``res`` (four-wheel rows)."""
+    gt = np.asarray(normal_forces_gt, float)
+    if gt.shape != res.normal_forces.shape:
+        raise EstimatorInputError(f"'normal_forces_gt' must have shape "
+                                  f"{res.normal_forces.shape}, got {gt.shape}")
+    use = ~res.tipping & (res.in_contact.sum(axis=1) == 4)
+    if window is None:
+        return calibrate_d_beta(res.system_matrix[use], res.system_rhs[use], gt[use],
+                                solver=solver)
+    return calibrate_d_beta_sliding(res.system_matrix, res.system_rhs, gt, window, stride,
+                                    valid=use, solver=solver)

@@ -22,6 +22,7 @@ import numpy as np
 
 from estimators import batch
 from estimators import full_dynamics as fd
+from estimators._row_views import ESTIMATE_VIEWS, LINEARIZATION_VIEWS, OUT_VIEWS, ROW_CHECKS
 from estimators._symbolic import LAYOUT, Kernels
 from estimators.batch import SINGULAR_CONDITION
 from estimators.checks import check_finite_result, check_options
@@ -40,37 +41,6 @@ __all__ = ["NormalForceEstimator"]
 _FD_STEP = 1e-6  # [m, rad], [m/s, rad/s]: central-difference step where no exact column exists
 _NO_FRICTION = np.zeros((4, 3))
 _NO_FRICTION.setflags(write=False)
-
-_L = LAYOUT
-# The `Estimate` fields of an ``nf_estimate`` output row, made on first access (see
-# `estimators.results.RowFields`); ``_rotation`` gives the flat-ground normals of a state
-# without measured contacts (world z in fb for every wheel).
-_ESTIMATE_VIEWS = {
-    "normal_forces": lambda d: d["_row"][_L.out_x],
-    "wrench_xi": lambda d: d["_row"][_L.out_xi],
-    "condition": lambda d: float(d["_row"][_L.out_cond]),
-    "residual": lambda d: d["_row"][_L.out_residual],
-    "contact_points": lambda d: d["_row"][_L.out_points].reshape(4, 3),
-    "system_matrix": lambda d: d["_row"][_L.out_a].reshape(3, 4),
-    "system_rhs": lambda d: d["_row"][_L.out_b],
-    "normals": lambda d: np.repeat(d["_rotation"][2:3], 4, axis=0),
-}
-# The `ForceLinearization` arrays of an ``nf_derivatives`` output row.
-_LINEARIZATION_VIEWS = {
-    "normal_forces": lambda d: d["_row"][_L.der_x],
-    "G": lambda d: d["_row"][_L.der_a].reshape(4, 19),
-    "g0": lambda d: d["_row"][_L.der_g0],
-    "d_q": lambda d: d["_row"][_L.der_q].reshape(4, 13),
-    "d_qd": lambda d: d["_row"][_L.der_qd].reshape(4, 13),
-}
-_OUT_SUM, _OUT_COND = _L.out_sum, _L.out_cond
-# Views of a kernel's output buffer that `constraint` copies out: (G, g0).
-_OUT_VIEWS = {"nf_constraint": lambda out: (out[_L.con_g].reshape(4, 19), out[_L.con_g0])}
-# (condition, checksum) positions in each kernel's output row.
-_ROW_CHECKS = {"nf_estimate": (_L.out_cond, _L.out_sum),
-               "nf_constraint": (_L.con_cond, _L.con_sum),
-               "nf_derivatives": (_L.der_cond, _L.der_sum)}
-
 
 class NormalForceEstimator:
     """Wheel-ground normal forces of a machine state (paper Sec. III).
@@ -165,13 +135,13 @@ class NormalForceEstimator:
         """(input buffer, output buffer, call, input bytes, output views) of kernel ``name``.
 
         This thread's: the input bytes (a memoryview of the buffer) are what `RowPacker.fill`
-        writes; the output views (`_OUT_VIEWS`), made once, are what a caller copies out.
+        writes; the output views (`OUT_VIEWS`), made once, are what a caller copies out.
         """
         calls = self._calls.__dict__
         hit = calls.get(name)
         if hit is None:
             inp, out, call = self._kernels.single(name)
-            views = _OUT_VIEWS[name](out) if name in _OUT_VIEWS else ()
+            views = OUT_VIEWS[name](out) if name in OUT_VIEWS else ()
             hit = calls[name] = (inp, out, call, memoryview(inp).cast("B"), views)
         return hit
 
@@ -222,8 +192,8 @@ class NormalForceEstimator:
             inp = np.zeros(LAYOUT.size)
             sel, flags = self._pack(inp, state, self.D, self.beta)
             row = self._reference_row(inp, sel)
-        if sel.tipping or not (math.isfinite(row[_OUT_SUM])
-                               and row[_OUT_COND] < SINGULAR_CONDITION):
+        if sel.tipping or not (math.isfinite(row[LAYOUT.out_sum])
+                               and row[LAYOUT.out_cond] < SINGULAR_CONDITION):
             return self._estimate_special(state, row, sel, flags)
         # The common case: a finite, regular four- or three-wheel system. One row, one copy;
         # the array fields are views into it, made when first read.
@@ -236,7 +206,7 @@ class NormalForceEstimator:
             fields = {"in_contact": flags, "mode": sel.mode, "tipping": sel.tipping,
                       "backend": self.backend, "normals": c.normal_in_fb,
                       "friction": c.force_in_fb}
-        return Estimate.from_row(fields, _ESTIMATE_VIEWS, row)
+        return Estimate.from_row(fields, ESTIMATE_VIEWS, row)
 
     def _estimate_special(self, state: MachineState, row: np.ndarray, sel: fd.Selectors,
                           flags: np.ndarray) -> Estimate:
@@ -283,7 +253,7 @@ class NormalForceEstimator:
         inp, row, call, raw, _ = self._call(name)
         sel, flags = self._pack(inp, state, self.D, self.beta, raw)
         call()
-        cond_at, sum_at = _ROW_CHECKS[name]
+        cond_at, sum_at = ROW_CHECKS[name]
         if not sel.tipping and not (math.isfinite(row[sum_at])
                                     and row[cond_at] < SINGULAR_CONDITION):
             # The estimate kernel's outputs say which: overflow or a singular system.
@@ -320,7 +290,7 @@ class NormalForceEstimator:
             return self._constraint_reference(state)
         row, sel, _ = self._kernel_row("nf_constraint", state, "the force constraint (G, g0)")
         if sel.tipping or self._qs is not None:
-            return self._constraint_special(state, sel, row, row[_L.con_g].reshape(4, 19))
+            return self._constraint_special(state, sel, row, row[LAYOUT.con_g].reshape(4, 19))
         g_out, g0_out = self._call("nf_constraint")[4]
         return g_out.copy(), g0_out.copy()
 
@@ -381,7 +351,7 @@ class NormalForceEstimator:
                     # on first access, read-only like those of `ForceLinearization.trusted`.
                     return ForceLinearization.from_row(
                         {"in_contact": flags, "mode": sel.mode, "clipped": clipped,
-                         "time": state.time}, _LINEARIZATION_VIEWS, np.frombuffer(out.tobytes()))
+                         "time": state.time}, LINEARIZATION_VIEWS, np.frombuffer(out.tobytes()))
                 row = out.copy()
                 lay = LAYOUT
                 g, g0 = row[lay.der_a].reshape(4, 19), row[lay.der_g0]
@@ -456,19 +426,10 @@ class NormalForceEstimator:
             A `estimators.calibration.CalibrationResult` (global) or
             `estimators.calibration.SlidingCalibration` (windowed).
         """
-        from estimators import calibration
+        from estimators.calibration import calibrate_batch
 
-        res = self.estimate_batch(states, strict=False)
-        gt = np.asarray(normal_forces_gt, float)
-        if gt.shape != res.normal_forces.shape:
-            raise EstimatorInputError(f"'normal_forces_gt' must have shape "
-                                      f"{res.normal_forces.shape}, got {gt.shape}")
-        use = ~res.tipping & (res.in_contact.sum(axis=1) == 4)
-        if window is None:
-            return calibration.calibrate_d_beta(res.system_matrix[use], res.system_rhs[use],
-                                                gt[use], solver=solver)
-        return calibration.calibrate_d_beta_sliding(
-            res.system_matrix, res.system_rhs, gt, window, stride, valid=use, solver=solver)
+        return calibrate_batch(self.estimate_batch(states, strict=False), normal_forces_gt,
+                               window, stride, solver)
 
 
 _TREES: dict = {}
