@@ -11,7 +11,96 @@ from wbc.constraints.constraint import Box, Constraint, Inequality
 from wbc.errors import ConfigurationError, WbcError
 from wbc.tasks.task import Task
 
-__all__ = ["build_qp"]
+__all__ = ["QPBuilder", "build_qp"]
+
+
+class QPBuilder:
+    r"""Builds the QP of every tick from fixed tasks and constraints (see `build_qp`).
+
+    A controller keeps one: the Hessian is reused while the active tasks return the very same
+    read-only ``H`` arrays as at the last tick (constant-Jacobian tasks cache theirs), the
+    same sum in the same order, so the same bits, without its per-tick additions. The
+    problem's ``P`` is then shared between ticks: read it, don't write it.
+
+    Args:
+        tasks: Cost terms.
+        constraints: Constraints.
+        regularization: Tikhonov term added to P's diagonal (> 0 keeps P definite).
+    """
+
+    def __init__(self, tasks: Sequence[Task], constraints: Sequence[Constraint],
+                 regularization: float = 1e-9):
+        if not regularization >= 0:
+            raise ConfigurationError(f"regularization must be >= 0, got {regularization}")
+        self.tasks = tasks  # the owner's lists: what it appends later counts
+        self.constraints = constraints
+        self.regularization = regularization
+        self._hessians: list | None = None  # the H arrays the cached P sums
+        self._P: np.ndarray | None = None
+        self._layout = None
+        self._bounds: tuple[np.ndarray, np.ndarray] | None = None
+
+    def _hessian(self, n: int, hessians: list) -> np.ndarray:
+        """``regularization * I + sum(H)``, reused when every H is the last tick's array."""
+        if (self._hessians is not None and len(hessians) == len(self._hessians)
+                and all(a is b for a, b in zip(hessians, self._hessians))):
+            return self._P
+        P = self.regularization * np.eye(n)
+        for H in hessians:
+            P += H
+        constant = all(not H.flags.writeable for H in hessians)
+        self._hessians, self._P = (hessians, P) if constant else (None, None)
+        return P
+
+    def _default_bounds(self, layout) -> tuple[np.ndarray, np.ndarray]:
+        if layout is not self._layout:
+            self._bounds, self._layout = layout.default_bounds(), layout
+        return self._bounds[0].copy(), self._bounds[1].copy()
+
+    def build(self, ctx) -> qpsolvers.Problem:
+        r"""The QP at ``ctx`` (a context with a ``layout``: `QPContext` or `HorizonContext`).
+
+        Raises:
+            WbcError: A task or constraint returned arrays of the wrong shape, or the boxes
+                are empty (lower > upper).
+        """
+        n = ctx.layout.n
+        hessians = []
+        q = np.zeros(n)
+        for task in self.tasks:
+            if not task.is_active(ctx):
+                continue
+            H, c = task.compute_qp_objective(ctx)
+            if H.shape != (n, n) or c.shape != (n,):
+                raise WbcError(f"{type(task).__name__} returned H {H.shape}, c {c.shape}; "
+                               f"expected ({n}, {n}), ({n},)")
+            hessians.append(H)
+            q += c
+        P = self._hessian(n, hessians)
+        lb, ub = self._default_bounds(ctx.layout)
+        Gs, hs = [], []
+        for con in self.constraints:
+            r = con.compute(ctx)
+            if r is None:
+                continue
+            if isinstance(r, Box):
+                np.maximum(lb, r.lower, out=lb)
+                np.minimum(ub, r.upper, out=ub)
+            elif isinstance(r, Inequality):
+                if r.G.ndim != 2 or r.G.shape[1] != n or r.h.shape != (r.G.shape[0],):
+                    raise WbcError(f"{type(con).__name__} returned G {r.G.shape}, h "
+                                   f"{r.h.shape}; expected (m, {n}), (m,)")
+                Gs.append(r.G)
+                hs.append(r.h)
+            else:
+                raise WbcError(f"{type(con).__name__}.compute returned {type(r).__name__}, "
+                               f"expected Inequality, Box or None")
+        if (lb > ub).any():
+            i = int(np.argmax(lb > ub))
+            raise WbcError(f"empty bounds on x[{i}]: [{lb[i]}, {ub[i]}]")
+        G = np.concatenate(Gs) if Gs else None
+        h = np.concatenate(hs) if hs else None
+        return qpsolvers.Problem(P, q, G, h, None, None, lb, ub)
 
 
 def build_qp(ctx, tasks: Sequence[Task], constraints: Sequence[Constraint],
@@ -35,41 +124,4 @@ def build_qp(ctx, tasks: Sequence[Task], constraints: Sequence[Constraint],
         WbcError: A task or constraint returned arrays of the wrong shape, or the boxes
             are empty (lower > upper).
     """
-    if not regularization >= 0:
-        raise ConfigurationError(f"regularization must be >= 0, got {regularization}")
-    n = ctx.layout.n
-    P = regularization * np.eye(n)
-    q = np.zeros(n)
-    for task in tasks:
-        if not task.is_active(ctx):
-            continue
-        H, c = task.compute_qp_objective(ctx)
-        if H.shape != (n, n) or c.shape != (n,):
-            raise WbcError(f"{type(task).__name__} returned H {H.shape}, c {c.shape}; "
-                           f"expected ({n}, {n}), ({n},)")
-        P += H
-        q += c
-    lb, ub = ctx.layout.default_bounds()
-    Gs, hs = [], []
-    for con in constraints:
-        r = con.compute(ctx)
-        if r is None:
-            continue
-        if isinstance(r, Box):
-            np.maximum(lb, r.lower, out=lb)
-            np.minimum(ub, r.upper, out=ub)
-        elif isinstance(r, Inequality):
-            if r.G.ndim != 2 or r.G.shape[1] != n or r.h.shape != (r.G.shape[0],):
-                raise WbcError(f"{type(con).__name__} returned G {r.G.shape}, h {r.h.shape};"
-                               f" expected (m, {n}), (m,)")
-            Gs.append(r.G)
-            hs.append(r.h)
-        else:
-            raise WbcError(f"{type(con).__name__}.compute returned {type(r).__name__}, "
-                           f"expected Inequality, Box or None")
-    if np.any(lb > ub):
-        i = int(np.argmax(lb > ub))
-        raise WbcError(f"empty bounds on x[{i}]: [{lb[i]}, {ub[i]}]")
-    G = np.vstack(Gs) if Gs else None
-    h = np.concatenate(hs) if hs else None
-    return qpsolvers.Problem(P, q, G, h, None, None, lb, ub)
+    return QPBuilder(tasks, constraints, regularization).build(ctx)

@@ -57,6 +57,7 @@ class HorizonEffortLimit(Constraint):
         self.n_linearizations = int(n_linearizations)
         self.axes = np.asarray(axes, int)
         self._scale = np.maximum(hi, -lo)[self.axes]
+        self._structure_cache: tuple | None = None
         self.last_efforts: np.ndarray | None = None
 
     def _nominal_state(self, ctx, t: float, q_axes, qd_axes) -> MachineState:
@@ -68,21 +69,44 @@ class HorizonEffortLimit(Constraint):
         return MachineState(pos, rot, st.base_twist, np.zeros(6), q, qd,
                             np.zeros(N_INDEPENDENT), st.time + t)
 
+    def _structure(self, ctx) -> tuple:
+        """What the layout and step lengths fix, built once for them.
+
+        ``(steps j, which j each step uses, flat indices of the upper and the lower rows'
+        entries in G)``.
+        """
+        key = (ctx.structure_key, self.n_linearizations, self.axes.tobytes())
+        if self._structure_cache is None or self._structure_cache[0] != key:
+            lay = ctx.layout
+            N, na = lay.n_steps, lay.n_axes
+            steps = np.unique(np.round(np.linspace(0, N - 1, self.n_linearizations))
+                              .astype(int))
+            which = np.minimum(np.searchsorted(steps, np.arange(N), side="right") - 1,
+                               len(steps) - 1)
+            # G as (N, 2, bounded axes, n): step k's rows hold E_k on step k's columns.
+            shape = (N, 2, self.axes.size, lay.n)
+            k = np.arange(N)[:, None, None]
+            row = np.arange(self.axes.size)[None, :, None]
+            col = lay.step(0).start + np.arange(N * na).reshape(N, 1, na)
+            flat = [np.ravel_multi_index(np.broadcast_arrays(k, side, row, col), shape).ravel()
+                    for side in (0, 1)]
+            self._structure_cache = (key, steps, which, flat)
+        return self._structure_cache[1:]
+
     def compute(self, ctx) -> Inequality:
         """Two rows per crane axis and step: ``+-E u_k <= bound - e_0``."""
         lay, pred = ctx.layout, ctx.prediction
-        N, na = lay.n_steps, lay.n_axes
-        qn, vn = pred.trajectory(ctx.q, ctx.qd, ctx.nominal_inputs)
-        qn = np.vstack([ctx.state.q[:N_AXES], qn])
-        vn = np.vstack([ctx.state.qd[:N_AXES], vn])
-        steps = np.unique(np.round(np.linspace(0, N - 1, self.n_linearizations)).astype(int))
+        N = lay.n_steps
+        steps, which, (upper_idx, lower_idx) = self._structure(ctx)
+        if steps.size > 1:  # the nominal trajectory is needed beyond the measured state
+            qn, vn = pred.trajectory(ctx.q, ctx.qd, ctx.nominal_inputs)
+            qn = np.vstack([ctx.state.q[:N_AXES], qn])
+            vn = np.vstack([ctx.state.qd[:N_AXES], vn])
         maps = []
         for j in steps:
             st = (ctx.state if j == 0 else
                   self._nominal_state(ctx, pred.start_times[j], qn[j], vn[j]))
             maps.append(self.efforts.affine(st))
-        which = np.minimum(np.searchsorted(steps, np.arange(N), side="right") - 1,
-                           len(steps) - 1)
         ax = self.axes
         na_b = ax.size
         # Every step at once: E_k (N, bounded axes, axes) and e_0,k of the node each step uses.
@@ -93,13 +117,10 @@ class HorizonEffortLimit(Constraint):
         lo = np.minimum(self.lower[ax], brake)
         # Rows scaled to the effort range (the solver's tolerance is absolute); per step k
         # the upper rows then the lower rows.
-        scaled = E / self._scale[:, None]
-        G = np.zeros((N, 2, na_b, lay.n))
-        cols = lay.step(0).start + np.arange(N * na).reshape(N, 1, na)
-        steps_ = np.arange(N)[:, None, None]
-        rows_ = np.arange(na_b)[None, :, None]
-        G[steps_, 0, rows_, cols] = scaled
-        G[steps_, 1, rows_, cols] = -scaled
+        scaled = (E / self._scale[:, None]).ravel()
+        G = np.zeros(2 * N * na_b * lay.n)
+        G[upper_idx] = scaled
+        G[lower_idx] = -scaled
         h = np.stack([(hi - e0) / self._scale, (e0 - lo) / self._scale], axis=1)
         G = G.reshape(2 * N * na_b, lay.n)
         h = h.reshape(2 * N * na_b)

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from types import SimpleNamespace
+
 import numpy as np
 
 from estimators.linearization import ForceLinearization
@@ -105,6 +107,45 @@ class HorizonNormalForceConstraint(ForceRowsConstraint):
         super().__init__(model, thresholds, force_scale, drive_time_constant)
         self.n_linearizations = int(n_linearizations)
         self.linearization_steps: np.ndarray = np.zeros(0, dtype=int)
+        self._structure_cache: tuple | None = None
+        self._warp_cache: tuple | None = None
+
+    def _structure(self, ctx) -> SimpleNamespace:
+        """What the layout, step lengths, period and settings fix: built once for them.
+
+        ``steps`` (the linearization steps), ``which`` (the one each evaluation node uses),
+        ``j = steps[which]``, ``n_eval``, ``times`` (the nodes' times), ``since_j`` (time
+        since node ``j``, (n_eval, 1)), ``decay`` (the drive's ``exp(-t / tau)``,
+        (n_eval, 1)), ``u_flat`` (flat indices of the input blocks in A), ``Pq``, ``Pv``
+        (the later nodes' prediction rows, (n_eval - 1, 9, n)) and the constrained
+        ``nodes`` with their ``later`` flags.
+        """
+        key = (ctx.structure_key, self.n_linearizations, self.terminal_brake_time,
+               self.drive_time_constant, self.start_time)
+        if self._structure_cache is None or self._structure_cache[0] != key:
+            lay, pred = ctx.layout, ctx.prediction
+            N, na = lay.n_steps, lay.n_axes
+            steps = np.unique(np.round(np.linspace(0, N - 1, self.n_linearizations))
+                              .astype(int))
+            n_eval = N + (self.terminal_brake_time is not None)
+            which = np.minimum(np.searchsorted(steps, np.arange(n_eval), side="right") - 1,
+                               len(steps) - 1)
+            times = np.append(pred.start_times, pred.horizon)  # evaluation times, N + 1
+            j = steps[which]
+            n_u = min(n_eval, N)  # steps with their own input; the rest is the terminal node
+            u_cols = lay.step(0).start + np.arange(n_u * na).reshape(n_u, 1, na)
+            u_flat = np.ravel_multi_index(np.broadcast_arrays(
+                np.arange(n_u)[:, None, None], np.arange(4)[None, :, None], u_cols),
+                (n_eval, 4, lay.n)).ravel()
+            nodes = np.flatnonzero(times[:n_eval] >= self.start_time - 1e-12)
+            self._structure_cache = (key, SimpleNamespace(
+                steps=steps, which=which, j=j, n_eval=n_eval, n_u=n_u, times=times,
+                since_j=(times[:n_eval] - times[j])[:, None],
+                decay=np.exp(-times[:n_eval] / self.drive_time_constant)[:, None],
+                u_flat=u_flat, Pq=pred.Pq.reshape(N, na, lay.n)[:n_eval - 1],
+                Pv=pred.Pv.reshape(N, na, lay.n)[:n_eval - 1], nodes=nodes,
+                later=times[:n_eval][nodes] > ctx.dt / 2))
+        return self._structure_cache[1]
 
     def _nominal_state(self, ctx, t: float, q_axes, qd_axes) -> MachineState:
         st = ctx.state
@@ -126,12 +167,11 @@ class HorizonNormalForceConstraint(ForceRowsConstraint):
             (N + 1, 9)) with node 0 the measured state (its measured axes, which may differ
             from the prediction's start ``ctx.q`` by the servo deflection's vibration).
         """
-        N = ctx.layout.n_steps
         start = ctx.prediction.start_times
         qn, vn = ctx.prediction.trajectory(ctx.q, ctx.qd, ctx.nominal_inputs)
         qn = np.vstack([ctx.state.q[:N_AXES], qn])
         vn = np.vstack([ctx.state.qd[:N_AXES], vn])
-        steps = np.unique(np.round(np.linspace(0, N - 1, self.n_linearizations)).astype(int))
+        steps = self._structure(ctx).steps
         lins = []
         for j in steps:
             st = ctx.state if j == 0 else self._nominal_state(ctx, start[j], qn[j], vn[j])
@@ -149,12 +189,10 @@ class HorizonNormalForceConstraint(ForceRowsConstraint):
         """
         lay, pred = ctx.layout, ctx.prediction
         N, na = lay.n_steps, lay.n_axes
-        times = np.append(pred.start_times, pred.horizon)  # evaluation times, N + 1
+        struct = self._structure(ctx)
         steps, lins, qn, vn = self.linearize(ctx)
         self.linearization_steps = steps
-        n_eval = N + (self.terminal_brake_time is not None)
-        which = np.searchsorted(steps, np.arange(n_eval), side="right") - 1
-        which = np.minimum(which, len(steps) - 1)
+        n_eval, which, j = struct.n_eval, struct.which, struct.j
         st = ctx.state
         direction = (speed_scale_direction(st, ctx.speed_scale, self.drive_time_constant)
                      if lay.scale is not None else None)
@@ -173,31 +211,27 @@ class HorizonNormalForceConstraint(ForceRowsConstraint):
         d_q = np.stack([m[1] for m in maps])[which]
         d_qd = np.stack([m[2] for m in maps])[which]
         g0 = np.stack([lin.g0 for lin in lins])[which]
-        j = steps[which]
         dq, dqd = d_q[:, :, :N_AXES], d_qd[:, :, :N_AXES]
         G_axes = G[:, :, _AXES_IN_A]
         A = np.zeros((n_eval, 4, lay.n))
-        b = g0 + (d_q[:, :, N_AXES:] @ omega) * (times[:n_eval] - times[j])[:, None]
+        b = g0 + (d_q[:, :, N_AXES:] @ omega) * struct.since_j
         # Steps k >= 1: the configuration moves along the condensed prediction.
         later = slice(1, n_eval)
-        Pq = pred.Pq.reshape(N, na, lay.n)[:n_eval - 1]
-        Pv = pred.Pv.reshape(N, na, lay.n)[:n_eval - 1]
+        Pq, Pv = struct.Pq, struct.Pv
         A[later] = dq[later] @ Pq + dqd[later] @ Pv
         b[later] += (dq[later] @ (ctx.free_positions[:n_eval - 1] - qn[j[later]])[:, :, None]
                      + dqd[later] @ (ctx.free_velocities[:n_eval - 1]
                                      - vn[j[later]])[:, :, None])[:, :, 0]
-        n_u = min(n_eval, N)  # steps with their own input; the rest is the terminal node
-        u_cols = lay.step(0).start + np.arange(n_u * na).reshape(n_u, 1, na)
-        A[np.arange(n_u)[:, None, None], np.arange(4)[None, :, None], u_cols] = G_axes[:n_u]
+        A.reshape(-1)[struct.u_flat] = G_axes[:struct.n_u].reshape(-1)
         if n_eval > N:  # terminal: brake to rest, a = -qd_N / T_b
             Tb = self.terminal_brake_time
             A[N] -= G_axes[N] @ pred.Pv[(N - 1) * na:N * na] / Tb
             b[N] -= G_axes[N] @ ctx.free_velocities[N - 1] / Tb
         if warp is not None:  # the suspension twists the chassis
-            A[later] += ctx.warp @ Pq
+            A[later] += self._warp_rows(warp, Pq)
             b[later] += (ctx.free_positions[:n_eval - 1] - ctx.q) @ ctx.warp.T
         if direction is not None:
-            col = (G @ direction) * np.exp(-times[:n_eval] / self.drive_time_constant)[:, None]
+            col = (G @ direction) * struct.decay
             A[:, :, lay.scale] += col
             b -= col * ctx.speed_scale
         A = A.reshape(4 * n_eval, lay.n)
@@ -213,8 +247,18 @@ class HorizonNormalForceConstraint(ForceRowsConstraint):
                 b -= drift * ctx.speed_scale / s_prev
         return A, b
 
+    def _warp_rows(self, warp: np.ndarray, Pq: np.ndarray) -> np.ndarray:
+        """``warp @ Pq`` (n_eval - 1, 4, n), kept while the warp matrix stays the same."""
+        if (self._warp_cache is None or self._warp_cache[1] is not Pq
+                or not np.array_equal(self._warp_cache[0], warp)):
+            self._warp_cache = (warp.copy(), Pq, warp @ Pq)
+        return self._warp_cache[2]
+
     def _constrained_nodes(self, ctx, n_nodes: int) -> tuple[np.ndarray, np.ndarray]:
         """The nodes from `start_time` on; later: those after the first control period."""
+        struct = self._structure(ctx)
+        if n_nodes == struct.n_eval:
+            return struct.nodes, struct.later
         times = np.append(ctx.prediction.start_times, ctx.prediction.horizon)[:n_nodes]
         nodes = np.flatnonzero(times >= self.start_time - 1e-12)
         return nodes, times[nodes] > ctx.dt / 2

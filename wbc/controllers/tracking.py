@@ -21,7 +21,7 @@ from wbc.controllers.controller import Controller
 from wbc.force_models.protocol import NormalForceModel
 from wbc.kinematics.tcp_kinematics import TcpKinematics
 from wbc.layout import VariableLayout
-from wbc.qp import build_qp
+from wbc.qp import QPBuilder
 from wbc.solvers import make_solver
 from wbc.tasks import (
     DampingTask,
@@ -79,6 +79,7 @@ class WholeBodyQPController(Controller):
             self.tasks += [SpeedScaleTask(fc.speed_scale_weight),
                            SlackPenaltyTask(fc.slack_linear, fc.slack_quadratic)]
         self.solver = make_solver(cfg.solver, cfg.eps_abs, cfg.eps_rel, cfg.max_iter)
+        self.builder = QPBuilder(self.tasks, self.constraints)
 
     def context(self, state: MachineState) -> QPContext:
         """The QP context of ``state`` (references at the current reference time)."""
@@ -88,7 +89,7 @@ class WholeBodyQPController(Controller):
                                     self._speed_scale)
 
     def _build(self, ctx: QPContext) -> qpsolvers.Problem:
-        return build_qp(ctx, self.tasks, self.constraints)
+        return self.builder.build(ctx)
 
     def _reset(self) -> None:
         self.solver.reset()

@@ -16,7 +16,7 @@ from wbc.errors import ConfigurationError, QPSolveError
 from wbc.layout import VariableLayout
 from wbc.mpc.context import HorizonContext
 from wbc.mpc.prediction import CondensedPrediction
-from wbc.qp import build_qp
+from wbc.qp import QPBuilder
 from wbc.solvers import DaqpBackend, ProxQPWorkspace, QPSolution, QpsolversBackend
 from wbc.tasks.task import Task
 
@@ -73,6 +73,7 @@ class MpcPlanner:
         self.constraints = list(constraints)
         self.solver = solver
         self.regularization = float(regularization)
+        self.builder = QPBuilder(self.tasks, self.constraints, self.regularization)
         self._plan: np.ndarray | None = None  # (N, 9) inputs of the last plan
         self._plan_time = 0.0
 
@@ -132,7 +133,7 @@ class MpcPlanner:
 
     def build(self, ctx: HorizonContext) -> qpsolvers.Problem:
         """The condensed QP of this tick."""
-        return build_qp(ctx, self.tasks, self.constraints, self.regularization)
+        return self.builder.build(ctx)
 
     def solve(self, ctx: HorizonContext, problem: qpsolvers.Problem) -> MpcPlan:
         """Solve and remember the plan (for the next tick's linearization).

@@ -94,9 +94,14 @@ class CondensedPrediction:
         """
         u = np.zeros((self.layout.n_steps, q0.size))
         v = qd0.astype(float).copy()
+        lower = -acceleration
         for k, h in enumerate(self.step_lengths):
-            u[k] = -np.clip(v / h, -acceleration, acceleration)
+            # -clip(v / h, -a, a) as its two ufuncs (no np.clip dispatch per step)
+            np.negative(np.minimum(np.maximum(v / h, lower), acceleration), out=u[k])
             v = v + h * u[k]
+            if not v.any():  # at rest (every v now +0): the later inputs are -0
+                u[k + 1:] = -0.0
+                break
         q, vel = self.trajectory(q0, qd0, u)
         return u, q, vel
 

@@ -52,6 +52,13 @@ def redundant_rows(G: np.ndarray, h: np.ndarray, lb: np.ndarray | None,
     return worst <= h
 
 
+def _senses(size: int, first_equality: int) -> np.ndarray:
+    """DAQP's sense flags (it writes into them): rows from ``first_equality`` on equalities."""
+    sense = np.zeros(size, dtype=np.intc)
+    sense[first_equality:] = _EQUALITY
+    return sense
+
+
 class DaqpBackend:
     """The MPC's QP solver: DAQP with row screening and warm starts (module docstring).
 
@@ -98,30 +105,50 @@ class DaqpBackend:
         H, f = problem.P, problem.q
         n = f.size
         lb, ub = problem.lb, problem.ub
-        G = np.zeros((0, n)) if problem.G is None else problem.G
-        h = np.zeros(0) if problem.h is None else problem.h
-        A = np.zeros((0, n)) if problem.A is None else problem.A
-        b = np.zeros(0) if problem.b is None else problem.b
-        keep = (~redundant_rows(G, h, lb, ub, self.tolerances["primal_tol"])
-                if self.screen and G.shape[0] else np.ones(G.shape[0], bool))
-        rows = np.concatenate([np.flatnonzero(keep), G.shape[0] + np.arange(A.shape[0])])
-        self.rows_kept = int(keep.sum())
-        a_all = np.concatenate([G[keep], A]) if A.shape[0] else G[keep]
-        upper = np.concatenate([np.full(n, _BIG) if ub is None else np.minimum(ub, _BIG),
-                                h[keep], b])
-        lower = np.concatenate([np.full(n, -_BIG) if lb is None else np.maximum(lb, -_BIG),
-                                np.full(int(keep.sum()), -_BIG), b])
-        sense = np.zeros(upper.size, dtype=np.intc)
-        sense[n + self.rows_kept:] = _EQUALITY
-        n_all = n + G.shape[0] + A.shape[0]
+        G, h, A, b = problem.G, problem.h, problem.A, problem.b
+        m_in = 0 if G is None else G.shape[0]
+        m_eq = 0 if A is None else A.shape[0]
+        if self.screen and m_in:
+            kept = np.flatnonzero(~redundant_rows(G, h, lb, ub, self.tolerances["primal_tol"]))
+        else:
+            kept = np.arange(m_in)
+        self.rows_kept = m_k = kept.size
+        # DAQP's rows: the kept inequalities, then the equalities; its bounds [lower, upper]
+        # on x and then on every row (an inequality's lower bound -_BIG), written in place.
+        if m_in == 0:
+            a_all = np.zeros((0, n)) if m_eq == 0 else A
+        elif m_k == m_in:  # nothing screened out: DAQP reads G as it is
+            a_all = G if m_eq == 0 else np.concatenate([G, A])
+        else:
+            a_all = G[kept] if m_eq == 0 else np.concatenate([G[kept], A])
+        a_all = np.ascontiguousarray(a_all)
+        upper = np.empty(n + m_k + m_eq)
+        lower = np.empty(n + m_k + m_eq)
+        if ub is None:
+            upper[:n] = _BIG
+        else:
+            np.minimum(ub, _BIG, out=upper[:n])
+        if lb is None:
+            lower[:n] = -_BIG
+        else:
+            np.maximum(lb, -_BIG, out=lower[:n])
+        if m_k:
+            upper[n:n + m_k] = h if m_k == m_in else h[kept]
+            lower[n:n + m_k] = -_BIG
+        if m_eq:
+            upper[n + m_k:] = b
+            lower[n + m_k:] = b
+        rows = kept if m_eq == 0 else np.concatenate([kept, m_in + np.arange(m_eq)])
+        n_all = n + m_in + m_eq
         warm = (self.warm_start and self._lam is not None and self._lam.size == n_all)
         dual = np.concatenate([self._lam[:n], self._lam[n + rows]]) if warm else None
-        x, _, flag, info = daqp.solve(H, f, a_all, upper, lower, sense.copy(), dual_start=dual,
-                                      **self.tolerances)
+        x, _, flag, info = daqp.solve(H, f, a_all, upper, lower, _senses(upper.size, n + m_k),
+                                      dual_start=dual, **self.tolerances)
         iterations = int(info["iterations"])
         if warm and not (flag > 0 and np.all(np.isfinite(x))):
             warm = False
-            x, _, flag, info = daqp.solve(H, f, a_all, upper, lower, sense.copy(),
+            x, _, flag, info = daqp.solve(H, f, a_all, upper, lower,
+                                          _senses(upper.size, n + m_k),
                                           **self.tolerances)
             iterations += int(info["iterations"])
         elapsed = time.perf_counter() - t0

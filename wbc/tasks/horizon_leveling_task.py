@@ -6,12 +6,12 @@ import numpy as np
 
 from wbc.errors import ConfigurationError
 from wbc.force_models.feedback import DIAGONAL
-from wbc.tasks.task import Task
+from wbc.tasks.task import ConstantJacobianTask
 
 __all__ = ["HorizonLevelingTask"]
 
 
-class HorizonLevelingTask(Task):
+class HorizonLevelingTask(ConstantJacobianTask):
     r"""Warp of the chassis towards the load split with the largest smallest margin.
 
     .. math:: \sum_{k=1}^{N} \Big(\frac{w_k - \delta^*}{F_s}\Big)^2, \qquad
@@ -38,6 +38,10 @@ class HorizonLevelingTask(Task):
     def is_active(self, ctx) -> bool:
         """Active when the context has a warp model."""
         return ctx.warp is not None and float(self.weight) > 0
+
+    def structure_key(self, ctx):
+        """The prediction's structure and the warp matrix (the Jacobian is ``row @ Pq``)."""
+        return (ctx.structure_key, ctx.warp.tobytes(), self.force_scale)
 
     def _row(self, ctx) -> np.ndarray:
         return DIAGONAL @ ctx.warp / (4.0 * self.force_scale)  # (9,)

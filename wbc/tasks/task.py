@@ -61,8 +61,14 @@ class Task(abc.ABC):
 class ConstantJacobianTask(Task):
     """A task whose Jacobian depends only on the context's structure: ``J^T W`` is cached.
 
-    The cache is keyed by ``ctx.structure_key`` (layout and time steps) and the weights.
+    The cache is keyed by `structure_key` (``ctx.structure_key``: layout and time steps)
+    and the weights. The cached ``H`` is read-only: `wbc.qp.QPBuilder` reuses its Hessian
+    sum while the tasks return the same arrays.
     """
+
+    def structure_key(self, ctx):
+        """What the Jacobian depends on (a subclass adds its own constants)."""
+        return ctx.structure_key
 
     def __init__(self, weight=1.0):
         super().__init__(weight)
@@ -73,10 +79,11 @@ class ConstantJacobianTask(Task):
     def compute_qp_objective(self, ctx) -> Objective:
         """(H, c) with ``H`` and ``J^T W`` cached per structure."""
         weight = self.compute_weight(ctx)
-        key = (ctx.structure_key, weight.tobytes())
+        key = (self.structure_key(ctx), weight.tobytes())
         if self._cache_key != key:
             jac = self.compute_jacobian(ctx)
             self._jw = jac.T * weight
             self._H = self._jw @ jac
+            self._H.setflags(write=False)
             self._cache_key = key
         return self._H, self._jw @ self.compute_error(ctx)
