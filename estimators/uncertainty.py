@@ -27,6 +27,8 @@ The controller turns ``sigma`` into its per-wheel margin ``z sigma`` (`force_mar
 
 from __future__ import annotations
 
+import dataclasses
+import math
 from dataclasses import dataclass
 from statistics import NormalDist
 
@@ -78,6 +80,20 @@ class StateUncertainty:
     def exact(cls) -> StateUncertainty:
         """No error at all (the simulator's oracle state)."""
         return cls(np.zeros(N_GENERALIZED), np.zeros(N_INDEPENDENT), np.zeros(2))
+
+    def with_payload_mass(self, payload_mass) -> StateUncertainty:
+        """This uncertainty with another payload std [kg], sharing the (read-only) arrays.
+
+        The observer's per tick: only the payload's std changes, so only it is checked
+        (an invalid one raises as the constructor does).
+        """
+        m = payload_mass
+        if not (type(m) is float and math.isfinite(m) and m >= 0):
+            return dataclasses.replace(self, payload_mass=payload_mass)
+        new = object.__new__(StateUncertainty)
+        new.__dict__.update(self.__dict__)
+        new.__dict__["payload_mass"] = m
+        return new
 
 
 def suspension_sensitivity(estimator, state: MachineState) -> np.ndarray:

@@ -25,10 +25,13 @@ r"""The chassis from its IMU and the wheel-motor speeds: attitude, twist, accele
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from estimators.errors import EstimatorError
-from models.rotations import axis_rotation, cross3
+from estimators.observer._vec3 import cross, norm
+from models.rotations import cross3
 
 __all__ = ["ANGULAR_ACCELERATION_TIME_CONSTANT", "ATTITUDE_TIME_CONSTANT", "BaseFilter",
            "ODOMETRY_ACCELERATION_TIME_CONSTANT"]
@@ -36,13 +39,23 @@ __all__ = ["ANGULAR_ACCELERATION_TIME_CONSTANT", "ATTITUDE_TIME_CONSTANT", "Base
 ATTITUDE_TIME_CONSTANT = 2.0  # [s] the accelerometer's pull on the attitude
 ANGULAR_ACCELERATION_TIME_CONSTANT = 0.03  # [s]
 ODOMETRY_ACCELERATION_TIME_CONSTANT = 0.05  # [s] low-pass of the odometry's speed change
+_EYE = np.eye(3)
+_EYE.flags.writeable = False
+
+# The filter runs once per control tick on 3-vectors: its arithmetic is on Python floats
+# (`_vec3`: the same results as the numpy expressions it replaced, bit for bit).
 
 
-def _exp(w_dt: np.ndarray) -> np.ndarray:
-    angle = float(np.linalg.norm(w_dt))
+def _exp(x: float, y: float, z: float) -> np.ndarray:
+    """``exp([w dt])`` of the rotation vector (x, y, z): Rodrigues (`axis_rotation`)."""
+    angle = norm((x, y, z))
     if angle < 1e-12:
         return np.eye(3)
-    return axis_rotation(w_dt / angle, angle)
+    ax, ay, az = x / angle, y / angle, z / angle
+    n = norm((ax, ay, az))  # `axis_rotation` normalises its axis again
+    ax, ay, az = ax / n, ay / n, az / n
+    k = np.array(((0.0, -az, ay), (az, 0.0, -ax), (-ay, ax, 0.0)))
+    return _EYE + math.sin(angle) * k + (1.0 - math.cos(angle)) * (k @ k)
 
 
 class BaseFilter:
@@ -64,76 +77,101 @@ class BaseFilter:
         self.specific_force = np.array([0.0, 0.0, self.g])
         self.velocity = np.zeros(3)
         self._levelled = False
-        self._odometry_acceleration = np.zeros(3)
-        self._last_rate: np.ndarray | None = None
+        self._odometry_acceleration = (0.0, 0.0, 0.0)
+        self._last_rate: tuple | None = None
         self._last_time: float | None = None
         self._age = 0.0
+        # The float copies of the public arrays (the filter's own arithmetic).
+        self._w = self._alpha = self._v = (0.0, 0.0, 0.0)
+        self._f = (0.0, 0.0, self.g)
 
     def update(self, time: float, rates: np.ndarray, forces: np.ndarray,
                wheel_speeds: np.ndarray | None) -> None:
         """Take one tick's IMU samples ((k, 3) each) and the latest side speeds (2,)."""
-        if rates.shape[0] == 0 or forces.shape[0] == 0:
+        n_w, n_f = rates.shape[0], forces.shape[0]
+        if n_w == 0 or n_f == 0:
             return  # nothing new: keep the state (the caller flags the gap)
-        w = rates.mean(axis=0)
-        f_p = forces.mean(axis=0)
-        if not (np.all(np.isfinite(w)) and np.all(np.isfinite(f_p))):
+        # `mean(axis=0)`: the same sum (numpy's own reduction) over the same count
+        w_arr = np.add.reduce(rates, 0) / n_w
+        f_arr = np.add.reduce(forces, 0) / n_f
+        w = wx, wy, wz = w_arr.tolist()
+        f_p = f_arr.tolist()
+        if not all(map(math.isfinite, w + f_p)):
             raise EstimatorError("IMU samples hold NaN or inf")
         dt = 0.0 if self._last_time is None else max(time - self._last_time, 0.0)
         if not self._levelled:  # first tick: level the attitude on gravity at once
             self._levelled = True
-            self.rotation = _level(f_p)
+            self.rotation = _level(f_arr)
+        alpha = self._alpha
         if dt > 0:
-            self.rotation = self.rotation @ _exp(w * dt)
+            self.rotation = self.rotation @ _exp(wx * dt, wy * dt, wz * dt)
             a = dt / (ANGULAR_ACCELERATION_TIME_CONSTANT + dt)
-            raw = (w - self._last_rate) / dt
-            self.angular_acceleration = self.angular_acceleration + a * (
-                raw - self.angular_acceleration)
-        self.rate = w
-        self._last_rate = w
-        alpha, p = self.angular_acceleration, self.p
-        self.specific_force = f_p - cross3(alpha, p) - cross3(w, cross3(w, p))
-        velocity = self.velocity
-        if wheel_speeds is not None and np.all(np.isfinite(wheel_speeds)):
-            velocity = np.array([self.r_wheel * 0.5 * (wheel_speeds[0] + wheel_speeds[1]),
-                                 0.0, 0.0])
+            (ax, ay, az), (lx, ly, lz) = alpha, self._last_rate
+            alpha = self._alpha = (ax + a * ((wx - lx) / dt - ax), ay + a * ((wy - ly) / dt - ay),
+                                   az + a * ((wz - lz) / dt - az))
+            self.angular_acceleration = np.array(alpha)
+        self._w = self._last_rate = w
+        self.rate = w_arr
+        p = self.p.tolist()
+        (c1x, c1y, c1z), (c2x, c2y, c2z) = cross(alpha, p), cross(w, cross(w, p))
+        fx, fy, fz = f_p
+        f_o = self._f = (fx - c1x - c2x, fy - c1y - c2y, fz - c1z - c2z)
+        self.specific_force = np.array(f_o)
+        velocity = self._v
+        if wheel_speeds is not None:
+            left, right = wheel_speeds.tolist()
+            if math.isfinite(left) and math.isfinite(right):
+                velocity = (self.r_wheel * 0.5 * (left + right), 0.0, 0.0)
         if dt > 0:
             # Gravity in fb as the tick's specific force at the origin less the motion the
             # odometry knows (v_dot along x, w x v): g R^T e_z = f_o - v_dot - w x v.
             c = dt / (ODOMETRY_ACCELERATION_TIME_CONSTANT + dt)
-            self._odometry_acceleration += c * ((velocity - self.velocity) / dt
-                                                - self._odometry_acceleration)
-            gravity = (self.specific_force - self._odometry_acceleration
-                       - cross3(w, velocity))
+            (ox, oy, oz), (vx, vy, vz), (v0x, v0y, v0z) = (self._odometry_acceleration,
+                                                          velocity, self._v)
+            ox, oy, oz = self._odometry_acceleration = (
+                ox + c * ((vx - v0x) / dt - ox), oy + c * ((vy - v0y) / dt - oy),
+                oz + c * ((vz - v0z) / dt - oz))
+            cx, cy, cz = cross(w, velocity)
+            gx, gy, gz = f_o[0] - ox - cx, f_o[1] - oy - cy, f_o[2] - oz - cz
             # Converge fast at start-up (the machine stands while the run gets ready).
             self._age += dt
             b = dt / (min(ATTITUDE_TIME_CONSTANT, 0.05 + self._age) + dt)
-            up_meas = gravity / np.linalg.norm(gravity)
-            up_est = self.rotation[2]  # R^T e_z
+            n = norm((gx, gy, gz))
+            up_meas = (gx / n, gy / n, gz / n)
+            up_est = self.rotation[2].tolist()  # R^T e_z
             # Rotate the estimate by a share of the small angle between the up directions.
-            self.rotation = self.rotation @ _exp(b * cross3(up_meas, up_est))
-            self.rotation = _orthonormal(self.rotation)
-        self.velocity = velocity
+            x, y, z = cross(up_meas, up_est)
+            self.rotation = _orthonormal(self.rotation @ _exp(b * x, b * y, b * z))
+        if velocity is not self._v:
+            self._v = velocity
+            self.velocity = np.array(velocity)
         self._last_time = time
 
     @property
     def twist(self) -> np.ndarray:
         """[v; w] in fb, (6,)."""
-        return np.concatenate([self.velocity, self.rate])
+        return np.array((*self._v, *self._w))
 
     @property
     def acceleration(self) -> np.ndarray:
         """The twist derivative the dynamics get (module docstring), (6,)."""
-        v_dot = (self.specific_force - cross3(self.rate, self.velocity)
-                 - self.g * self.rotation[2])
-        return np.concatenate([v_dot, self.angular_acceleration])
+        up = self.rotation[2].tolist()
+        g = self.g
+        v_dot = tuple(fi - ci - g * ui
+                      for fi, ci, ui in zip(self._f, cross(self._w, self._v), up))
+        return np.array(v_dot + self._alpha)
 
 
 def _orthonormal(r: np.ndarray) -> np.ndarray:
     """The rotation nearest ``r`` for a small drift: rows re-orthonormalised (Gram-Schmidt)."""
-    z = r[2] / np.linalg.norm(r[2])
-    x = r[0] - (r[0] @ z) * z
-    x /= np.linalg.norm(x)
-    return np.vstack([x, cross3(z, x), z])
+    (r0, _, r2) = r.tolist()
+    n = norm(r2)
+    z = [v / n for v in r2]
+    d = r0[0] * z[0] + r0[1] * z[1] + r0[2] * z[2]
+    x = [a - d * b for a, b in zip(r0, z)]
+    n = norm(x)
+    x = [v / n for v in x]
+    return np.array([x, list(cross(z, x)), z])
 
 
 def _level(f: np.ndarray) -> np.ndarray:

@@ -65,18 +65,18 @@ class JointFilter:
         if z.ndim != 2 or z.shape[1] != self.x.shape[0]:
             raise EstimatorError(f"samples must have shape (k, {self.x.shape[0]}), got "
                                  f"{z.shape}")
-        if not np.all(np.isfinite(z)):
+        if not np.isfinite(z).all():
             raise EstimatorError("position samples hold NaN or inf")
         if z.shape[0] == 0:
             return self.x
         if not self.initialized:
             self.x[:, 0] = z[0]
             self.initialized = True
-        ft = self.F.T
+        ft, k = self.F.T, self.K
         x = self.x
         for row in z:
             x = x @ ft
-            x += self.K * (row - x[:, 0])[:, None]
+            x += k * (row - x[:, 0])[:, None]
         self.x = x
         return x
 

@@ -37,22 +37,23 @@ import numpy as np
 from estimators.efforts import ActuatorEfforts
 from estimators.errors import EstimatorError
 from estimators.linearization import N_GENERALIZED
+from estimators.observer._states import machine_state, wheel_contacts, with_fields
+from estimators.observer._vec3 import ground_normal as _ground_normal
+from estimators.observer._vec3 import norm
 from estimators.observer.base_filter import ANGULAR_ACCELERATION_TIME_CONSTANT, BaseFilter
 from estimators.observer.joint_filter import JointFilter
 from estimators.observer.payload_rls import PayloadRLS
 from estimators.uncertainty import StateUncertainty
 from models.coordinates import N_INDEPENDENT
 from models.description import Machine
-from models.rotations import cross3
 from models.sensing import (
     N_LINEAR_AXES,
     PRESSURE_CYLINDERS,
     SensorReadings,
     SensorSpec,
     cylinder_areas,
-    cylinder_force,
 )
-from models.state import N_SERVO_AXES, MachineState, WheelContacts
+from models.state import N_SERVO_AXES, MachineState
 
 __all__ = ["CONTACT_OFF_N", "CONTACT_ON_N", "CONTACT_TICKS", "Observer", "ObserverEstimate"]
 
@@ -68,6 +69,9 @@ EVENT_VARIANCE_SCALE = 0.1  # filtered over raw innovation variance: 0.01 still,
 _PRESS_LIFT_TILT = [PRESSURE_CYLINDERS.index("lift"), PRESSURE_CYLINDERS.index("tilt")]
 _CRANE_CYLINDERS = np.array([2, 3, 4])  # slew, lift, tilt: independent coordinates
 _PRESS_CRANE = [PRESSURE_CYLINDERS.index(c) for c in ("slew", "lift", "tilt")]
+# Per tick the observer works on a handful of numbers: where numpy's per-call cost (~1 us)
+# dominated, the arithmetic is on Python floats in the same order (`_vec3`: the same results,
+# bit for bit); matrix products and solves stay numpy's.
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -148,21 +152,32 @@ class Observer:
             np.sqrt(self._force_std[lt] ** 2 + model_std ** 2
                     + (SLIDING_FRICTION_STD * self._seal[lt]) ** 2),
             self._force_bias[lt], event_variance_scale=EVENT_VARIANCE_SCALE)
-        self._regression: np.ndarray | None = None
-        self._wheel_angle = np.zeros(4)
-        self._wheel_rate = np.zeros(4)
-        self._wheel_acc = np.zeros(4)
+        self._regression: list | None = None
+        self._wheel_angle = [0.0] * 4
+        self._wheel_rate = [0.0] * 4
+        self._wheel_acc = [0.0] * 4
         self._suspension = None
-        self._drive: np.ndarray | None = None
+        self._drive: list | None = None
         wheel = machine.body(machine.wheels[0])
         self._wheel_inertia = float(wheel.inertia.inertia[1, 1] + wheel.joint.armature)
-        self._in_contact = np.ones(4, bool)
-        self._above = np.zeros(4, int)
+        self._in_contact = [True] * 4
+        self._above = [0] * 4
         self._last_time: float | None = None
         self._last: ObserverEstimate | None = None
         self._uncertainty_const = self._uncertainty_parts()
         self._sphere_wheels = bool(getattr(getattr(force_model, "tree", None),
                                            "wheel_is_sphere", True))
+        # Constant per tick: areas, ranges, the error model (checked once), the crane rows.
+        self._area_a, self._area_b = areas[:, 0].copy(), areas[:, 1].copy()
+        self._q_lo = machine.coordinates.lower[:N_SERVO_AXES]
+        self._q_hi = machine.coordinates.upper[:N_SERVO_AXES]
+        accel_std, qd_std = self._uncertainty_const
+        self._uncertainty = StateUncertainty(
+            acceleration=accel_std, qd=qd_std,
+            suspension_force=np.sqrt(self._force_std[:2] ** 2 + self._force_bias[:2] ** 2
+                                     + self._friction_std[:2] ** 2))
+        self._seal_lift_tilt = self._seal[_PRESS_LIFT_TILT].tolist()
+        self._crane_rows: dict[tuple, tuple] = {}
 
     # ------------------------------------------------------------------ uncertainty
     def _uncertainty_parts(self) -> tuple[np.ndarray, np.ndarray]:
@@ -213,74 +228,84 @@ class Observer:
         dt = 0.0 if self._last_time is None else t - self._last_time
         wheels = r.wheel_speeds.value[-1] if len(r.wheel_speeds) else None
         self.base.update(t, r.angular_rate.value, r.specific_force.value, wheels)
-        stale = len(r.positions) == 0 or len(r.pressures) == 0
+        n_press = len(r.pressures)
+        stale = len(r.positions) == 0 or n_press == 0
         if len(r.positions):
             self.joints.update(r.positions.value)
             x = self.joints.predict(max(t - r.positions.time[-1], 0.0))
         else:
             x = self.joints.predict(0.0)
         if wheels is not None:
-            rate = np.array([wheels[0], wheels[0], wheels[1], wheels[1]])  # FL, RL, FR, RR
+            left, right = wheels.tolist()
+            rate = [left, left, right, right]  # FL, RL, FR, RR
             if dt > 0:  # low-passed: the pick-ups' counts are coarse
                 a = dt / (WHEEL_ACCELERATION_TIME_CONSTANT + dt)
-                self._wheel_acc = self._wheel_acc + a * ((rate - self._wheel_rate) / dt
-                                                         - self._wheel_acc)
+                self._wheel_acc = [acc + a * ((w - w0) / dt - acc) for acc, w, w0
+                                   in zip(self._wheel_acc, rate, self._wheel_rate)]
             self._wheel_rate = rate
-        self._wheel_angle = self._wheel_angle + dt * self._wheel_rate
-        if len(r.pressures):
-            forces = cylinder_force(self.machine, r.pressures.value).mean(axis=0)
-            if not np.all(np.isfinite(forces)):
+        self._wheel_angle = [q + dt * w for q, w in zip(self._wheel_angle, self._wheel_rate)]
+        if n_press:  # `cylinder_force`, mean over the tick
+            p = r.pressures.value
+            forces = np.add.reduce(p[:, 0::2] * self._area_a - p[:, 1::2] * self._area_b,
+                                   0) / n_press
+            if not np.isfinite(forces).all():
                 raise EstimatorError("pressure readings hold NaN or inf")
             self._suspension = forces
         forces = self._suspension if self._suspension is not None else np.zeros(5)
-        q = np.concatenate([x[:, 0], self._wheel_angle])
+        q = np.empty(N_INDEPENDENT)
+        q[:N_SERVO_AXES] = np.clip(x[:, 0], self._q_lo, self._q_hi)
+        q[N_SERVO_AXES:] = self._wheel_angle
         qd = np.concatenate([x[:, 1], self._wheel_rate])
-        qdd = np.concatenate([x[:, 2], self._wheel_acc])
-        q[:N_SERVO_AXES] = self.machine.coordinates.clip(q)[:N_SERVO_AXES]
         base = self.base
-        state = MachineState(
-            base_position=np.zeros(3), base_rotation=base.rotation, base_twist=base.twist,
-            base_acceleration=base.acceleration, q=q, qd=qd, qdd=qdd, time=t,
-            suspension_force=forces[:2], servo_setpoint=r.servo_setpoint)
+        state = machine_state(
+            np.zeros(3), base.rotation.copy(), base.twist, base.acceleration, q, qd,
+            np.concatenate([x[:, 2], self._wheel_acc]), t, forces[:2].copy(),
+            r.servo_setpoint)
         # Payload from the lift and tilt cylinders.
         f0, y = self.efforts.payload_regressor(state)
-        measured, band = self._without_seal_friction(forces[_PRESS_LIFT_TILT],
-                                                     state.qd[[_LIFT, _TILT]])
-        self.payload.update(t, dt, *self._filtered(dt, measured, f0[[_LIFT, _TILT]],
-                                                   y[[_LIFT, _TILT]]), band)
+        f = forces.tolist()
+        measured, band = self._without_seal_friction([f[i] for i in _PRESS_LIFT_TILT],
+                                                     (qd[_LIFT], qd[_TILT]))
+        self.payload.update(t, dt, *self._filtered(dt, measured, f0[_LIFT:_TILT + 1],
+                                                   y[_LIFT:_TILT + 1]), band)
         mass = min(max(self.payload.mass, 0.0), 1e4)
         if self.crane_from_pressures:
-            state = state.replace(qdd=self._crane_accelerations(state, forces, mass))
+            state = with_fields(state, qdd=self._crane_accelerations(state, forces, mass))
         self.force_model.payload_mass = mass
         if len(r.drive_torques):
-            self._drive = r.drive_torques.value.mean(axis=0)
+            self._drive = (np.add.reduce(r.drive_torques.value, 0)
+                           / len(r.drive_torques)).tolist()
         # The wheels' centres from the geometry (without contacts the estimator gives their
         # lowest points), the contact points below them along the ground's normal, then the
         # four-wheel forces at those points for the flags.
         lowest = self.force_model.contact_points(state)
         points, normal = self._contact_points(lowest, base.rotation)
-        normals = np.tile(normal, (4, 1))
+        normals = np.array([normal] * 4)
         previous = self._last.forces_four if self._last is not None else np.ones(4)
         traction = np.zeros((4, 3))
         traction[:, 0] = self._longitudinal(previous)
-        all_four = WheelContacts(np.ones(4, bool), traction, points, normals)
-        est = self.force_model.estimate(state.replace(contacts=all_four))
-        four = np.asarray(est.normal_forces, float)
+        all_four = wheel_contacts(np.ones(4, bool), traction, points, normals)
+        four = np.asarray(self._normal_forces(with_fields(state, contacts=all_four)), float)
         self._contacts(four)
         traction = np.zeros((4, 3))
         traction[:, 0] = self._longitudinal(four)
-        contacts = WheelContacts(self._in_contact.copy(), traction, points, normals)
-        state = state.replace(contacts=contacts)
-        accel_std, qd_std = self._uncertainty_const
-        unc = StateUncertainty(
-            acceleration=accel_std, qd=qd_std,
-            suspension_force=np.sqrt(self._force_std[:2] ** 2 + self._force_bias[:2] ** 2
-                                     + self._friction_std[:2] ** 2),
-            payload_mass=self.payload.std)
+        contacts = wheel_contacts(np.array(self._in_contact), traction, points, normals)
+        state = with_fields(state, contacts=contacts)
+        std = self.payload.std
+        unc = self._uncertainty.with_payload_mass(std)
         self._last_time = t
-        self._last = ObserverEstimate(state, mass, self.payload.std, self.payload.event, unc,
-                                      four, stale)
+        self._last = ObserverEstimate(state, mass, std, self.payload.event, unc, four, stale)
         return self._last
+
+    def _normal_forces(self, state: MachineState) -> np.ndarray:
+        """The force model's ``normal_forces`` at ``state``, else its estimate's forces.
+
+        (`estimators.payload.PayloadEstimator`'s mixes only the forces.)
+        """
+        model = self.force_model
+        if hasattr(model, "normal_forces"):
+            return model.normal_forces(state)
+        return model.estimate(state).normal_forces
 
     def _crane_accelerations(self, state: MachineState, forces: np.ndarray,
                              mass: float) -> np.ndarray:
@@ -297,27 +322,40 @@ class Observer:
         2.45 -> 1.49 % on the rough run). A cylinder standing still keeps the encoders'
         value (its seals hold an unknown force up to their rating).
         """
-        speeds = state.qd[_CRANE_CYLINDERS]
-        sliding = np.abs(speeds) > SLIDING_SPEED
+        sliding = tuple(abs(v) > SLIDING_SPEED for v in state.qd[2:5].tolist())
         qdd = state.qdd.copy()
-        if not sliding.any():
+        if not any(sliding):
             return qdd
         self.efforts.payload_mass = mass
         e, e0 = self.efforts.affine(state)
-        rows = _CRANE_CYLINDERS[sliding]
-        free = np.zeros(N_SERVO_AXES, bool)
-        free[rows] = True
-        known = np.flatnonzero(~free)
-        seal = self._seal[_PRESS_CRANE][sliding]
-        rhs = (forces[_PRESS_CRANE][sliding] - seal * np.sign(speeds[sliding]) - e0[rows]
-               - e[np.ix_(rows, known)] @ qdd[known])
+        rows, press, seal, ix_known, ix_rows, known = self._crane_pattern(sliding)
+        speeds = state.qd[rows]
+        rhs = (forces[press] - seal * np.sign(speeds) - e0[rows] - e[ix_known] @ qdd[known])
         try:
-            u = np.linalg.solve(e[np.ix_(rows, rows)], rhs)
+            u = np.linalg.solve(e[ix_rows], rhs)
         except np.linalg.LinAlgError:
             return qdd
-        if np.all(np.isfinite(u)):
+        if np.isfinite(u).all():
             qdd[rows] = u
         return qdd
+
+    def _crane_pattern(self, sliding: tuple) -> tuple:
+        """The index arrays of `_crane_accelerations` for one pattern of sliding cylinders.
+
+        (rows, their pressure channels, seal ratings, the known and the free blocks' index
+        tuples, the known axes); made once per pattern (eight at most).
+        """
+        hit = self._crane_rows.get(sliding)
+        if hit is None:
+            mask = np.array(sliding)
+            rows = _CRANE_CYLINDERS[mask]
+            free = np.zeros(N_SERVO_AXES, bool)
+            free[rows] = True
+            known = np.flatnonzero(~free)
+            hit = self._crane_rows[sliding] = (
+                rows, np.array(_PRESS_CRANE)[mask], self._seal[_PRESS_CRANE][mask],
+                np.ix_(rows, known), np.ix_(rows, rows), known)
+        return hit
 
     def _filtered(self, dt: float, measured, f0, y):
         """The payload regression's three sides through one first-order low-pass.
@@ -327,28 +365,30 @@ class Observer:
         put into ``F_0`` and ``Y`` (the boom's inertia reflected onto the lift stroke makes
         0.04 m/s^2 of noise several kN).
         """
-        now = np.concatenate([measured, f0, y])
+        now = [*measured, *f0.tolist(), *y.tolist()]
         if self._regression is None or not dt > 0:
             self._regression = now
         else:
             a = dt / (PAYLOAD_FILTER_TIME + dt)
-            self._regression = self._regression + a * (now - self._regression)
+            self._regression = [z + a * (n - z) for z, n in zip(self._regression, now)]
         z = self._regression
         return z[:2], z[2:4], z[4:]
 
-    def _without_seal_friction(self, forces: np.ndarray, speeds: np.ndarray):
+    def _without_seal_friction(self, forces, speeds) -> tuple[list, list]:
         """The lift and tilt forces less their seals' friction, and the dead band left [N].
 
         A sliding cylinder's pressures also push its seals' friction, the rating against the
         motion: subtracted, no band. A cylinder standing still holds anything up to the
         rating: a band of the rating about the measured force.
         """
-        seal = self._seal[_PRESS_LIFT_TILT]
-        sliding = np.abs(speeds) > SLIDING_SPEED
-        corrected = forces - np.where(sliding, seal * np.sign(speeds), 0.0)
-        return corrected, np.where(sliding, 0.0, seal)
+        corrected, band = [], []
+        for f, v, seal in zip(forces, speeds, self._seal_lift_tilt):
+            sliding = abs(v) > SLIDING_SPEED
+            corrected.append(f - (math.copysign(seal, v) if sliding else 0.0))
+            band.append(0.0 if sliding else seal)
+        return corrected, band
 
-    def _longitudinal(self, forces: np.ndarray) -> np.ndarray:
+    def _longitudinal(self, forces: np.ndarray) -> list:
         """Each wheel's longitudinal ground force [N] (fb x), from its side's drive torque.
 
         A wheel's spin balance gives the ground's force ``f_x = (tau - I_w w_dot) / r``; a
@@ -358,20 +398,22 @@ class Observer:
         turning costs the cylinder-force row 6.5 % of the static wheel load (measured on
         the flat run), with it 0.8 %.
         """
-        out = np.zeros(4)
+        out = [0.0] * 4
         if self._drive is None:
             return out
         r = self.machine.wheel_radius
+        fz = forces.tolist()
+        acc = self._wheel_acc
         for side, (a, b) in enumerate(((0, 1), (2, 3))):
-            total = (self._drive[side] - self._wheel_inertia * (self._wheel_acc[a]
-                                                                 + self._wheel_acc[b])) / r
-            fz = np.maximum(forces[[a, b]], 0.0)
-            share = fz / fz.sum() if fz.sum() > 0 else np.full(2, 0.5)
-            out[[a, b]] = total * share
+            total = (self._drive[side] - self._wheel_inertia * (acc[a] + acc[b])) / r
+            fa, fb = max(fz[a], 0.0), max(fz[b], 0.0)  # NaN stays, as np.maximum's
+            s = fa + fb
+            share = (fa / s, fb / s) if s > 0 else (0.5, 0.5)
+            out[a], out[b] = total * share[0], total * share[1]
         return out
 
     def _contact_points(self, lowest: np.ndarray,
-                        rotation: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+                        rotation: np.ndarray) -> tuple[np.ndarray, list]:
         """Each wheel's contact point in fb (4, 3), and the ground's normal (3,).
 
         The estimator's geometry gives the wheel's point lowest along gravity (in the
@@ -385,38 +427,23 @@ class Observer:
         opposition) 4.5 deg against the chassis normal's 10.0, rough run 2.3 against 3.6,
         flat 0.003 against 2.2 (the chassis pitches with the bogie strokes).
         """
-        up = rotation[2].copy()
+        up = rotation[2].tolist()
         if not self._sphere_wheels:
             up[1] = 0.0
-            up /= np.linalg.norm(up)
+            n = norm(up)
+            up = [v / n for v in up]
         r = self.machine.wheel_radius
-        centre = lowest + r * up
-        normal = _ground_normal(centre, self._in_contact)
+        centre = lowest + r * np.array(up)
+        normal = _ground_normal(centre.tolist(), self._in_contact)
         if not self._sphere_wheels:  # a disc touches in its own plane
             normal[1] = 0.0
-            normal /= np.linalg.norm(normal)
-        return centre - r * normal, normal
+            n = norm(normal)
+            normal = [v / n for v in normal]
+        return centre - r * np.array(normal), normal
 
     def _contacts(self, forces: np.ndarray) -> None:
-        self._above = np.where(forces > CONTACT_ON_N, self._above + 1, 0)
-        back = ~self._in_contact & (self._above >= CONTACT_TICKS)
-        self._in_contact = (self._in_contact & (forces >= CONTACT_OFF_N)) | back
+        above = [n + 1 if f > CONTACT_ON_N else 0 for n, f in zip(self._above, forces.tolist())]
+        self._above = above
+        self._in_contact = [(c and f >= CONTACT_OFF_N) or (not c and n >= CONTACT_TICKS)
+                            for c, f, n in zip(self._in_contact, forces.tolist(), above)]
 
-
-def _ground_normal(centres: np.ndarray, touching: np.ndarray) -> np.ndarray:
-    """The unit normal (fb, z up) of the plane through the touching wheels' centres.
-
-    ``centres`` (4, 3) in the order FL, RL, FR, RR; fb's z with fewer than three touching.
-    """
-    idx = np.flatnonzero(touching)
-    if idx.size == 4:  # the quad FL, FR, RR, RL: its diagonals' cross product
-        n = cross3(centres[3] - centres[0], centres[1] - centres[2])
-    elif idx.size == 3:
-        a, b, c = centres[idx]
-        n = cross3(b - a, c - a)
-    else:
-        return np.array([0.0, 0.0, 1.0])
-    norm = float(np.linalg.norm(n))
-    if not norm > 1e-9:
-        return np.array([0.0, 0.0, 1.0])
-    return n / norm if n[2] > 0 else -n / norm

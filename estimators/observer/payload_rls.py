@@ -17,6 +17,8 @@ Its standard deviation: the RLS covariance and a floor for what averaging does n
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 __all__ = ["EVENT_CHI2", "EVENT_TICKS", "FORGETTING_TIME", "PayloadRLS"]
@@ -27,6 +29,22 @@ EVENT_TICKS = 5
 _RESET_STD = 300.0  # [kg] after an event
 _MIN_SENSITIVITY = 5.0  # [N/kg] below this the cylinders do not see the payload
 _UNUSED_VARIANCE = 1e18  # [N^2] a cylinder inside its dead band this tick
+
+# Two cylinders, once per control tick: the arithmetic is on Python floats in the order of
+# the numpy expressions it replaced (the same results, bit for bit, ~1 us less per operation);
+# the 2x2 solves stay LAPACK's.
+
+
+def _gain(y0: float, y1: float, p, r0: float, r1: float, rhs) -> np.ndarray:
+    """``solve(outer(y, y) p + diag(r), rhs)``."""
+    yy = y0 * y1 * p
+    s = np.array([[y0 * y0 * p + r0, yy + 0.0], [yy + 0.0, y1 * y1 * p + r1]])
+    return np.linalg.solve(s, rhs)
+
+
+def _sign(x: float) -> float:
+    """``np.sign`` of a float (NaN stays NaN)."""
+    return 1.0 if x > 0 else -1.0 if x < 0 else x * 0.0 if x != x else 0.0
 
 
 class PayloadRLS:
@@ -50,12 +68,11 @@ class PayloadRLS:
         self.R = np.asarray(force_std, float) ** 2
         self.bias_std = np.asarray(bias_std, float)
         self._run = 0
-        self._last_y = np.zeros(2)
+        self._y = (0.0, 0.0)
         self.event: str | None = None
         self.event_time: float | None = None
 
-    def update(self, time: float, dt: float, measured: np.ndarray, f0: np.ndarray,
-               y: np.ndarray, band: np.ndarray | None = None) -> None:
+    def update(self, time: float, dt: float, measured, f0, y, band=None) -> None:
         """One tick: measured forces (2,), and ``F_0``, ``Y`` of the two cylinders (2,).
 
         ``band`` (2,) [N]: a dead band about each measured force (a standing cylinder's
@@ -64,46 +81,57 @@ class PayloadRLS:
         lies inside its band is skipped, forgetting included: no information, no loss.
         """
         self.event = None
-        self._last_y = y
-        if np.abs(y).max() < _MIN_SENSITIVITY or not np.all(np.isfinite(measured)):
+        y0, y1 = self._y = tuple(_floats(y))
+        m0, m1 = _floats(measured)
+        if _insensitive(y0, y1) or not (math.isfinite(m0) and math.isfinite(m1)):
             return
-        nu = measured - f0 - y * self.mass
-        r = self.R.copy()
+        f00, f01 = _floats(f0)
+        mass = self.mass
+        nu = [m0 - f00 - y0 * mass, m1 - f01 - y1 * mass]
+        r = self.R.tolist()
         if band is not None:
-            inside = np.abs(nu) <= band
-            if inside.all():
+            inside = [abs(n) <= b for n, b in zip(nu, _floats(band))]
+            if all(inside):
                 self._run = 0
                 return
-            nu = np.where(inside, 0.0, nu - np.sign(nu) * band)
-            r[inside] = _UNUSED_VARIANCE
+            nu = [0.0 if i else n - _sign(n) * b for i, n, b in zip(inside, nu, _floats(band))]
+            r = [_UNUSED_VARIANCE if i else ri for i, ri in zip(inside, r)]
         lam = np.exp(-dt / FORGETTING_TIME) if dt > 0 else 1.0
         p = self.P / lam
-        s = np.outer(y, y) * p + np.diag(r)
-        s_event = np.outer(y, y) * p + np.diag(r * self.event_variance_scale)
-        chi2 = float(nu @ np.linalg.solve(s_event, nu))
+        scale = self.event_variance_scale
+        x = _gain(y0, y1, p, r[0] * scale, r[1] * scale, nu).tolist()
+        chi2 = float(nu[0] * x[0] + nu[1] * x[1])
         self._run = self._run + 1 if chi2 > EVENT_CHI2 else 0
-        if self._run >= EVENT_TICKS:
-            old = self.mass
+        event = self._run >= EVENT_TICKS
+        if event:
             p = _RESET_STD ** 2
             self._run = 0
-            # one step with the reset covariance moves the mass to the new load
-            s = np.outer(y, y) * p + np.diag(r)
-            k = p * np.linalg.solve(s, y)
-            self.mass = self.mass + float(k @ nu)
-            self.event = "pick" if self.mass > old else "release"
+        # one step (with the reset covariance after an event: moves the mass to the new load)
+        k0, k1 = (p * _gain(y0, y1, p, r[0], r[1], [y0, y1])).tolist()
+        self.mass = mass + float(k0 * nu[0] + k1 * nu[1])
+        self.P = float(p - p * (k0 * y0 + k1 * y1))
+        if event:
+            self.event = "pick" if self.mass > mass else "release"
             self.event_time = time
-            self.P = float(p - p * (k @ y))
-            return
-        k = p * np.linalg.solve(s, y)
-        self.mass = self.mass + float(k @ nu)
-        self.P = float(p - p * (k @ y))
 
     @property
     def std(self) -> float:
         """Std of the mass [kg]: the covariance and the offsets' floor."""
-        y = self._last_y
+        y0, y1 = self._y
         floor = 0.0
-        if np.abs(y).max() >= _MIN_SENSITIVITY:
-            w = y / self.R
-            floor = float(np.sqrt(np.sum((w * self.bias_std) ** 2)) / (w @ y))
-        return float(np.sqrt(self.P + floor ** 2))
+        if y0 == y0 and y1 == y1 and not _insensitive(y0, y1):
+            (r0, r1), (b0, b1) = self.R.tolist(), self.bias_std.tolist()
+            w0, w1 = y0 / r0, y1 / r1
+            a0, a1 = w0 * b0, w1 * b1
+            floor = float(math.sqrt(a0 * a0 + a1 * a1) / (w0 * y0 + w1 * y1))
+        return float(math.sqrt(self.P + floor ** 2))
+
+
+def _insensitive(y0: float, y1: float) -> bool:
+    """``max |Y| < _MIN_SENSITIVITY`` (False with a NaN, as numpy's ``max``)."""
+    return abs(y0) < _MIN_SENSITIVITY and abs(y1) < _MIN_SENSITIVITY
+
+
+def _floats(x) -> list:
+    """A 2-vector (array or sequence) as Python floats."""
+    return x.tolist() if isinstance(x, np.ndarray) else [float(v) for v in x]
