@@ -208,8 +208,7 @@ class Observer:
     def update(self, readings: SensorReadings) -> ObserverEstimate:
         """One control tick (module docstring).
 
-        A reading that holds NaN or inf is refused: the previous estimate is returned,
-        marked ``stale`` (the caller may hold or brake).
+        A reading with NaN or inf is refused: the last estimate comes back marked ``stale``.
 
         Raises:
             EstimatorError: Not `SensorReadings`, or a non-finite reading before any good one.
@@ -224,6 +223,8 @@ class Observer:
             return dataclasses.replace(self._last, stale=True)
 
     def _update(self, r: SensorReadings) -> ObserverEstimate:
+        if not all(np.isfinite(s.value).all() for s in (r.wheel_speeds, r.drive_torques)):
+            raise EstimatorError("wheel-speed or drive-torque readings hold NaN or inf")
         t = r.time
         dt = 0.0 if self._last_time is None else t - self._last_time
         wheels = r.wheel_speeds.value[-1] if len(r.wheel_speeds) else None
@@ -442,8 +443,8 @@ class Observer:
         return centre - r * np.array(normal), normal
 
     def _contacts(self, forces: np.ndarray) -> None:
-        above = [n + 1 if f > CONTACT_ON_N else 0 for n, f in zip(self._above, forces.tolist())]
-        self._above = above
-        self._in_contact = [(c and f >= CONTACT_OFF_N) or (not c and n >= CONTACT_TICKS)
-                            for c, f, n in zip(self._in_contact, forces.tolist(), above)]
+        f = forces.tolist()
+        self._above = above = [n + 1 if x > CONTACT_ON_N else 0 for n, x in zip(self._above, f)]
+        self._in_contact = [(c and x >= CONTACT_OFF_N) or (not c and n >= CONTACT_TICKS)
+                            for c, x, n in zip(self._in_contact, f, above)]
 
