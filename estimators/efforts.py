@@ -22,8 +22,6 @@ ground); the MPC bounds the crane's efforts.
 
 from __future__ import annotations
 
-import functools
-
 import numpy as np
 import pinocchio as pin
 
@@ -37,10 +35,14 @@ from models.state import N_SERVO_AXES, MachineState
 __all__ = ["ActuatorEfforts", "effort_ranges"]
 
 
-@functools.cache
-def _upper(n: int) -> np.ndarray:
-    """Mask of the upper triangle (diagonal included) of an (n, n) matrix."""
-    return np.triu(np.ones((n, n), bool))
+def _upper_entries(idx: np.ndarray, n: int) -> np.ndarray:
+    """Flat indices of the ``[idx, idx]`` block of an (n, n) matrix, in its upper triangle.
+
+    ``M.take(...)`` is then the block of the symmetric matrix whose upper triangle (diagonal
+    included) ``M`` holds: one gather instead of a symmetrized copy and a block index.
+    """
+    i, j = np.meshgrid(idx, idx, indexing="ij")
+    return np.minimum(i, j) * n + np.maximum(i, j)
 
 
 def effort_ranges(machine: Machine) -> tuple[np.ndarray, np.ndarray]:
@@ -68,6 +70,8 @@ class ActuatorEfforts:
     def __init__(self, machine: Machine, payload_mass: float | None = None):
         self.machine = machine
         self._pair = payload_pair(machine)
+        self._mass_entries = [_upper_entries(pm._tree_v_idx, pm.model.nv) for pm in self._pair]
+        self._tree_map()
         self._motion_of: MachineState | None = None  # `_tree_motion`'s last state and result
         self._motion: tuple | None = None
         body = next(b for b in machine.bodies if b.name == machine.payload)
@@ -85,6 +89,23 @@ class ActuatorEfforts:
             raise EstimatorError(f"payload_mass must be a finite mass >= 0 [kg], got {value!r}")
         self._mass = m
 
+    def _tree_map(self) -> None:
+        """What `_tree_motion` takes from the coordinates, once.
+
+        The directly driven joints (tree index, coordinate index), the chains (coordinate,
+        chain, tree indices of its driven joint, barrel and piston) and the Jacobian's
+        constant entries (1 on the direct joints and the pistons).
+        """
+        coords = self._pair[0].coordinates
+        self._direct = np.array(coords._direct, int).reshape(-1, 2).T  # (i's, j's)
+        self._chains = [(i, b.chain, coords.index[b.driven_joint], coords.index[b.barrel],
+                         coords.index[b.piston]) for i, b in coords._chains]
+        self._jac_constant = np.zeros((coords.n_tree, N_INDEPENDENT))
+        for i, j in coords._direct:
+            self._jac_constant[j, i] = 1.0
+        for i, _, _, _, piston in self._chains:
+            self._jac_constant[piston, i] = 1.0
+
     def _tree_motion(self, state: MachineState):
         """(q, v, a, J_axes): Pinocchio's configuration with the axes' accelerations zero.
 
@@ -96,23 +117,21 @@ class ActuatorEfforts:
         if self._motion_of is state:
             return self._motion
         pm = self._pair[0]
-        coords = pm.coordinates
-        q_ind, qd_ind = state.q, state.qd
-        n_tree = coords.n_tree
-        jac = np.zeros((n_tree, N_INDEPENDENT))
-        q_tree = np.zeros(n_tree)
-        jdot_qd = np.zeros(n_tree)
-        for i, j in coords._direct:
-            jac[j, i] = 1.0
-            q_tree[j] = q_ind[i]
-        for i, b in coords._chains:
-            c = b.chain.state(q_ind[i], check=False)
-            d, br, pi = (coords.index[b.driven_joint], coords.index[b.barrel],
-                         coords.index[b.piston])
-            q_tree[d], q_tree[br], q_tree[pi] = c.theta, c.theta_barrel, q_ind[i]
-            jac[d, i], jac[br, i], jac[pi, i] = c.k[0], c.k[1], 1.0
-            jdot_qd[d] = c.dk_dx[0] * qd_ind[i] * qd_ind[i]
-            jdot_qd[br] = c.dk_dx[1] * qd_ind[i] * qd_ind[i]
+        jac = self._jac_constant.copy()
+        q_tree = np.zeros(jac.shape[0])
+        jdot_qd = np.zeros(jac.shape[0])
+        direct_i, direct_j = self._direct
+        q_tree[direct_j] = state.q[direct_i]
+        # The chains' scalar arithmetic on Python floats (the same IEEE operations, faster
+        # than on numpy scalars).
+        q_ind, qd_ind = state.q.tolist(), state.qd.tolist()
+        for i, chain, d, br, pi in self._chains:
+            x, xd = q_ind[i], qd_ind[i]
+            c = chain.state(x, check=False)
+            q_tree[d], q_tree[br], q_tree[pi] = c.theta, c.theta_barrel, x
+            jac[d, i], jac[br, i] = c.k[0], c.k[1]
+            jdot_qd[d] = c.dk_dx[0] * xd * xd
+            jdot_qd[br] = c.dk_dx[1] * xd * xd
         q = np.zeros(pm.model.nq)
         v = np.zeros(pm.model.nv)
         a = np.zeros(pm.model.nv)
@@ -120,7 +139,7 @@ class ActuatorEfforts:
         q[3:7] = pin.Quaternion(state.base_rotation).normalized().coeffs()
         q[pm._tree_q_idx] = q_tree
         v[:6] = state.base_twist
-        v[pm._tree_v_idx] = jac @ qd_ind
+        v[pm._tree_v_idx] = jac @ state.qd
         a[:6] = state.base_acceleration
         qdd_rest = np.array(state.qdd, float)
         qdd_rest[:N_SERVO_AXES] = 0.0
@@ -129,13 +148,12 @@ class ActuatorEfforts:
         return self._motion
 
     @staticmethod
-    def _one(pm, q, v, a, ja) -> tuple[np.ndarray, np.ndarray]:
-        idx = pm._tree_v_idx
-        tau = pin.rnea(pm.model, pm.data, q, v, a)[idx]
+    def _one(pm, mass_entries, q, v, a, ja) -> tuple[np.ndarray, np.ndarray]:
+        tau = pin.rnea(pm.model, pm.data, q, v, a)[pm._tree_v_idx]
         # E = J_a^T M J_a from Pinocchio's CRBA, whose upper triangle is what it guarantees
-        # (the model's joints are depth-first, as CRBA needs).
-        mass = pin.crba(pm.model, pm.data, q)
-        mass = np.where(_upper(mass.shape[0]), mass, mass.T)[np.ix_(idx, idx)]
+        # (the model's joints are depth-first, as CRBA needs): ``mass_entries`` reads the
+        # tree's block from it (`_upper_entries`).
+        mass = pin.crba(pm.model, pm.data, q).take(mass_entries)
         return ja.T @ mass @ ja, ja.T @ tau
 
     def affine(self, state: MachineState) -> tuple[np.ndarray, np.ndarray]:
@@ -147,7 +165,8 @@ class ActuatorEfforts:
         if not isinstance(state, MachineState):
             raise EstimatorError(f"expected a MachineState, got {type(state).__name__}")
         motion = self._tree_motion(state)
-        (e1, f1), (e2, f2) = (self._one(pm, *motion) for pm in self._pair)
+        (e1, f1), (e2, f2) = (self._one(pm, entries, *motion)
+                              for pm, entries in zip(self._pair, self._mass_entries))
         m1, m2 = PAYLOAD_PAIR_MASSES
         w = (self._mass - m1) / (m2 - m1)
         return e1 + w * (e2 - e1), f1 + w * (f2 - f1)

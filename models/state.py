@@ -246,6 +246,25 @@ class MachineState:
             _set(self, "servo_setpoint",
                  frozen_array("servo_setpoint", self.servo_setpoint, (N_SERVO_AXES,)))
 
+    @classmethod
+    def _trusted(cls, base_position, base_rotation, base_twist, base_acceleration, q, qd,
+                 qdd, time: float, contacts: WheelContacts | None = None,
+                 suspension_force=None, servo_setpoint=None) -> MachineState:
+        """A state of fields already valid, without the checks and copies of construction.
+
+        Private: for the many states per tick a controller derives from a validated one
+        (the MPC's nominal states), from float arrays of the documented shapes it built
+        itself. The arrays are frozen in place and shared; public paths keep validating.
+        """
+        values = (base_position, base_rotation, base_twist, base_acceleration, q, qd, qdd,
+                  float(time), contacts, suspension_force, servo_setpoint)
+        for value in values:
+            if type(value) is np.ndarray:
+                value.setflags(write=False)
+        new = object.__new__(cls)
+        new.__dict__.update(zip(_STATE_NAMES, values))  # what a frozen dataclass holds
+        return new
+
     def replace(self, **changes) -> MachineState:
         """A copy with ``changes``, as `dataclasses.replace`, checking only what changed.
 

@@ -38,13 +38,8 @@ def machine_state(base_position: np.ndarray, base_rotation: np.ndarray,
         return MachineState(base_position, base_rotation, base_twist, base_acceleration, q,
                             qd, qdd, float(time), None, suspension_force, servo_setpoint)
     check_rotation("base_rotation", base_rotation)
-    _freeze(*floats)
-    state = object.__new__(MachineState)
-    state.__dict__.update(
-        base_position=base_position, base_rotation=base_rotation, base_twist=base_twist,
-        base_acceleration=base_acceleration, q=q, qd=qd, qdd=qdd, time=float(time),
-        contacts=None, suspension_force=suspension_force, servo_setpoint=servo_setpoint)
-    return state
+    return MachineState._trusted(base_position, base_rotation, base_twist, base_acceleration,
+                                 q, qd, qdd, time, None, suspension_force, servo_setpoint)
 
 
 def with_fields(state: MachineState, **changes) -> MachineState:

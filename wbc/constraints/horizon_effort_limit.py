@@ -21,12 +21,10 @@ from __future__ import annotations
 import numpy as np
 
 from estimators.efforts import ActuatorEfforts, effort_ranges
-from models.coordinates import N_INDEPENDENT, WHEELS
-from models.state import MachineState
 from wbc.axes import CRANE_AXES, N_AXES
 from wbc.constraints.constraint import Constraint, Inequality
 from wbc.errors import ConfigurationError
-from wbc.mpc.prediction import predict_base_pose
+from wbc.mpc.prediction import nominal_state
 
 __all__ = ["HorizonEffortLimit"]
 
@@ -59,15 +57,6 @@ class HorizonEffortLimit(Constraint):
         self._scale = np.maximum(hi, -lo)[self.axes]
         self._structure_cache: tuple | None = None
         self.last_efforts: np.ndarray | None = None
-
-    def _nominal_state(self, ctx, t: float, q_axes, qd_axes) -> MachineState:
-        st = ctx.state
-        pos, rot = predict_base_pose(st, t)
-        q, qd = st.q.copy(), st.qd.copy()
-        q[:N_AXES], qd[:N_AXES] = q_axes, qd_axes
-        q[WHEELS] += t * st.qd[WHEELS]
-        return MachineState(pos, rot, st.base_twist, np.zeros(6), q, qd,
-                            np.zeros(N_INDEPENDENT), st.time + t)
 
     def _structure(self, ctx) -> tuple:
         """What the layout and step lengths fix, built once for them.
@@ -105,7 +94,7 @@ class HorizonEffortLimit(Constraint):
         maps = []
         for j in steps:
             st = (ctx.state if j == 0 else
-                  self._nominal_state(ctx, pred.start_times[j], qn[j], vn[j]))
+                  nominal_state(ctx.state, pred.start_times[j], qn[j], vn[j]))
             maps.append(self.efforts.affine(st))
         ax = self.axes
         na_b = ax.size

@@ -7,15 +7,14 @@ from types import SimpleNamespace
 import numpy as np
 
 from estimators.linearization import ForceLinearization
-from models.coordinates import N_INDEPENDENT, WHEELS
-from models.state import MachineState
+from models.coordinates import N_INDEPENDENT
 from wbc.axes import N_AXES, SUSPENSION_AXES
 from wbc.constraints.force_rows import ForceRowsConstraint
 from wbc.drive_model import speed_scale_direction
 from wbc.errors import ConfigurationError
 from wbc.force_models.feedback import DIAGONAL
 from wbc.force_models.protocol import NormalForceModel, contact_flags, linearize_forces
-from wbc.mpc.prediction import predict_base_pose
+from wbc.mpc.prediction import nominal_state
 
 __all__ = ["HorizonNormalForceConstraint"]
 
@@ -147,17 +146,6 @@ class HorizonNormalForceConstraint(ForceRowsConstraint):
                 later=times[:n_eval][nodes] > ctx.dt / 2))
         return self._structure_cache[1]
 
-    def _nominal_state(self, ctx, t: float, q_axes, qd_axes) -> MachineState:
-        st = ctx.state
-        pos, rot = predict_base_pose(st, t)
-        q = st.q.copy()
-        qd = st.qd.copy()
-        q[:N_AXES], qd[:N_AXES] = q_axes, qd_axes
-        q[WHEELS] += t * st.qd[WHEELS]
-        return MachineState(pos, rot, st.base_twist, np.zeros(6), q, qd,
-                            np.zeros(N_INDEPENDENT), st.time + t, st.contacts,
-                            st.suspension_force)
-
     def linearize(self, ctx) -> tuple[np.ndarray, list[ForceLinearization], np.ndarray,
                                       np.ndarray]:
         """Evaluate the model along the nominal trajectory.
@@ -174,7 +162,7 @@ class HorizonNormalForceConstraint(ForceRowsConstraint):
         steps = self._structure(ctx).steps
         lins = []
         for j in steps:
-            st = ctx.state if j == 0 else self._nominal_state(ctx, start[j], qn[j], vn[j])
+            st = ctx.state if j == 0 else nominal_state(ctx.state, start[j], qn[j], vn[j])
             lins.append(linearize_forces(self.model, st))
         return steps, lins, qn, vn
 

@@ -220,7 +220,7 @@ class Controller(abc.ABC):
             clock = self._clock[key]
             p, _, _ = ref.sample(clock[0])
             err = float(np.max(np.abs(p - state.q[ref.axes])))
-            clock[1] = float(np.clip(2.0 * (1.0 - err / e_g), 0.0, 1.0))
+            clock[1] = float(min(max(2.0 * (1.0 - err / e_g), 0.0), 1.0))  # a scalar clip
             clock[0] += clock[1] * elapsed
 
     def reference_at(self, offsets) -> ReferenceSample:

@@ -20,10 +20,17 @@ from __future__ import annotations
 import numpy as np
 import pinocchio as pin
 
+from models.coordinates import N_INDEPENDENT, WHEELS
 from models.state import MachineState
+from wbc.axes import N_AXES
 from wbc.layout import VariableLayout
 
-__all__ = ["CondensedPrediction", "predict_base_pose"]
+__all__ = ["CondensedPrediction", "nominal_state", "predict_base_pose"]
+
+_ZEROS_6 = np.zeros(6)
+_ZEROS_6.flags.writeable = False
+_ZEROS_Q = np.zeros(N_INDEPENDENT)
+_ZEROS_Q.flags.writeable = False
 
 
 class CondensedPrediction:
@@ -78,7 +85,9 @@ class CondensedPrediction:
     def free_response(self, q0: np.ndarray, qd0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Node positions and velocities at zero input, shapes (N, n_axes)."""
         q = q0[None, :] + self.times[:, None] * qd0[None, :]
-        return q, np.broadcast_to(qd0, q.shape).copy()
+        v = np.empty(q.shape, qd0.dtype)
+        v[:] = qd0  # every node at the initial velocity
+        return q, v
 
     def trajectory(self, q0, qd0, inputs) -> tuple[np.ndarray, np.ndarray]:
         """Node positions and velocities for inputs (N, n_axes): shapes (N, n_axes)."""
@@ -114,3 +123,19 @@ def predict_base_pose(state: MachineState, t: float) -> tuple[np.ndarray, np.nda
     m0 = pin.SE3(state.base_rotation, state.base_position)
     mt = m0 * pin.exp6(pin.Motion(state.base_twist * t))
     return mt.translation.copy(), mt.rotation.copy()
+
+
+def nominal_state(state: MachineState, t: float, q_axes: np.ndarray,
+                  qd_axes: np.ndarray) -> MachineState:
+    """The state ``t`` [s] after ``state`` on a nominal trajectory (a linearization point).
+
+    The axes at ``q_axes, qd_axes`` (9,), the base at its constant twist, the wheels at
+    constant speed, no accelerations, the measurements carried over. Built from ``state``'s
+    validated fields, so not validated again (the constraints build several per tick).
+    """
+    pos, rot = predict_base_pose(state, t)
+    q, qd = state.q.copy(), state.qd.copy()
+    q[:N_AXES], qd[:N_AXES] = q_axes, qd_axes
+    q[WHEELS] += t * state.qd[WHEELS]
+    return MachineState._trusted(pos, rot, state.base_twist, _ZEROS_6, q, qd, _ZEROS_Q,
+                                 state.time + t, state.contacts, state.suspension_force)

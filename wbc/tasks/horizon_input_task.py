@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from wbc.tasks.task import ConstantJacobianTask
+from wbc.tasks.task import ConstantJacobianTask, step_weights
 
 __all__ = ["HorizonInputTask"]
 
@@ -18,8 +18,7 @@ class HorizonInputTask(ConstantJacobianTask):
 
     def compute_weight(self, ctx) -> np.ndarray:
         """Per-axis weight repeated over the steps."""
-        w = np.broadcast_to(self.weight, (ctx.layout.n_axes,))
-        return np.tile(w, ctx.layout.n_steps)
+        return step_weights(self.weight, ctx.layout)
 
     def compute_error(self, ctx) -> np.ndarray:
         """``-a_ref`` at the step start times."""

@@ -36,6 +36,10 @@ class HorizonTrackingTask(ConstantJacobianTask):
         if not terminal_factor >= 1:
             raise ConfigurationError(f"terminal_factor must be >= 1, got {terminal_factor}")
         self.terminal_factor = float(terminal_factor)
+        a = self.axes  # consecutive axes are read as a slice (views, no index copies)
+        self._columns = (slice(int(a[0]), int(a[-1]) + 1)
+                         if a.size and np.all(np.diff(a) == 1) else a)
+        self._weight_cache: tuple | None = None
         super().__init__(1.0)
 
     def _rows(self, ctx) -> np.ndarray:
@@ -44,16 +48,25 @@ class HorizonTrackingTask(ConstantJacobianTask):
                 + self.axes[None, :]).ravel()
 
     def compute_weight(self, ctx) -> np.ndarray:
-        """Per-row weights: positions then velocities, node-major, terminal node scaled."""
+        """Per-row weights: positions then velocities, node-major, terminal node scaled.
+
+        Read-only, built again only when N or a weight changes (asked every tick).
+        """
         N = ctx.layout.n_steps
-        c = np.ones(N)
-        c[-1] = self.terminal_factor
-        return np.concatenate([(c[:, None] * self.position_weight).ravel(),
-                               (c[:, None] * self.velocity_weight).ravel()])
+        key = (N, self.terminal_factor, self.position_weight.tobytes(),
+               self.velocity_weight.tobytes())
+        if self._weight_cache is None or self._weight_cache[0] != key:
+            c = np.ones(N)
+            c[-1] = self.terminal_factor
+            w = np.concatenate([(c[:, None] * self.position_weight).ravel(),
+                                (c[:, None] * self.velocity_weight).ravel()])
+            w.setflags(write=False)
+            self._weight_cache = (key, w)
+        return self._weight_cache[1]
 
     def compute_error(self, ctx) -> np.ndarray:
         """Zero-input prediction minus reference, positions then velocities."""
-        i = self.axes
+        i = self._columns
         ref = ctx.reference
         return np.concatenate([(ctx.free_positions[:, i] - ref.position[1:, i]).ravel(),
                                (ctx.free_velocities[:, i] - ref.velocity[1:, i]).ravel()])

@@ -3,14 +3,30 @@
 from __future__ import annotations
 
 import abc
+import functools
 
 import numpy as np
 
 from wbc.errors import ConfigurationError
 
-__all__ = ["Objective", "Task"]
+__all__ = ["Objective", "Task", "step_weights"]
 
 Objective = tuple[np.ndarray, np.ndarray]
+
+
+@functools.lru_cache(maxsize=32)
+def _tiled(weight: bytes, n_axes: int, n_steps: int) -> np.ndarray:
+    w = np.tile(np.broadcast_to(np.frombuffer(weight), (n_axes,)), n_steps)
+    w.setflags(write=False)
+    return w
+
+
+def step_weights(weight: np.ndarray, layout) -> np.ndarray:
+    """A weight (scalar or per axis) repeated over the layout's steps, (n_axes n_steps,).
+
+    Read-only, and built once per weight and layout size (the MPC's tasks ask every tick).
+    """
+    return _tiled(np.asarray(weight, float).tobytes(), layout.n_axes, layout.n_steps)
 
 
 class Task(abc.ABC):
