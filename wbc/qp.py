@@ -11,20 +11,7 @@ from wbc.constraints.constraint import Box, Constraint, Inequality
 from wbc.errors import ConfigurationError, WbcError
 from wbc.tasks.task import Task
 
-__all__ = ["QPBuilder", "StackedProblem", "build_qp"]
-
-
-class StackedProblem(qpsolvers.Problem):
-    """A `qpsolvers.Problem` that keeps the constraints' row blocks of ``G``.
-
-    ``G_blocks``: the constraints' ``G`` arrays in order (``G`` is their concatenation). A
-    read-only block is constant (its constraint returns the same array every tick): a
-    solver may reuse what it derived from it (`wbc.solvers.daqp_backend`'s screening).
-    """
-
-    def __init__(self, *args, G_blocks: tuple = (), **kwargs):
-        super().__init__(*args, **kwargs)
-        self.G_blocks = G_blocks
+__all__ = ["QPBuilder", "build_qp"]
 
 
 class QPBuilder:
@@ -113,7 +100,7 @@ class QPBuilder:
             raise WbcError(f"empty bounds on x[{i}]: [{lb[i]}, {ub[i]}]")
         G = np.concatenate(Gs) if Gs else None
         h = np.concatenate(hs) if hs else None
-        return StackedProblem(P, q, G, h, None, None, lb, ub, G_blocks=tuple(Gs))
+        return qpsolvers.Problem(P, q, G, h, None, None, lb, ub)
 
 
 def build_qp(ctx, tasks: Sequence[Task], constraints: Sequence[Constraint],

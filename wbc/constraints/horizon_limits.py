@@ -33,7 +33,6 @@ class HorizonLimit(Constraint):
         P, lower, upper, brake, free = self._quantity(ctx)
         if self._key != ctx.structure_key:
             self._G = np.vstack([P, -P])
-            self._G.flags.writeable = False  # constant: the solver may reuse its screening
             self._key = ctx.structure_key
         hi = np.maximum(upper[None, :], brake)
         lo = np.minimum(lower[None, :], brake)

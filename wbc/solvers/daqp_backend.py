@@ -13,7 +13,6 @@ multipliers) when the problem has the same rows; a warm solve that fails is retr
 
 from __future__ import annotations
 
-import itertools
 import time
 
 import daqp
@@ -37,38 +36,20 @@ def redundant_rows(G: np.ndarray, h: np.ndarray, lb: np.ndarray | None,
         Boolean mask, shape (rows,). An infinite or missing bound keeps every row that
         depends on its variable.
     """
-    return _BoxTerms(G.shape[1], lb, ub, tolerance).worst(G) <= h
-
-
-class _BoxTerms:
-    """What the screening needs of the box ``lb <= x <= ub`` widened by ``tolerance``.
-
-    `worst` gives each row's largest ``g x`` over it. A variable whose column of ``G`` is
-    zero adds exactly zero there (its bounds enter as finite numbers): a row's worst
-    depends on the bounds of the variables it involves only.
-    """
-
-    def __init__(self, n: int, lb: np.ndarray | None, ub: np.ndarray | None,
-                 tolerance: float):
-        lo = np.full(n, -np.inf) if lb is None else np.asarray(lb, float)
-        hi = np.full(n, np.inf) if ub is None else np.asarray(ub, float)
-        box = np.isfinite(lo) & np.isfinite(hi)
-        lo_box, hi_box = np.where(box, lo, 0.0), np.where(box, hi, 0.0)
-        self.mid = 0.5 * (lo_box + hi_box)
-        self.spread = 0.5 * (hi_box - lo_box) + tolerance
-        self.open = np.flatnonzero(~box)  # the few variables with an infinite bound
-        if self.open.size:
-            self.open_hi = np.minimum(hi[self.open], _BIG)
-            self.open_lo = np.maximum(lo[self.open], -_BIG)
-
-    def worst(self, G: np.ndarray) -> np.ndarray:
-        """Each row's largest ``g x`` over the widened box, shape (rows,)."""
-        # Over a finite interval the worst of g_i x_i is g_i mid_i + |g_i| half_i.
-        worst = G @ self.mid + np.abs(G) @ self.spread
-        if self.open.size:  # the infinite bounds, exactly
-            g = G[:, self.open]
-            worst += np.maximum(g, 0.0) @ self.open_hi + np.minimum(g, 0.0) @ self.open_lo
-        return worst
+    n = G.shape[1]
+    lo = np.full(n, -np.inf) if lb is None else np.asarray(lb, float)
+    hi = np.full(n, np.inf) if ub is None else np.asarray(ub, float)
+    box = np.isfinite(lo) & np.isfinite(hi)
+    # Over a finite interval the worst of g_i x_i is g_i mid_i + |g_i| half_i (one pass over G).
+    lo_box, hi_box = np.where(box, lo, 0.0), np.where(box, hi, 0.0)
+    mid, half = 0.5 * (lo_box + hi_box), 0.5 * (hi_box - lo_box)
+    worst = G @ mid + np.abs(G) @ (half + tolerance)
+    open_ = np.flatnonzero(~box)  # the few variables with an infinite bound, exactly
+    if open_.size:
+        g = G[:, open_]
+        worst += (np.maximum(g, 0.0) @ np.minimum(hi[open_], _BIG)
+                  + np.minimum(g, 0.0) @ np.maximum(lo[open_], -_BIG))
+    return worst <= h
 
 
 def _senses(size: int, first_equality: int) -> np.ndarray:
@@ -102,7 +83,6 @@ class DaqpBackend:
         self.rows_kept = 0
         self._lam: np.ndarray | None = None  # multipliers of every row, dropped ones 0
         self._n: int | None = None
-        self._constant_worst: dict = {}  # id(block) -> (block, columns, bounds, worst)
 
     def reset(self) -> None:
         """Forget the previous multipliers (the next solve is cold)."""
@@ -119,49 +99,6 @@ class DaqpBackend:
             return None, None
         return self._lam[self._n:], self._lam[:self._n]
 
-    def _worst_rows(self, problem: qpsolvers.Problem) -> np.ndarray:
-        """`_BoxTerms.worst` of every row of ``G``: a row is redundant where it is ``<= h``.
-
-        With the problem's row blocks (`wbc.qp.StackedProblem`), a read-only (constant)
-        block's, the stroke and speed limits', is kept while the bounds of the variables it
-        involves stay the same: only the other rows are screened anew.
-        """
-        terms = _BoxTerms(problem.q.size, problem.lb, problem.ub,
-                          self.tolerances["primal_tol"])
-        blocks = getattr(problem, "G_blocks", ())
-        if all(block.flags.writeable for block in blocks):  # none constant: one pass
-            return terms.worst(problem.G)
-        parts, cache, start = [], {}, 0
-        for writeable, run in itertools.groupby(blocks, lambda block: block.flags.writeable):
-            run = list(run)
-            stop = start + sum(block.shape[0] for block in run)
-            if writeable:  # the blocks in a row: their rows of G at once
-                parts.append(terms.worst(problem.G[start:stop]))
-            else:
-                parts += [self._constant_block_worst(block, problem, terms, cache)
-                          for block in run]
-            start = stop
-        self._constant_worst = cache  # this problem's constant blocks only
-        return np.concatenate(parts)
-
-    def _constant_block_worst(self, block: np.ndarray, problem: qpsolvers.Problem,
-                              terms: _BoxTerms, cache: dict) -> np.ndarray:
-        """A constant block's worst: the last one while its variables' bounds are unchanged.
-
-        Its variables: the columns where it is nonzero; unchanged: the same bits. The entry
-        goes into ``cache`` (the next tick's lookup).
-        """
-        hit = self._constant_worst.get(id(block))
-        if hit is None or hit[0] is not block:  # a new block: its variables
-            hit = (block, np.flatnonzero(np.any(block != 0.0, axis=0)), None, None)
-        cols = hit[1]
-        bounds = tuple(None if bound is None else bound[cols].tobytes()
-                       for bound in (problem.lb, problem.ub))
-        if hit[2] != bounds:
-            hit = (block, cols, bounds, terms.worst(block))
-        cache[id(block)] = hit
-        return hit[3]
-
     def solve(self, problem: qpsolvers.Problem) -> QPSolution:
         """Solve; raise `QPSolveError` if DAQP finds no finite solution."""
         t0 = time.perf_counter()
@@ -172,7 +109,8 @@ class DaqpBackend:
         m_in = 0 if G is None else G.shape[0]
         m_eq = 0 if A is None else A.shape[0]
         if self.screen and m_in:
-            kept = np.flatnonzero(~(self._worst_rows(problem) <= h))  # NaN: kept
+            kept = np.flatnonzero(~redundant_rows(G, h, lb, ub,
+                                                  self.tolerances["primal_tol"]))
         else:
             kept = np.arange(m_in)
         self.rows_kept = m_k = kept.size
