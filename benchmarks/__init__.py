@@ -7,9 +7,14 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import platform
 import time
 from pathlib import Path
+
+# One BLAS thread, as the ``wbc`` command runs (see `wbc_hdmm`): set before numpy loads.
+for _name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_name, "1")
 
 BENCHES = ("simulator", "estimator", "controller", "observer", "qp")
 # The file each benchmark writes, when it is not ``<name>.json``.
@@ -17,11 +22,10 @@ FILES = {"qp": "qp_solvers"}
 
 
 def _machine_info() -> dict:
-    import os
-
     return {"python": platform.python_version(), "machine": platform.machine(),
             "processor": platform.processor() or platform.machine(),
-            "cpus": os.cpu_count(), "date": time.strftime("%Y-%m-%d %H:%M:%S")}
+            "cpus": os.cpu_count(), "blas_threads": os.environ.get("OPENBLAS_NUM_THREADS"),
+            "date": time.strftime("%Y-%m-%d %H:%M:%S")}
 
 
 def _run_one(name: str, out: Path) -> dict:

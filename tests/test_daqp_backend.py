@@ -48,7 +48,9 @@ def test_an_infinite_bound_keeps_the_rows_that_depend_on_it():
 
 
 def test_warm_screened_solves_equal_cold_full_ones(corpus):
-    warm, cold = DaqpBackend(), DaqpBackend(warm_start=False, screen=False)
+    """Against DAQP on the QP as built: its own factorisation, every row, no warm start."""
+    warm = DaqpBackend()
+    cold = DaqpBackend(warm_start=False, screen=False, least_distance=False)
     n_warm, dropped = 0, 0
     for block in corpus.blocks():
         warm.reset()
@@ -61,6 +63,44 @@ def test_warm_screened_solves_equal_cold_full_ones(corpus):
             dropped += (0 if p.G is None else p.G.shape[0]) - warm.rows_kept
     assert n_warm >= len(corpus.problems) // 2  # the warm path ran
     assert dropped > 0  # and the screening dropped rows
+
+
+def test_least_distance_form_equals_the_direct_one(corpus):
+    """The kept factor: right across Hessian changes (the corpus's blocks switch between
+    the MPC's and the whole-body QP's), used from a repeated Hessian on, and the
+    multipliers (hence the warm starts) the same as DAQP's on the QP itself."""
+    ldp, direct = DaqpBackend(), DaqpBackend(least_distance=False)
+    forms = []
+    for block in corpus.blocks():
+        for i in block:
+            p = corpus.problems[i]
+            a, b = ldp.solve(p), direct.solve(p)
+            forms.append(ldp.form)
+            np.testing.assert_allclose(a.x, b.x, rtol=0, atol=1e-8, err_msg=str(i))
+            assert a.iterations == b.iterations
+            za, zb = ldp.multipliers[0], direct.multipliers[0]
+            scale = max(1.0, np.abs(zb).max(initial=0.0))
+            np.testing.assert_allclose(za, zb, rtol=0, atol=1e-6 * scale)
+    assert forms.count("least-distance") > len(forms) // 2
+    assert "direct" in forms  # a new Hessian, and the small whole-body QP
+
+
+def test_a_hessian_without_a_safe_factor_goes_to_daqp_as_it_is():
+    backend = DaqpBackend()
+    n = 40
+    H = np.eye(n)
+    H[0, 0] = 1e-13  # positive, but a pivot below DAQP's relative level
+    p = qpsolvers.Problem(H, np.ones(n), lb=-np.ones(n), ub=np.ones(n))
+    for _ in range(3):
+        x = backend.solve(p).x
+        assert backend.form == "direct"
+    np.testing.assert_allclose(x[1:], -1.0, atol=1e-9)
+    H[0, 0] = 2.0  # a new, well-conditioned Hessian: factorised from its second solve on
+    backend.solve(p)
+    assert backend.form == "direct"
+    x = backend.solve(p).x
+    assert backend.form == "least-distance"
+    np.testing.assert_allclose(x, np.r_[-0.5, -np.ones(n - 1)], atol=1e-9)
 
 
 def test_warm_start_from_another_problem_is_still_right(corpus):
