@@ -20,7 +20,7 @@ import threading
 
 import numpy as np
 
-from estimators import batch
+from estimators import _reference, batch
 from estimators import full_dynamics as fd
 from estimators._row_views import ESTIMATE_VIEWS, LINEARIZATION_VIEWS, OUT_VIEWS, ROW_CHECKS
 from estimators._symbolic import LAYOUT, Kernels
@@ -31,7 +31,7 @@ from estimators.linearization import ForceLinearization
 from estimators.packing import RowPacker
 from estimators.quasi_static import QuasiStaticMask
 from estimators.results import BatchEstimate, Estimate
-from estimators.tipping import least_squares, masked_pinv
+from estimators.tipping import central_differences, least_squares, masked_pinv
 from estimators.tree import TreeModel
 from models.description import Machine
 from models.state import MachineState
@@ -287,7 +287,7 @@ class NormalForceEstimator:
         """
         state, _ = self._checked(state)
         if self._kernels is None:
-            return self._constraint_reference(state)
+            return _reference.constraint(self, state)
         row, sel, _ = self._kernel_row("nf_constraint", state, "the force constraint (G, g0)")
         if sel.tipping or self._qs is not None:
             return self._constraint_special(state, sel, row, row[LAYOUT.con_g].reshape(4, 19))
@@ -313,17 +313,6 @@ class NormalForceEstimator:
         check_finite_result("the force constraint (G, g0)", state, g, g0)
         return g, g0
 
-    def _constraint_reference(self, state: MachineState):
-        base = self.estimate(state).normal_forces
-        acc = state.acceleration
-        g = np.zeros((4, 19))
-        for j in range(19):
-            a = acc.copy()
-            a[j] += 1.0  # exact: the map is affine
-            s = state.replace(base_acceleration=a[:6], qdd=a[6:])
-            g[:, j] = self.estimate(s).normal_forces - base
-        return g, base - g @ acc
-
     def linearize(self, state: MachineState) -> ForceLinearization:
         """Everything a controller needs at ``state``, in one immutable object.
 
@@ -333,9 +322,10 @@ class NormalForceEstimator:
         (`MachineState.contacts`) are held fixed. They are exact (the compiled derivative
         kernel) with four or three wheels in contact; while tipping, and with the numpy
         ``reference`` backend, they are central differences of the least-squares solution
-        (step 1e-6, kept inside the stroke ranges). Strokes outside their ranges follow the
-        estimator's ``strokes`` policy (raise, or clip and report in
-        `ForceLinearization.clipped`).
+        (step 1e-6, kept inside the stroke ranges; while tipping, every perturbed input row
+        in one batch call of the compiled kernel: `estimators.tipping.central_differences`).
+        Strokes outside their ranges follow the estimator's ``strokes`` policy (raise, or
+        clip and report in `ForceLinearization.clipped`).
 
         Raises:
             EstimatorInputError: Not a state, (``strokes="raise"``) a stroke or joint out of
@@ -361,30 +351,24 @@ class NormalForceEstimator:
                 forces = row[lay.der_x]
                 return ForceLinearization(forces, g, forces - g @ state.acceleration, d_q,
                                           d_qd, flags, sel.mode, clipped, state.time)
+            g, _ = self.constraint(state)
+            ein = self._call("nf_estimate")[0]
+            ein[:] = self._call("nf_derivatives")[0]  # the packed row: one layout
+            lay, coords = LAYOUT, self.tree.coordinates
+            forces, d_q, d_qd = central_differences(
+                self._kernels.kernel("nf_estimate"), lay, ein, sel.mask, coords.lower,
+                coords.upper, _FD_STEP, self._packer.zeroed)
+            g0 = forces - g @ state.acceleration
+            check_finite_result("the linearization", state, forces, g, g0, d_q, d_qd)
+            return ForceLinearization(forces, g, g0, d_q, d_qd, flags, sel.mode, clipped,
+                                      state.time)
         est = self.estimate(state)
         g, _ = self.constraint(state)
-        d_q = np.column_stack([self._central_difference(state, "q", j) for j in range(13)])
-        d_qd = np.column_stack([self._central_difference(state, "qd", j) for j in range(13)])
+        d_q, d_qd = _reference.central_differences(self, state, _FD_STEP)
         g0 = est.normal_forces - g @ state.acceleration
         check_finite_result("the linearization", state, est.normal_forces, g, g0, d_q, d_qd)
         return ForceLinearization(est.normal_forces, g, g0, d_q, d_qd, est.in_contact,
                                   est.mode, clipped, state.time)
-
-    def _central_difference(self, state: MachineState, name: str, j: int) -> np.ndarray:
-        """``df_z/d(name)[j]`` by central differences, staying inside the stroke range."""
-        x = getattr(state, name)
-        lo, hi = -_FD_STEP, _FD_STEP
-        if name == "q":
-            lo = max(lo, self.tree.coordinates.lower[j] - x[j])
-            hi = min(hi, self.tree.coordinates.upper[j] - x[j])
-        if hi - lo <= 0:
-            return np.zeros(4)
-        vals = []
-        for step in (lo, hi):
-            v = x.copy()
-            v[j] += step
-            vals.append(self.estimate(state.replace(**{name: v})).normal_forces)
-        return (vals[1] - vals[0]) / (hi - lo)
 
     def estimate_batch(self, states, *, strict: bool = True, chunk: int = 4096,
                        threads: int = 2) -> BatchEstimate:

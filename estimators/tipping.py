@@ -1,14 +1,16 @@
 """Minimum-norm least squares on the wheels in contact.
 
 The tipping case of Sec. III-B: with fewer than three contacts the forces are finite but
-not unique.
+not unique. Their sensitivities to the configuration and the velocities have no compiled
+kernel: `central_differences` perturbs the kernel's packed input row and evaluates every
+perturbed row in one batch call.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["least_squares", "masked_pinv"]
+__all__ = ["central_differences", "least_squares", "masked_pinv"]
 
 
 def masked_pinv(a: np.ndarray, mask: np.ndarray) -> np.ndarray:
@@ -29,3 +31,52 @@ def least_squares(a: np.ndarray, b: np.ndarray, mask) -> tuple[np.ndarray, float
     sub = a[:, cols]
     x[cols] = np.linalg.lstsq(sub, b, rcond=None)[0]
     return x, float(np.linalg.cond(sub))
+
+
+def central_differences(kernel, layout, row: np.ndarray, mask, lower: np.ndarray,
+                        upper: np.ndarray, step: float, zeroed: np.ndarray | None
+                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Minimum-norm forces and their central differences in q and qd, one kernel batch.
+
+    Args:
+        kernel: The compiled ``nf_estimate`` kernel (its ``batch(inp, out)``).
+        layout: The kernels' row layout (`estimators._symbolic.LAYOUT`): where q and qd sit
+            in the input row, the system ``a`` (3 x 4) and ``b`` (3) in the output row.
+        row: The packed input row of the state.
+        mask: The wheels in contact (the columns solved for), held fixed.
+        lower: The coordinates' lower ends: a step in q stays inside the range (one-sided
+            at an end, zero when the range has no room).
+        upper: Their upper ends.
+        step: The difference step [m, rad; m/s, rad/s].
+        zeroed: Input positions the method zeroes (the quasi-static method's), or None.
+
+    Returns:
+        ``(f_z (4,), df_z/dq (4, n), df_z/dqd (4, n))``, n the coordinates in q.
+    """
+    q_slice, qd_slice = layout.q, layout.qd
+    q0 = row[q_slice]
+    n = q0.size
+    lo = np.full(2 * n, -step)
+    hi = np.full(2 * n, step)
+    lo[:n] = np.maximum(lo[:n], lower - q0)
+    hi[:n] = np.minimum(hi[:n], upper - q0)
+    cols = np.concatenate([np.arange(q_slice.start, q_slice.stop),
+                           np.arange(qd_slice.start, qd_slice.stop)])
+    rows = np.repeat(row[None, :], 1 + 4 * n, axis=0)
+    k = np.arange(2 * n)
+    rows[1 + 2 * k, cols] += lo
+    rows[2 + 2 * k, cols] += hi
+    if zeroed is not None:
+        rows[:, zeroed] = 0.0
+    out = np.empty((rows.shape[0], kernel.n_out))
+    kernel.batch(rows, out)
+    contact = np.flatnonzero(np.asarray(mask) > 0)
+    x = np.zeros((rows.shape[0], 4))
+    if contact.size:
+        a = out[:, layout.out_a].reshape(-1, 3, 4)[:, :, contact]
+        with np.errstate(invalid="ignore", over="ignore"):  # the caller checks finiteness
+            x[:, contact] = (np.linalg.pinv(a) @ out[:, layout.out_b, None])[:, :, 0]
+    span = hi - lo
+    with np.errstate(invalid="ignore", divide="ignore"):
+        d = np.where(span > 0, (x[2::2] - x[1::2]).T / np.where(span > 0, span, 1.0), 0.0)
+    return x[0], d[:, :n], d[:, n:]
