@@ -33,6 +33,22 @@ def least_squares(a: np.ndarray, b: np.ndarray, mask) -> tuple[np.ndarray, float
     return x, float(np.linalg.cond(sub))
 
 
+def _min_norm(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Least-squares ``x`` of each ``a x = b``, a (n, 3, k) with k <= 2 columns, b (n, 3).
+
+    The normal equations (a k x k solve per row, ~10x faster than a batched SVD) when every
+    ``a`` has full column rank by a wide margin (the columns of a tipping system are a
+    wheel's unit force and its moment arms, about 1 m); otherwise the pseudo-inverse.
+    """
+    with np.errstate(invalid="ignore", over="ignore"):  # the caller checks finiteness
+        gram = np.swapaxes(a, 1, 2) @ a
+        rhs = (np.swapaxes(a, 1, 2) @ b[:, :, None])
+        scale = np.trace(gram, axis1=1, axis2=2)
+        if a.shape[2] == 1 or np.all(np.linalg.det(gram) > 1e-8 * scale ** a.shape[2]):
+            return np.linalg.solve(gram, rhs)[:, :, 0]
+        return (np.linalg.pinv(a) @ b[:, :, None])[:, :, 0]
+
+
 def central_differences(kernel, layout, row: np.ndarray, mask, lower: np.ndarray,
                         upper: np.ndarray, step: float, zeroed: np.ndarray | None
                         ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -74,8 +90,7 @@ def central_differences(kernel, layout, row: np.ndarray, mask, lower: np.ndarray
     x = np.zeros((rows.shape[0], 4))
     if contact.size:
         a = out[:, layout.out_a].reshape(-1, 3, 4)[:, :, contact]
-        with np.errstate(invalid="ignore", over="ignore"):  # the caller checks finiteness
-            x[:, contact] = (np.linalg.pinv(a) @ out[:, layout.out_b, None])[:, :, 0]
+        x[:, contact] = _min_norm(a, out[:, layout.out_b])
     span = hi - lo
     with np.errstate(invalid="ignore", divide="ignore"):
         d = np.where(span > 0, (x[2::2] - x[1::2]).T / np.where(span > 0, span, 1.0), 0.0)

@@ -50,3 +50,20 @@ def test_bad_masses_raise():
     for bad in (-1.0, float("nan"), "heavy", True, 2e4):
         with pytest.raises(EstimatorError, match="payload_mass"):
             est.payload_mass = bad
+
+
+def test_a_repeated_linearization_is_kept_only_for_the_same_state_and_mass():
+    est = PayloadEstimator(MACHINE, strokes="clip")
+    rng = np.random.default_rng(5)
+    s = random_state(MACHINE, rng, max_tilt=0.3, speed=0.5)
+    first = est.linearize(s)
+    assert est.linearize(s) is first  # the same state object: kept
+    equal = replace(s)  # an equal state, another object: computed again, the same values
+    again = est.linearize(equal)
+    assert again is not first
+    np.testing.assert_array_equal(again.G, first.G)
+    est.payload_mass = 250.0  # another mass: computed again
+    heavy = est.linearize(equal)
+    assert heavy is not again and not np.allclose(heavy.g0, again.g0)
+    est._a.D = est._b.D = 0.9  # another D (the d-beta row): computed again
+    assert est.linearize(equal) is not heavy
