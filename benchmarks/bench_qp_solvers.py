@@ -2,7 +2,9 @@
 
 Each solver replays every block of consecutive ticks in order (ProxQP warm: the project's
 `ProxQPWorkspace`, warm-started along the block; DAQP screened: the controllers' default
-`DaqpBackend`, redundant rows dropped and warm-started along the block, and the same cold;
+`DaqpBackend`, redundant rows dropped, in least-distance form with a kept factor of the
+Hessian and warm-started along the block, the same cold, and the same warm with DAQP
+factorising the Hessian itself on every solve (``-direct``);
 the others cold, as `QpsolversBackend` runs them). Per solver: solve time (the backend's own
 call, and the whole call with qpsolvers' conversion), iterations, the residuals of
 ``qpsolvers.Solution`` (primal, dual, duality gap), the objective and solution against the
@@ -93,7 +95,8 @@ def _solvers(eps_abs: float, eps_rel: float, max_iter: int) -> dict:
     out = {"proxqp-warm": ("workspace", {"warm_start": True}),
            "proxqp-cold": ("workspace", {"warm_start": False}),
            "daqp-screened-warm": ("daqp", {}),
-           "daqp-screened-cold": ("daqp", {"warm_start": False})}
+           "daqp-screened-cold": ("daqp", {"warm_start": False}),
+           "daqp-screened-warm-direct": ("daqp", {"least_distance": False})}
     for name in BACKENDS:
         if name in qpsolvers.available_solvers:
             settings = backend_settings(name, eps_abs, eps_rel)

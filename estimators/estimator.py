@@ -239,8 +239,12 @@ class NormalForceEstimator:
             f"{sel.mode} system is singular (1-norm condition {cond:.3g} >= "
             f"{SINGULAR_CONDITION:.0e}); check D (={self.D}) and the contact geometry", cond)
 
-    def _kernel_row(self, name: str, state: MachineState, what: str):
+    def _kernel_row(self, name: str, state: MachineState, what: str,
+                    tipping_call: bool = True):
         """(output row, `Selectors`, contact flags) of kernel ``name`` at ``state``.
+
+        Without ``tipping_call``, a tipping state is packed but not evaluated (the row is
+        None): the caller evaluates the packed input otherwise.
 
         The row is this thread's output buffer of the kernel, valid until the kernel runs
         again on this thread: callers copy what they keep.
@@ -252,6 +256,8 @@ class NormalForceEstimator:
         """
         inp, row, call, raw, _ = self._call(name)
         sel, flags = self._pack(inp, state, self.D, self.beta, raw)
+        if sel.tipping and not tipping_call:
+            return None, sel, flags
         call()
         cond_at, sum_at = ROW_CHECKS[name]
         if not sel.tipping and not (math.isfinite(row[sum_at])
@@ -334,7 +340,8 @@ class NormalForceEstimator:
         """
         state, clipped = self._checked(state)
         if self._kernels is not None:
-            out, sel, flags = self._kernel_row("nf_derivatives", state, "the linearization")
+            out, sel, flags = self._kernel_row("nf_derivatives", state, "the linearization",
+                                               tipping_call=False)
             if not sel.tipping:
                 if self._qs is None:
                     # A read-only copy of the row (one call); the arrays are its views, made

@@ -23,14 +23,22 @@ def masked_pinv(a: np.ndarray, mask: np.ndarray) -> np.ndarray:
 
 
 def least_squares(a: np.ndarray, b: np.ndarray, mask) -> tuple[np.ndarray, float]:
-    """Minimum-norm least squares on the wheels in contact; (x, condition)."""
+    """Minimum-norm least squares on the wheels in contact; (x, 2-norm condition).
+
+    The condition is the ratio of the extreme singular values the least-squares solve
+    computes anyway (no second decomposition); only reported, never used in a decision.
+    """
     cols = np.flatnonzero(np.asarray(mask) > 0)
     x = np.zeros(4)
     if cols.size == 0:
         return x, float("inf")
     sub = a[:, cols]
-    x[cols] = np.linalg.lstsq(sub, b, rcond=None)[0]
-    return x, float(np.linalg.cond(sub))
+    x[cols], _, _, sv = np.linalg.lstsq(sub, b, rcond=None)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        cond = float(sv[0] / sv[-1])
+    if cond != cond and np.isfinite(sub).all():  # 0 / 0: singular, as `numpy.linalg.cond`
+        cond = float("inf")
+    return x, cond
 
 
 def _min_norm(a: np.ndarray, b: np.ndarray) -> np.ndarray:
