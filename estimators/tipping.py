@@ -52,9 +52,12 @@ def _min_norm(a: np.ndarray, b: np.ndarray) -> np.ndarray:
         gram = np.swapaxes(a, 1, 2) @ a
         rhs = (np.swapaxes(a, 1, 2) @ b[:, :, None])
         scale = np.trace(gram, axis1=1, axis2=2)
-        if a.shape[2] == 1 or np.all(np.linalg.det(gram) > 1e-8 * scale ** a.shape[2]):
+        if np.all(np.linalg.det(gram) > 1e-8 * scale ** a.shape[2]):
             return np.linalg.solve(gram, rhs)[:, :, 0]
-        return (np.linalg.pinv(a) @ b[:, :, None])[:, :, 0]
+        try:
+            return (np.linalg.pinv(a) @ b[:, :, None])[:, :, 0]
+        except np.linalg.LinAlgError:  # non-finite entries: NaN out, the caller raises
+            return np.full(b.shape[:1] + a.shape[2:], np.nan)
 
 
 def central_differences(kernel, layout, row: np.ndarray, mask, lower: np.ndarray,

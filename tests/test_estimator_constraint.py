@@ -185,3 +185,18 @@ def test_fast_path_results_are_read_only_and_equal_the_checked_constructor(machi
     np.testing.assert_allclose(g0, lin.g0, rtol=1e-12, atol=1e-6)
     e = est.estimate(s)
     assert not np.shares_memory(e.normal_forces, est.estimate(s).normal_forces)
+
+
+def test_tipping_least_squares_of_a_batch_equals_lstsq_and_survives_bad_systems():
+    from estimators.tipping import _min_norm
+
+    rng = np.random.default_rng(12)
+    for k in (1, 2):
+        a, b = rng.normal(size=(20, 3, k)), rng.normal(size=(20, 3))
+        ref = np.array([np.linalg.lstsq(a[i], b[i], rcond=None)[0] for i in range(20)])
+        np.testing.assert_allclose(_min_norm(a, b), ref, atol=1e-12)
+    zero = np.zeros((2, 3, 1))  # a wheel whose column vanishes: the pseudo-inverse, 0 N
+    np.testing.assert_array_equal(_min_norm(zero, np.ones((2, 3))), 0.0)
+    bad = np.ones((2, 3, 2))
+    bad[0, 0, 0] = np.nan  # non-finite: NaN out (the estimator's finiteness check raises)
+    assert np.isnan(_min_norm(bad, np.ones((2, 3)))).all()
