@@ -81,10 +81,14 @@ def timing(calls: int = CALLS, batch: int = BATCH) -> dict:
     # The rest of the API, and the slower backends (what `estimators/bench.py` printed).
     vm = NormalForceEstimator(machine, backend="casadi")
     ref = NormalForceEstimator(machine, backend="reference")
+    # Two wheels touching (Sec. III-B's tipping case): derivatives by batched differences.
+    tipping = replace(state, contacts=replace(state.contacts,
+                                              in_contact=np.array([1, 0, 0, 1], bool)))
     for name, fn, n in (
             ("pinocchio_base_wrench", lambda: pm.base_wrench(state), calls // 4),
             ("constraint", lambda: est.constraint(state), calls // 4),
             ("linearize", lambda: est.linearize(state), calls // 20),
+            ("linearize_tipping", lambda: est.linearize(tipping), 300),
             ("estimate_casadi_vm", lambda: vm.estimate(state), 500),
             ("estimate_reference_numpy", lambda: ref.estimate(state), 100)):
         s = _stats(_times_us(fn, n))
