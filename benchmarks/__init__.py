@@ -17,6 +17,8 @@ for _name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_name, "1")
 
 BENCHES = ("simulator", "estimator", "controller", "observer", "qp")
+# Long reproductions, run only when named (``--only``): not part of ``make bench``.
+EXTRA = ("ticks",)
 # The file each benchmark writes, when it is not ``<name>.json``.
 FILES = {"qp": "qp_solvers"}
 
@@ -39,8 +41,10 @@ def _run_one(name: str, out: Path) -> dict:
         from benchmarks.bench_observer import run
     elif name == "qp":
         from benchmarks.bench_qp_solvers import run
+    elif name == "ticks":
+        from benchmarks.bench_ticks import run
     else:
-        raise ValueError(f"unknown benchmark '{name}'; valid: {', '.join(BENCHES)}")
+        raise ValueError(f"unknown benchmark '{name}'; valid: {', '.join(BENCHES + EXTRA)}")
     result = run(out)
     result["host"] = _machine_info()
     (out / f"{FILES.get(name, name)}.json").write_text(json.dumps(result, indent=2, default=float))
@@ -51,7 +55,7 @@ def main(argv: list[str] | None = None) -> dict:
     """Run the benchmarks; print and write their figures."""
     p = argparse.ArgumentParser(prog="python -m benchmarks")
     p.add_argument("--out", default="out/bench")
-    p.add_argument("--only", default=None, choices=BENCHES)
+    p.add_argument("--only", default=None, choices=BENCHES + EXTRA)
     args = p.parse_args(argv)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)

@@ -4,11 +4,11 @@ import importlib
 
 import pytest
 
-from benchmarks import BENCHES
+from benchmarks import BENCHES, EXTRA
 
 
 @pytest.mark.parametrize("module", ["bench_simulator", "bench_estimator", "bench_wbc",
-                                    "bench_qp_solvers"])
+                                    "bench_qp_solvers", "bench_ticks"])
 def test_benchmark_modules_import(module):
     mod = importlib.import_module(f"benchmarks.{module}")
     assert callable(mod.run)
@@ -26,7 +26,7 @@ def test_estimator_timing_runs_on_a_few_calls():
 def test_unknown_benchmark_is_refused(tmp_path):
     from benchmarks import _run_one
 
-    with pytest.raises(ValueError, match="valid: " + ", ".join(BENCHES)):
+    with pytest.raises(ValueError, match="valid: " + ", ".join(BENCHES + EXTRA)):
         _run_one("foo", tmp_path)
 
 
@@ -57,3 +57,22 @@ def test_targets_are_ratios_to_anchors_of_the_same_run():
     partial = targets({"estimator": results["estimator"]})
     assert partial["mpc_step_median_ms"]["value"] is None
     assert partial["mpc_step_median_ms"]["met"] is None
+
+
+def test_tick_sample_records_every_run_and_judges_against_the_period():
+    from benchmarks.bench_ticks import sample
+
+    r = sample(draws=2, duration=1.5)
+    assert [run["index"] for run in r["runs"]] == [0, 1]
+    assert r["period_ms"] == 10.0
+    worst = max(run["max_after_first"] for run in r["runs"])
+    assert r["worst_tick_after_first_ms"] == worst > 0
+    assert r["goal_met"] == (not r["runs_over_period"])
+    assert all(run["median"] <= run["max"] for run in r["runs"])
+
+
+def test_the_command_offers_the_benchmarks_the_package_has():
+    from wbc_hdmm.cli import BENCHES as CLI_BENCHES
+    from wbc_hdmm.cli import EXTRA_BENCHES
+
+    assert CLI_BENCHES == BENCHES and EXTRA_BENCHES == EXTRA
