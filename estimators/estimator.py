@@ -358,13 +358,11 @@ class NormalForceEstimator:
                 forces = row[lay.der_x]
                 return ForceLinearization(forces, g, forces - g @ state.acceleration, d_q,
                                           d_qd, flags, sel.mode, clipped, state.time)
-            g, _ = self.constraint(state)
-            ein = self._call("nf_estimate")[0]
-            ein[:] = self._call("nf_derivatives")[0]  # the packed row: one layout
-            lay, coords = LAYOUT, self.tree.coordinates
+            g, _ = self.constraint(state)  # its own buffers: the packed row below stays
+            coords = self.tree.coordinates
             forces, d_q, d_qd = central_differences(
-                self._kernels.kernel("nf_estimate"), lay, ein, sel.mask, coords.lower,
-                coords.upper, _FD_STEP, self._packer.zeroed)
+                self._kernels.kernel("nf_estimate"), LAYOUT, self._call("nf_derivatives")[0],
+                sel.mask, coords.lower, coords.upper, _FD_STEP, self._packer.zeroed)
             g0 = forces - g @ state.acceleration
             check_finite_result("the linearization", state, forces, g, g0, d_q, d_qd)
             return ForceLinearization(forces, g, g0, d_q, d_qd, flags, sel.mode, clipped,

@@ -124,9 +124,9 @@ class DaqpBackend:
         """``(L^-T, identity)`` for ``H = L L'`` once ``H`` repeats, kept while it does.
 
         None for a Hessian seen for the first time (a factor pays only when it is used
-        again: the whole-body QP's changes every tick) and when ``H`` is not numerically
-        positive definite (a pivot below DAQP's own relative level, 1e-11 of the largest):
-        DAQP then factorises, or regularises, it itself.
+        again) and when ``H`` is not numerically positive definite (a pivot below DAQP's
+        own relative level, 1e-11 of the largest): DAQP then factorises, or regularises,
+        it itself.
         """
         if self._hessian is None or not np.array_equal(self._hessian, H):
             self._hessian, self._inv_factor = np.array(H, dtype=float), None
