@@ -11,7 +11,10 @@ __all__ = ["SpeedScaleLimit"]
 
 
 class SpeedScaleLimit(Constraint):
-    """``max(s_min, s_prev - r dt) <= s <= min(1, s_prev + r dt)``.
+    """``max(s_min, s_prev - r dt) <= s <= min(1, c, s_prev + r dt)``.
+
+    ``c`` is a cap the controller may set each tick (`cap`, e.g. the MPC's speed governor);
+    the scale still moves towards it at the rate limit, and never below ``s_min``.
 
     Args:
         minimum: s_min in [0, 1).
@@ -25,11 +28,13 @@ class SpeedScaleLimit(Constraint):
                                      f"{rate}")
         self.minimum = float(minimum)
         self.rate = float(rate)
+        self.cap = 1.0
 
     def bounds(self, previous: float, dt: float) -> tuple[float, float]:
         """(lower, upper) for a previous scale and a period [s]."""
         lo = max(self.minimum, min(previous, 1.0) - self.rate * dt)
         hi = min(1.0, max(previous, self.minimum) + self.rate * dt)
+        hi = max(lo, min(hi, self.cap))
         return lo, hi
 
     def compute(self, ctx) -> Box | None:

@@ -248,6 +248,10 @@ class ForceConfig:
         drift_horizon: MPC only: how far ahead the measured rate of the terrain's twist is
             extrapolated [s] (`WarpDrift`); 0: not at all.
         drift_time_constant: MPC only: low-pass filter of that rate [s].
+        governor_z: MPC only: the drive's speed governor (`wbc.force_models.fluctuation`)
+            keeps every wheel's slow load this many RMS load fluctuations (measured per
+            unit driving speed, at the commanded speed) above its threshold; 0: off.
+        governor_high_pass, governor_window: Its filters' time constants [s].
     """
 
     thresholds: tuple[float, float, float, float] | None = None
@@ -267,15 +271,19 @@ class ForceConfig:
     leveling_limit: float = 5000.0
     drift_horizon: float = 0.3
     drift_time_constant: float = 0.05
+    governor_z: float = 2.33
+    governor_high_pass: float = 0.2
+    governor_window: float = 1.0
 
     def __post_init__(self):
         _positive(self, "slack_linear", "slack_quadratic",
                   "speed_scale_rate", "speed_scale_weight", "drive_time_constant",
                   "leveling_limit")
-        _positive(self, "margin", "leveling_weight", "drift_horizon", allow_zero=True)
+        _positive(self, "margin", "leveling_weight", "drift_horizon", "governor_z",
+                  allow_zero=True)
         if self.warp_stiffness is not None:
             _positive(self, "warp_stiffness", allow_zero=True)
-        _positive(self, "drift_time_constant")
+        _positive(self, "drift_time_constant", "governor_high_pass", "governor_window")
         _positive(self, "threshold_fraction", "speed_scale_min", allow_zero=True)
         _flags(self, "soft", "speed_scale", "feedback")
         if self.thresholds is not None:

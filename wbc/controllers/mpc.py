@@ -30,6 +30,7 @@ from wbc.force_models.feedback import (
     leveling_offset,
     warp_matrix,
 )
+from wbc.force_models.fluctuation import SpeedGovernor
 from wbc.force_models.protocol import NormalForceModel
 from wbc.kinematics.tcp_kinematics import TcpKinematics
 from wbc.layout import VariableLayout
@@ -116,9 +117,9 @@ class MpcController(Controller):
             force_model, self.force_thresholds + fc.margin, mc.n_linearizations,
             self.static_wheel_load, fc.drive_time_constant, mc.terminal_brake_time,
             mc.force_constraint_start)
+        self.speed_limit = SpeedScaleLimit(fc.speed_scale_min, fc.speed_scale_rate)
         constraints = [AccelerationLimit(), HorizonVelocityLimit(), HorizonPositionLimit(),
-                       self.force_constraint, SpeedScaleLimit(fc.speed_scale_min,
-                                                              fc.speed_scale_rate)]
+                       self.force_constraint, self.speed_limit]
         self.effort_limit = (HorizonEffortLimit(ActuatorEfforts(machine), mc.effort_margin)
                              if mc.effort_limits else None)
         if self.effort_limit is not None:
@@ -195,13 +196,18 @@ class MpcController(Controller):
         self.warp_drift = (WarpDrift(fc.warp_stiffness, fc.drift_time_constant,
                                      fc.drift_horizon)
                            if self.warp is not None and fc.drift_horizon > 0 else None)
+        self.governor = (SpeedGovernor(fc.governor_z, fc.governor_high_pass,
+                                       fc.governor_window, fc.drive_time_constant)
+                         if self.feedback is not None and fc.governor_z > 0 else None)
 
     def _init_loop_state(self) -> None:
         super()._init_loop_state()
         self.last_feedback: ForceFeedback | None = None
-        for part in ("servo", "warp_drift"):
+        for part in ("servo", "warp_drift", "governor"):
             if getattr(self, part, None) is not None:
                 getattr(self, part).reset()
+        if getattr(self, "speed_limit", None) is not None:
+            self.speed_limit.cap = 1.0
 
     def _rate_basis(self, state: MachineState) -> np.ndarray:
         """The rates commanded last tick (with `MpcConfig.setpoint_state`), else measured."""
@@ -250,9 +256,18 @@ class MpcController(Controller):
                                                      - q[SUSPENSION_AXES[1]]))
                     pred = self.planner.prediction
                     drift = self.warp_drift.drift(np.append(pred.start_times, pred.horizon))
+            if self.governor is not None:
+                self._govern(fb, state)
         return self.planner.context(state, ref, self._last_qdd, self._speed_scale, q=q,
                                     qd=qd, feedback=fb, warp=self.warp,
                                     leveling_offset=offset, warp_drift=drift)
+
+    def _govern(self, fb: ForceFeedback, state: MachineState) -> None:
+        """Cap the speed scale by the speed governor (`wbc.force_models.fluctuation`)."""
+        speed = float(np.hypot(state.base_twist[0], state.base_twist[1]))
+        self.governor.update(fb.forces, fb.in_contact, fb.time, speed, self._speed_scale)
+        self.speed_limit.cap = self.governor.cap(self.force_constraint.thresholds, speed,
+                                                 fb.in_contact)
 
     def _build(self, ctx: HorizonContext) -> qpsolvers.Problem:
         return self.planner.build(ctx)
