@@ -80,8 +80,15 @@ class SpeedGovernor:
 
     def update(self, forces, in_contact, time: float, speed: float,
                speed_scale: float) -> None:
-        """Take the loads measured at ``time`` [s], the base's horizontal speed [m/s] and
-        the speed scale commanded over the last period."""
+        """Take one tick's measurements.
+
+        Args:
+            forces: The wheels' measured loads [N], (4,).
+            in_contact: Contact flags (4,).
+            time: Their time [s].
+            speed: The base's horizontal speed [m/s].
+            speed_scale: The scale commanded over the last period.
+        """
         if self._time is not None and time > self._time:
             dt = time - self._time
             self.scale_lag += dt / (self.drive_time_constant + dt) * (speed_scale
