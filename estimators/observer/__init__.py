@@ -1,6 +1,7 @@
 """The observer: the machine's sensor streams turned into the state the estimator reads."""
 
 from estimators.observer.observer import (
+    CONTACT_LANDING_N,
     CONTACT_OFF_N,
     CONTACT_ON_N,
     CONTACT_TICKS,
@@ -8,4 +9,5 @@ from estimators.observer.observer import (
     ObserverEstimate,
 )
 
-__all__ = ["CONTACT_OFF_N", "CONTACT_ON_N", "CONTACT_TICKS", "Observer", "ObserverEstimate"]
+__all__ = ["CONTACT_LANDING_N", "CONTACT_OFF_N", "CONTACT_ON_N", "CONTACT_TICKS", "Observer",
+           "ObserverEstimate"]

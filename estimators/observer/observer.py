@@ -11,13 +11,13 @@ Once per control tick (`Observer.update`) it takes the readings delivered since 
 * the suspension cylinder forces from their chamber pressures (mean over the tick);
 * the contact flags from the forces themselves: a wheel whose estimated normal force falls
   below `CONTACT_OFF_N` is out of contact until its four-wheel estimate has stayed above
-  `CONTACT_ON_N` for `CONTACT_TICKS` ticks (hysteresis: a wheel that bounces off the
-  ground reads high again before it lands); the estimator then solves
-  the three-wheel system of Sec. III-B. The contact points are the wheels' lowest points
-  (the estimator's geometry, from the bogie angles and the attitude), the friction forces
-  zero: no per-wheel measurement exists, and the estimator takes the tangential forces the
-  dynamics require at the contacts' mean height (`estimators.full_dynamics`), except the
-  longitudinal forces, which each side's drive torque gives (`_longitudinal`);
+  `CONTACT_ON_N` for `CONTACT_TICKS` ticks (a wheel bouncing off the ground reads high
+  before it lands) or exceeds `CONTACT_LANDING_N` once (an impact; `docs/sensors.md`); the
+  estimator then solves the three-wheel system of Sec. III-B. The contact points are the
+  wheels' lowest points (the estimator's geometry), the friction forces zero: no per-wheel
+  measurement exists, and the estimator takes the tangential forces the dynamics require at
+  the contacts' mean height (`estimators.full_dynamics`), except the longitudinal forces,
+  which each side's drive torque gives (`_longitudinal`);
 * the payload mass from the lift and tilt cylinder pressures (`payload_rls.PayloadRLS`),
   with pick and release events;
 * `uncertainty`: the standard deviations of its errors (`estimators.uncertainty`).
@@ -55,11 +55,13 @@ from models.sensing import (
 )
 from models.state import N_SERVO_AXES, MachineState
 
-__all__ = ["CONTACT_OFF_N", "CONTACT_ON_N", "CONTACT_TICKS", "Observer", "ObserverEstimate"]
+__all__ = ["CONTACT_LANDING_N", "CONTACT_OFF_N", "CONTACT_ON_N", "CONTACT_TICKS", "Observer",
+           "ObserverEstimate"]
 
 CONTACT_OFF_N = 300.0  # [N] below this a wheel is leaving the ground (at once)
 CONTACT_ON_N = 800.0  # [N] above this on `CONTACT_TICKS` ticks in a row it is back
 CONTACT_TICKS = 3
+CONTACT_LANDING_N = 2000.0  # [N] above this once, a lifted wheel has landed (an impact)
 WHEEL_ACCELERATION_TIME_CONSTANT = 0.05  # [s]
 _LIFT, _TILT = 3, 4  # independent coordinates of the lift and tilt cylinders
 SLIDING_SPEED = 4e-3  # [m/s] stroke speed above which a seal slides (the observer's estimate)
@@ -423,10 +425,7 @@ class Observer:
         plane, the centres of the wheels that touch it lie on a parallel plane one radius
         above it, so the normal of the plane through the touching wheels' centres (three:
         exact; four: the diagonals' cross product) is the ground's; with fewer than three
-        touching, the chassis normal. Measured against MuJoCo's contacts, mean angle to the
-        terrain normal under each touching wheel: contact-loss run (bogies pitched in
-        opposition) 4.5 deg against the chassis normal's 10.0, rough run 2.3 against 3.6,
-        flat 0.003 against 2.2 (the chassis pitches with the bogie strokes).
+        touching, the chassis normal (measured against MuJoCo's: `docs/sensors.md`).
         """
         up = rotation[2].tolist()
         if not self._sphere_wheels:
@@ -445,6 +444,7 @@ class Observer:
     def _contacts(self, forces: np.ndarray) -> None:
         f = forces.tolist()
         self._above = above = [n + 1 if x > CONTACT_ON_N else 0 for n, x in zip(self._above, f)]
-        self._in_contact = [(c and x >= CONTACT_OFF_N) or (not c and n >= CONTACT_TICKS)
+        self._in_contact = [(c and x >= CONTACT_OFF_N)
+                            or (not c and (n >= CONTACT_TICKS or x > CONTACT_LANDING_N))
                             for c, x, n in zip(self._in_contact, f, above)]
 
