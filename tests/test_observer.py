@@ -6,7 +6,13 @@ import numpy as np
 import pytest
 
 from estimators.errors import EstimatorError
-from estimators.observer import Observer
+from estimators.observer import (
+    CONTACT_LANDING_N,
+    CONTACT_OFF_N,
+    CONTACT_ON_N,
+    CONTACT_TICKS,
+    Observer,
+)
 from estimators.payload import PayloadEstimator
 from models import build_reference_machine
 from models import terrain as T
@@ -82,6 +88,26 @@ def test_contact_flags_right_where_the_force_is_clear():
         zero_seen += int(np.sum(f <= 0.0))
     assert zero_seen > 0, "the scenario should lift a wheel"
     assert wrong == 0
+
+
+def test_a_lifted_wheel_comes_back_after_its_ticks_or_at_once_on_landing():
+    """The flags' state machine: off below `CONTACT_OFF_N`; back after `CONTACT_TICKS`
+    ticks above `CONTACT_ON_N`, or at once above `CONTACT_LANDING_N` (an impact)."""
+    obs = _observer(build_reference_machine())
+    heavy, between = 1e4, 0.5 * (CONTACT_ON_N + CONTACT_LANDING_N)
+
+    def tick(rl):
+        obs._contacts(np.array([heavy, rl, heavy, heavy]))
+        return obs._in_contact[1]
+
+    assert tick(heavy)
+    assert not tick(0.5 * CONTACT_OFF_N)  # lifts at once
+    assert [tick(between) for _ in range(CONTACT_TICKS)] == [False] * (CONTACT_TICKS - 1) + [True]
+    assert tick(CONTACT_OFF_N)  # hysteresis: stays down to the off level
+    assert not tick(0.0)
+    assert not tick(0.99 * CONTACT_LANDING_N)  # a bounce in the air's range is not a landing
+    assert not tick(0.0)  # ... and the count starts again
+    assert tick(1.01 * CONTACT_LANDING_N)  # an impact: back at once
 
 
 def test_attitude_at_rest_and_stale_on_nan():
