@@ -89,21 +89,19 @@ class SpeedGovernor:
             speed: The base's horizontal speed [m/s].
             speed_scale: The scale commanded over the last period.
         """
-        if self._time is not None and time > self._time:
-            dt = time - self._time
+        dt = 0.0 if self._time is None else time - self._time
+        self._time = float(time)
+        if dt > 0:
             self.scale_lag += dt / (self.drive_time_constant + dt) * (speed_scale
                                                                       - self.scale_lag)
         f = np.asarray(forces, float)
         if not (np.all(in_contact) and np.all(np.isfinite(f)) and np.isfinite(speed)):
-            self._time = float(time)
             return
-        if self.mean is None or self._time is None or not time > self._time:
-            if self.mean is None:
-                self.mean = f.copy()
-            self._time = float(time)
+        if self.mean is None:
+            self.mean = f.copy()
             return
-        dt = time - self._time
-        self._time = float(time)
+        if not dt > 0:
+            return
         self.mean += dt / (self.high_pass + dt) * (f - self.mean)
         if speed < self.min_speed:
             return
