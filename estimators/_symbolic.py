@@ -231,6 +231,19 @@ def build_kernels(tree: TreeModel) -> dict[str, ca.Function]:
     }
 
 
+def kernel_source(fun: ca.Function) -> str:
+    """The C source of ``fun``: CasADi's generated code and the batch loop (`BATCH_C`)."""
+    name = fun.name()
+    with tempfile.TemporaryDirectory() as tmp:
+        cg = ca.CodeGenerator(name + ".c", {"with_header": False, "verbose": False})
+        cg.add(fun)
+        cg.generate(tmp + os.sep)
+        src = Path(tmp, name + ".c").read_text()
+    return src + BATCH_C.format(name=name, sz_arg=max(fun.sz_arg(), 1),
+                                sz_res=max(fun.sz_res(), 1), n_in=fun.size1_in(0),
+                                n_out=fun.size1_out(0))
+
+
 class Kernels:
     """The estimator's compiled (or interpreted) kernels for one tree.
 
@@ -295,18 +308,13 @@ class Kernels:
                 kernels = cls._registry[key] = cls(tree, compile)
         return kernels
 
+    def source(self, name: str) -> str:
+        """The C source of kernel ``name``: CasADi's generated function and the batch loop."""
+        return kernel_source(self.functions[name])
+
     @staticmethod
     def _compile(fun: ca.Function, opt: str) -> Path:
-        name = fun.name()
-        with tempfile.TemporaryDirectory() as tmp:
-            cg = ca.CodeGenerator(name + ".c", {"with_header": False, "verbose": False})
-            cg.add(fun)
-            cg.generate(tmp + os.sep)
-            src = Path(tmp, name + ".c").read_text()
-        src += BATCH_C.format(name=name, sz_arg=max(fun.sz_arg(), 1),
-                               sz_res=max(fun.sz_res(), 1), n_in=fun.size1_in(0),
-                               n_out=fun.size1_out(0))
-        return compile_shared(src, name, opt)
+        return compile_shared(kernel_source(fun), fun.name(), opt)
 
     def single(self, name: str):
         """(input buffer, output buffer, call) of kernel ``name`` for this thread."""

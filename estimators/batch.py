@@ -36,32 +36,36 @@ def estimate_batch(est, states, *, strict: bool = True, chunk: int = 4096,
         if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
             raise EstimatorInputError(f"{name} must be an integer >= 1, got {value!r}")
     sb = as_batch(states)
-    validate_batch(est, sb)
     lay = LAYOUT
     n = len(sb)
     out = np.empty((n, lay.out_size))  # every row is written by the kernel
     kernel = est._kernels.kernel("nf_estimate") if est._kernels is not None else None
     ic = sb.in_contact if sb.in_contact is not None else np.ones((n, 4), bool)
     # Row-wise arithmetic: selecting the 16 patterns' systems and indexing them by each row's
-    # pattern gives the values `select_systems(ic, ...)` gives.
+    # pattern gives the values `select_systems(ic, ...)` gives. Each chunk indexes its own
+    # rows (in its thread), so the serial part of a batch stays small.
     table = fd.select_systems(_PATTERNS, est.fourth, sb.suspension_force is not None)
-    pattern = np.packbits(ic, axis=1, bitorder="little")[:, 0]  # bit k: wheel k in contact
-    systems = fd.Selectors(table.mode[pattern], table.mask[pattern],
-                           table.height_weights[pattern], table.s_dbeta[pattern],
-                           table.s_cylinder[pattern], table.lost[pattern],
-                           table.tipping[pattern])
+    pattern = np.empty(n, np.uint8)  # bit k: wheel k in contact
     local = threading.local()
+    bounds = _range_bounds(est)
+    out_of_range = []  # chunks with a coordinate outside its range: not evaluated
 
     def run(lo: int) -> None:
         sl = slice(lo, min(lo + chunk, n))
+        q = sb.q[sl]
+        if not (np.all(q.min(axis=0) >= bounds[0]) and np.all(q.max(axis=0) <= bounds[1])):
+            out_of_range.append(lo)
+            return
+        pattern[sl] = np.packbits(ic[sl], axis=1, bitorder="little")[:, 0]
         if kernel is not None:
             buf = getattr(local, "inp", None)
             if buf is None:
                 buf = local.inp = np.empty((min(chunk, n), lay.size))
-            inp, _ = pack_rows(est, sb, sl, systems, buf[:sl.stop - sl.start])
+            inp = pack_rows(est, sb, sl, table, pattern[sl], buf[:sl.stop - sl.start])
             kernel.batch(inp, out[sl])
         else:
-            inp, sel = pack_rows(est, sb, sl, systems)
+            inp = pack_rows(est, sb, sl, table, pattern[sl])
+            sel = table.rows(pattern[sl])
             out[sl] = np.array([est._reference_row(row, sel.row(i))
                                 for i, row in enumerate(inp)]).reshape(-1, lay.out_size)
 
@@ -71,6 +75,8 @@ def estimate_batch(est, states, *, strict: bool = True, chunk: int = 4096,
     else:
         for lo in starts:
             run(lo)
+    if out_of_range:
+        validate_batch(est, sb)  # raises, naming the first row and the range
     x = out[:, lay.out_x]
     xi = out[:, lay.out_xi]
     a = out[:, lay.out_a].reshape(-1, 3, 4)
@@ -82,7 +88,7 @@ def estimate_batch(est, states, *, strict: bool = True, chunk: int = 4096,
     finite = bool(np.isfinite(out[:, lay.out_sum]).all())
     if not finite:
         check_finite_result("the normal-force systems", sb, a, b, xi)
-    tip = systems.tipping
+    tip = table.tipping[pattern]
     mode = table.mode.astype(object)[pattern]
     singular = ~tip & ~(cond < SINGULAR_CONDITION)
     if strict and singular.any():
@@ -110,6 +116,8 @@ def validate_batch(est, sb: StateBatch) -> None:
     """Raise `EstimatorInputError` for a stroke out of its chain's range in ``sb``.
 
     Shapes, finiteness and the rotations were checked when the `StateBatch` was built.
+    (`estimate_batch` tests each chunk's column extremes against `_range_bounds` in its
+    thread and calls this only when one leaves a range.)
     """
     for name, unit, i, lo, hi in est._ranges:
         x = sb.q[:, i]
@@ -121,48 +129,51 @@ def validate_batch(est, sb: StateBatch) -> None:
                 + range_message(name, unit, i, float(x[k]), (lo, hi)))
 
 
-def pack_rows(est, sb: StateBatch, sl: slice, systems: fd.Selectors,
-              out: np.ndarray | None = None):
-    """Kernel input rows and selectors of the states ``sl`` of a validated batch.
+def _range_bounds(est) -> tuple[np.ndarray, np.ndarray]:
+    """(lower, upper) bounds of q's coordinates, shape (13,) each, with the tolerance.
 
-    ``systems`` are the whole batch's `full_dynamics.select_systems`; ``out``, if given, a
-    C-contiguous (rows of ``sl``, input size) buffer to write the rows into.
+    +-inf where a coordinate has no range; the tolerance is `validate_batch`'s.
     """
-    lay = LAYOUT
+    n = LAYOUT.q.stop - LAYOUT.q.start
+    lower, upper = np.full(n, -np.inf), np.full(n, np.inf)
+    for _, _, i, lo, hi in est._ranges:
+        lower[i], upper[i] = max(lower[i], lo - 1e-12), min(upper[i], hi + 1e-12)
+    return lower, upper
+
+
+def pack_rows(est, sb: StateBatch, sl: slice, table: fd.Selectors, pattern: np.ndarray,
+              out: np.ndarray | None = None) -> np.ndarray:
+    """Kernel input rows of the states ``sl`` of a validated batch.
+
+    ``table``: `full_dynamics.select_systems` of the 16 contact patterns (`_PATTERNS`);
+    ``pattern``: each state's pattern (bit k: wheel k in contact), shape (rows of ``sl``,);
+    ``out``, if given, a C-contiguous (rows of ``sl``, input size) buffer to write into.
+    """
     r = sb.base_rotation[sl]
     n = r.shape[0]
-    if out is None:
-        inp = np.zeros((n, lay.size))
-    else:
-        inp = out  # zero the columns written below only if logged
-        inp[:, lay.points.start:lay.force.stop] = 0.0
-        inp[:, lay.suspension_force] = 0.0
-    inp[:, lay.rotation] = r.reshape(n, 9)
     twist, acc, qd, qdd = (sb.base_twist[sl], sb.base_acceleration[sl], sb.qd[sl],
                            sb.qdd[sl])
     if est._qs is not None:
         twist, acc, qd, qdd = est._qs.apply(twist, acc, qd, qdd)
-    inp[:, lay.twist] = twist
-    inp[:, lay.acceleration] = acc
-    inp[:, lay.q] = sb.q[sl]
-    inp[:, lay.qd] = qd
-    inp[:, lay.qdd] = qdd
-    if sb.point_in_fb is not None:
-        inp[:, lay.points] = sb.point_in_fb[sl].reshape(n, 12)
-        inp[:, lay.use_measured] = 1.0
-    if sb.force_in_fb is not None:
-        inp[:, lay.force] = sb.force_in_fb[sl].reshape(n, 12)
-    sel = systems.rows(sl)
-    inp[:, lay.mask] = sel.mask
-    inp[:, lay.height_weights] = sel.height_weights
-    inp[:, lay.s_dbeta] = sel.s_dbeta
-    inp[:, lay.s_cylinder] = sel.s_cylinder
-    inp[:, lay.lost] = sel.lost
-    inp[:, lay.d] = est.D
-    inp[:, lay.beta] = est.beta
-    if sb.suspension_force is not None:
-        inp[:, lay.suspension_force] = sb.suspension_force[sl]
-    return inp, sel
+    zeros = np.broadcast_to(0.0, (n, 12))
+    points = zeros if sb.point_in_fb is None else sb.point_in_fb[sl].reshape(n, 12)
+    use = np.broadcast_to(0.0 if sb.point_in_fb is None else 1.0, (n, 4))
+    force = zeros if sb.force_in_fb is None else sb.force_in_fb[sl].reshape(n, 12)
+    cyl = zeros[:, :2] if sb.suspension_force is None else sb.suspension_force[sl]
+    # One pass that writes each row whole (the layout's order, `_symbolic.Layout`).
+    parts = (r.reshape(n, 9), twist, acc, sb.q[sl], qd, qdd, points, use, force,
+             _selector_block(table, est.D, est.beta)[pattern], cyl)
+    return np.concatenate(parts, axis=1, out=out)
+
+
+def _selector_block(table: fd.Selectors, d: float, beta: float) -> np.ndarray:
+    """The 16 patterns' input columns from ``mask`` to ``beta``, shape (16, 16).
+
+    In the layout's order, as `RowPacker.selectors` packs them for one state.
+    """
+    k = len(table.mask)
+    return np.column_stack([table.mask, table.height_weights, table.s_dbeta,
+                            table.s_cylinder, table.lost, np.full(k, d), np.full(k, beta)])
 
 
 def as_batch(states) -> StateBatch:

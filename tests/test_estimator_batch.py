@@ -69,6 +69,26 @@ def test_batch_from_arrays_and_threads(machine, states):
     assert empty.normal_forces.shape == (0, 4)
 
 
+def test_batch_range_check_in_a_later_chunk(machine, states):
+    """Strokes out of range in later chunks of a threaded batch: the error names the first
+    such row and counts them all, as a serial check does; a stroke on its bound passes."""
+    from estimators import EstimatorInputError
+    from estimators.checks import coordinate_ranges
+
+    est = NormalForceEstimator(machine)
+    sb = StateBatch.from_states(states)
+    name, _, i, lo, hi = coordinate_ranges(machine)[-1]
+    q = sb.q.copy()
+    q[[41, 47, 52], i] = hi + 0.01
+    q[44, i] = lo - 0.01
+    with pytest.raises(EstimatorInputError, match=rf"row 41 \(4 rows in all\).*'{name}'"):
+        est.estimate_batch(StateBatch(**{**sb.fields(), "q": q}), chunk=8, threads=2)
+    q = sb.q.copy()
+    q[[41, 44], i] = hi, lo
+    out = est.estimate_batch(StateBatch(**{**sb.fields(), "q": q}), chunk=8, threads=2)
+    assert np.isfinite(out.normal_forces).all()
+
+
 def test_batch_singular_rows(machine, states):
     est = NormalForceEstimator(machine)
     sb = StateBatch.from_states(states[:6])
