@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import ctypes
 import functools
+import math
 import threading
 
 import casadi as ca
@@ -27,6 +28,34 @@ int {name}_batch(const casadi_real* in, casadi_real* out, casadi_int n, casadi_i
   int flag = 0;
   for (i = 0; i < n; ++i) {{
     arg[0] = in + i * {n_in};
+    res[0] = out + i * {n_out};
+    flag |= {name}(arg, res, iw, w, 0);
+  }}
+  return flag;
+}}
+
+/* Rows assembled from parts (the state's fields) on the stack, each then evaluated: row i
+   is, part after part, width[k] values from src[k] + r * stride[k], with r = index[k][i]
+   if part k has an index, else i (a stride of 0 repeats one row). */
+int {name}_gather(const casadi_real* const* src, const casadi_int* width,
+                  const casadi_int* stride, const unsigned char* const* index,
+                  casadi_int n_parts, casadi_real* out, casadi_int n, casadi_int* iw,
+                  casadi_real* w) {{
+  casadi_real row[{n_in}];
+  const casadi_real* arg[{sz_arg}];
+  casadi_real* res[{sz_res}];
+  const casadi_real* from;
+  casadi_int i, k, j, at;
+  int flag = 0;
+  arg[0] = row;
+  for (i = 0; i < n; ++i) {{
+    at = 0;
+    for (k = 0; k < n_parts && at + width[k] <= {n_in}; ++k) {{
+      from = src[k] + (index[k] ? (casadi_int)index[k][i] : i) * stride[k];
+      for (j = 0; j < width[k]; ++j) row[at + j] = from[j];
+      at += width[k];
+    }}
+    if (at != {n_in}) return -1;
     res[0] = out + i * {n_out};
     flag |= {name}(arg, res, iw, w, 0);
   }}
@@ -56,6 +85,11 @@ class Compiled:
         self._batch.argtypes = [ctypes.c_void_p, ctypes.c_void_p, ctypes.c_longlong,
                                 ctypes.c_void_p, ctypes.c_void_p]
         self._batch.restype = ctypes.c_int
+        self._gather = getattr(lib, self.name + "_gather")
+        self._gather.argtypes = [ctypes.c_void_p] * 4 + [ctypes.c_longlong, ctypes.c_void_p,
+                                                         ctypes.c_longlong, ctypes.c_void_p,
+                                                         ctypes.c_void_p]
+        self._gather.restype = ctypes.c_int
         self._call = getattr(lib, self.name + "_call")
         self._call.argtypes = [ctypes.c_void_p]
         self._call.restype = ctypes.c_int
@@ -96,6 +130,41 @@ class Compiled:
                     loc.w.ctypes.data)
 
 
+    def gather(self, parts, out: np.ndarray) -> None:
+        """Evaluate rows assembled from ``parts`` into ``out`` (n, n_out), C-contiguous.
+
+        ``parts``: ``(array, index)`` pairs in the input's order; ``array`` a float64 array
+        whose rows (leading axis, C-contiguous) are the part's values, or one row repeated
+        (ndim 1); ``index``, a uint8 array of n rows into ``array``, or None (row i).
+        The row widths must add up to the input size (else `ValueError`).
+        """
+        n = out.shape[0]
+        k = len(parts)
+        src = (ctypes.c_void_p * k)()
+        width = np.empty(k, np.int64)
+        stride = np.empty(k, np.int64)
+        index = (ctypes.c_void_p * k)()
+        keep = []
+        for j, (a, idx) in enumerate(parts):
+            a = np.ascontiguousarray(a, dtype=float)
+            keep.append(a)
+            row = a.size if a.ndim == 1 else math.prod(a.shape[1:])
+            width[j] = row
+            stride[j] = 0 if a.ndim == 1 else row
+            src[j] = a.ctypes.data
+            if idx is not None:
+                idx = np.ascontiguousarray(idx, dtype=np.uint8)
+                keep.append(idx)
+                index[j] = idx.ctypes.data
+        if int(width.sum()) != self.n_in:
+            raise ValueError(f"parts give rows of {int(width.sum())} values, the kernel "
+                             f"takes {self.n_in}")
+        loc = self._work()
+        if self._gather(src, width.ctypes.data, stride.ctypes.data, index, k, out.ctypes.data,
+                        n, loc.iw.ctypes.data, loc.w.ctypes.data) < 0:
+            raise ValueError("parts do not fit the kernel's input row")
+
+
 class Interpreted:
     """The same kernel evaluated by CasADi's virtual machine (no compiler available)."""
 
@@ -128,3 +197,20 @@ class Interpreted:
             return
         fm = self.fun.map(inp.shape[0], "thread", 2)
         out[:] = np.asarray(fm(inp.T)).T
+
+    def gather(self, parts, out: np.ndarray) -> None:
+        """`Compiled.gather`: the rows assembled in numpy, then `batch`."""
+        self.batch(assemble_rows(parts, out.shape[0]), out)
+
+
+def assemble_rows(parts, n: int) -> np.ndarray:
+    """The (n, total width) rows that `Compiled.gather` assembles from ``parts``."""
+    cols = []
+    for a, idx in parts:
+        a = np.asarray(a, dtype=float)
+        if a.ndim == 1:
+            cols.append(np.broadcast_to(a, (n, a.size)))
+        else:
+            rows = a.reshape(len(a), -1)
+            cols.append(rows if idx is None else rows[np.asarray(idx, dtype=np.intp)])
+    return np.concatenate(cols, axis=1) if cols else np.zeros((n, 0))

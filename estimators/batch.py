@@ -9,12 +9,12 @@ contact patterns.
 
 from __future__ import annotations
 
-import threading
 from collections.abc import Mapping, Sequence
 
 import numpy as np
 
 from estimators import full_dynamics as fd
+from estimators._kernel_calls import assemble_rows
 from estimators._symbolic import LAYOUT
 from estimators.checks import check_finite_result
 from estimators.errors import EstimatorInputError, SingularSystemError, range_message
@@ -26,6 +26,7 @@ from models.state_batch import StateBatch
 __all__ = ["as_batch", "estimate_batch", "pack_rows", "validate_batch"]
 
 SINGULAR_CONDITION = 1e12  # 1-norm condition number above which a system counts as singular
+_ZEROS12, _ZEROS4, _ONES4, _ZEROS2 = np.zeros(12), np.zeros(4), np.ones(4), np.zeros(2)
 _PATTERNS = ((np.arange(16)[:, None] >> np.arange(4)) & 1).astype(bool)  # row k: bits of k
 
 
@@ -46,7 +47,6 @@ def estimate_batch(est, states, *, strict: bool = True, chunk: int = 4096,
     # rows (in its thread), so the serial part of a batch stays small.
     table = fd.select_systems(_PATTERNS, est.fourth, sb.suspension_force is not None)
     pattern = np.empty(n, np.uint8)  # bit k: wheel k in contact
-    local = threading.local()
     bounds = _range_bounds(est)
     out_of_range = []  # chunks with a coordinate outside its range: not evaluated
 
@@ -57,12 +57,8 @@ def estimate_batch(est, states, *, strict: bool = True, chunk: int = 4096,
             out_of_range.append(lo)
             return
         pattern[sl] = np.packbits(ic[sl], axis=1, bitorder="little")[:, 0]
-        if kernel is not None:
-            buf = getattr(local, "inp", None)
-            if buf is None:
-                buf = local.inp = np.empty((min(chunk, n), lay.size))
-            inp = pack_rows(est, sb, sl, table, pattern[sl], buf[:sl.stop - sl.start])
-            kernel.batch(inp, out[sl])
+        if kernel is not None:  # compiled: each row assembled on the stack and evaluated
+            kernel.gather(row_parts(est, sb, sl, table, pattern[sl]), out[sl])
         else:
             inp = pack_rows(est, sb, sl, table, pattern[sl])
             sel = table.rows(pattern[sl])
@@ -141,29 +137,37 @@ def _range_bounds(est) -> tuple[np.ndarray, np.ndarray]:
     return lower, upper
 
 
-def pack_rows(est, sb: StateBatch, sl: slice, table: fd.Selectors, pattern: np.ndarray,
-              out: np.ndarray | None = None) -> np.ndarray:
-    """Kernel input rows of the states ``sl`` of a validated batch.
+def pack_rows(est, sb: StateBatch, sl: slice, table: fd.Selectors,
+              pattern: np.ndarray) -> np.ndarray:
+    """Kernel input rows (n, input size) of the states ``sl`` of a validated batch.
 
     ``table``: `full_dynamics.select_systems` of the 16 contact patterns (`_PATTERNS`);
-    ``pattern``: each state's pattern (bit k: wheel k in contact), shape (rows of ``sl``,);
-    ``out``, if given, a C-contiguous (rows of ``sl``, input size) buffer to write into.
+    ``pattern``: each state's pattern (bit k: wheel k in contact), shape (rows of ``sl``,).
     """
-    r = sb.base_rotation[sl]
-    n = r.shape[0]
+    return assemble_rows(row_parts(est, sb, sl, table, pattern), len(pattern))
+
+
+def row_parts(est, sb: StateBatch, sl: slice, table: fd.Selectors,
+              pattern: np.ndarray) -> list:
+    """The kernel input of the states ``sl`` as `Compiled.gather` parts.
+
+    In the layout's order (`_symbolic.Layout`): ``(array, None)`` per field (one row repeated
+    where the batch has no such field), and ``(table's selector block (16, 16), pattern)``
+    for the selectors (`pack_rows` has the arguments).
+    """
     twist, acc, qd, qdd = (sb.base_twist[sl], sb.base_acceleration[sl], sb.qd[sl],
                            sb.qdd[sl])
     if est._qs is not None:
         twist, acc, qd, qdd = est._qs.apply(twist, acc, qd, qdd)
-    zeros = np.broadcast_to(0.0, (n, 12))
-    points = zeros if sb.point_in_fb is None else sb.point_in_fb[sl].reshape(n, 12)
-    use = np.broadcast_to(0.0 if sb.point_in_fb is None else 1.0, (n, 4))
-    force = zeros if sb.force_in_fb is None else sb.force_in_fb[sl].reshape(n, 12)
-    cyl = zeros[:, :2] if sb.suspension_force is None else sb.suspension_force[sl]
-    # One pass that writes each row whole (the layout's order, `_symbolic.Layout`).
-    parts = (r.reshape(n, 9), twist, acc, sb.q[sl], qd, qdd, points, use, force,
-             _selector_block(table, est.D, est.beta)[pattern], cyl)
-    return np.concatenate(parts, axis=1, out=out)
+    no_point = sb.point_in_fb is None
+    fields = (sb.base_rotation[sl], twist, acc, sb.q[sl], qd, qdd,
+              _ZEROS12 if no_point else sb.point_in_fb[sl],
+              _ZEROS4 if no_point else _ONES4,
+              _ZEROS12 if sb.force_in_fb is None else sb.force_in_fb[sl],
+              _ZEROS2 if sb.suspension_force is None else sb.suspension_force[sl])
+    parts = [(a, None) for a in fields]
+    parts.insert(-1, (_selector_block(table, est.D, est.beta), pattern))
+    return parts
 
 
 def _selector_block(table: fd.Selectors, d: float, beta: float) -> np.ndarray:

@@ -137,3 +137,29 @@ def test_sliding_calibration_tracks_changing_parameters(machine, states):
     assert len(sl.D) == 2
     np.testing.assert_allclose(sl.D, [0.6, 1.5], atol=1e-6)
     np.testing.assert_allclose(sl.beta, [0.0, -3000.0], atol=1e-3)
+
+
+def test_gather_assembles_the_rows_batch_evaluates(machine):
+    """The compiled kernel's gather (rows assembled in C from the fields, broadcast rows and
+    an indexed table) gives the bits of the batch call on the rows numpy assembles."""
+    from estimators._kernel_calls import assemble_rows
+
+    est = NormalForceEstimator(machine, backend="compiled")
+    kernel = est._kernels.kernel("nf_estimate")
+    rng = np.random.default_rng(4)
+    n = 37
+    widths = [9, 6, 6, 13, 13, 13, 12, 4, 12]
+    parts = [(rng.normal(size=(n, w)) * 0.1, None) for w in widths[:6]]
+    parts[0] = (np.tile(np.eye(3).ravel(), (n, 1)), None)
+    parts[3] = (np.zeros((n, 13)), None)  # mid-range strokes are not needed: finite rows
+    parts += [(np.zeros(12), None), (np.zeros(4), None), (np.zeros(12), None)]
+    table = rng.random((16, 16))
+    parts += [(table, rng.integers(0, 16, n).astype(np.uint8)), (np.zeros(2), None)]
+    out_c = np.empty((n, kernel.n_out))
+    kernel.gather(parts, out_c)
+    out_b = np.empty_like(out_c)
+    kernel.batch(np.ascontiguousarray(assemble_rows(parts, n)), out_b)
+    assert np.isfinite(out_c).mean() > 0.9
+    np.testing.assert_array_equal(out_c, out_b)
+    with pytest.raises(ValueError, match="takes"):
+        kernel.gather(parts[:-1], out_c)
