@@ -320,3 +320,19 @@ def test_plot_and_comparison_files(tmp_path):
     assert "mpc_full_within_30_percent_of_tracking" in saved["acceptance"]
     assert (tmp_path / "cmp" / "forces.png").exists()
     assert report["scenario"] == "pick-place-slope"
+
+
+def test_frozen_heap_keeps_the_loop_out_of_the_collector():
+    """Inside the loop's context the objects alive before it are frozen (the oldest
+    generation's pass does not walk them); after it, and after an error, they are not."""
+    import gc
+
+    from scenarios.closed_loop import frozen_heap
+
+    held = [object() for _ in range(1000)]
+    with frozen_heap():
+        assert gc.get_freeze_count() >= len(held)
+    assert gc.get_freeze_count() == 0
+    with pytest.raises(RuntimeError), frozen_heap():
+        raise RuntimeError("a failing tick")
+    assert gc.get_freeze_count() == 0
