@@ -49,9 +49,13 @@ def estimate_batch(est, states, *, strict: bool = True, chunk: int = 4096,
     pattern = np.empty(n, np.uint8)  # bit k: wheel k in contact
     bounds = _range_bounds(est)
     out_of_range = []  # chunks with a coordinate outside its range: not evaluated
+    threaded = threads > 1 and kernel is not None and n > chunk
+    size = int(chunk)
+    if threaded:  # equal chunks, as many per thread, none longer than ``chunk``
+        size = -(-n // (threads * -(-n // (threads * size))))
 
     def run(lo: int) -> None:
-        sl = slice(lo, min(lo + chunk, n))
+        sl = slice(lo, min(lo + size, n))
         q = sb.q[sl]
         if not (np.all(q.min(axis=0) >= bounds[0]) and np.all(q.max(axis=0) <= bounds[1])):
             out_of_range.append(lo)
@@ -65,8 +69,8 @@ def estimate_batch(est, states, *, strict: bool = True, chunk: int = 4096,
             out[sl] = np.array([est._reference_row(row, sel.row(i))
                                 for i, row in enumerate(inp)]).reshape(-1, lay.out_size)
 
-    starts = range(0, n, max(1, int(chunk)))
-    if threads > 1 and kernel is not None and len(starts) > 1:
+    starts = range(0, n, size)
+    if threaded:
         list(est._kernels.pool(threads).map(run, starts))
     else:
         for lo in starts:
