@@ -36,17 +36,21 @@ int {name}_batch(const casadi_real* in, casadi_real* out, casadi_int n, casadi_i
 
 /* Rows assembled from parts (the state's fields) on the stack, each then evaluated: row i
    is, part after part, width[k] values from src[k] + r * stride[k], with r = index[k][i]
-   if part k has an index, else i (a stride of 0 repeats one row). */
+   if part k has an index, else i (a stride of 0 repeats one row). Entries b_start ..
+   b_start + b_len - 1 of each row must lie in [lo, hi] (NaN does not): else -2, the rows
+   from that one on not evaluated. -1: the widths do not make an input row. */
 int {name}_gather(const casadi_real* const* src, const casadi_int* width,
                   const casadi_int* stride, const unsigned char* const* index,
-                  casadi_int n_parts, casadi_real* out, casadi_int n, casadi_int* iw,
-                  casadi_real* w) {{
+                  casadi_int n_parts, casadi_int b_start, casadi_int b_len,
+                  const casadi_real* lo, const casadi_real* hi, casadi_real* out,
+                  casadi_int n, casadi_int* iw, casadi_real* w) {{
   casadi_real row[{n_in}];
   const casadi_real* arg[{sz_arg}];
   casadi_real* res[{sz_res}];
   const casadi_real* from;
   casadi_int i, k, j, at;
   int flag = 0;
+  if (b_start < 0 || b_len < 0 || b_start + b_len > {n_in}) return -1;
   arg[0] = row;
   for (i = 0; i < n; ++i) {{
     at = 0;
@@ -56,6 +60,9 @@ int {name}_gather(const casadi_real* const* src, const casadi_int* width,
       at += width[k];
     }}
     if (at != {n_in}) return -1;
+    for (j = 0; j < b_len; ++j) {{
+      if (!(row[b_start + j] >= lo[j] && row[b_start + j] <= hi[j])) return -2;
+    }}
     res[0] = out + i * {n_out};
     flag |= {name}(arg, res, iw, w, 0);
   }}
@@ -68,6 +75,9 @@ int {name}_call(void** p) {{
                 (casadi_real*)p[3], 0);
 }}
 """
+
+
+_EMPTY = np.zeros(0)
 
 
 class Compiled:
@@ -86,9 +96,9 @@ class Compiled:
                                 ctypes.c_void_p, ctypes.c_void_p]
         self._batch.restype = ctypes.c_int
         self._gather = getattr(lib, self.name + "_gather")
-        self._gather.argtypes = [ctypes.c_void_p] * 4 + [ctypes.c_longlong, ctypes.c_void_p,
-                                                         ctypes.c_longlong, ctypes.c_void_p,
-                                                         ctypes.c_void_p]
+        self._gather.argtypes = ([ctypes.c_void_p] * 4 + [ctypes.c_longlong] * 3
+                                 + [ctypes.c_void_p] * 3
+                                 + [ctypes.c_longlong, ctypes.c_void_p, ctypes.c_void_p])
         self._gather.restype = ctypes.c_int
         self._call = getattr(lib, self.name + "_call")
         self._call.argtypes = [ctypes.c_void_p]
@@ -130,13 +140,21 @@ class Compiled:
                     loc.w.ctypes.data)
 
 
-    def gather(self, parts, out: np.ndarray) -> None:
+    def gather(self, parts, out: np.ndarray, bounds=None) -> bool:
         """Evaluate rows assembled from ``parts`` into ``out`` (n, n_out), C-contiguous.
 
         ``parts``: ``(array, index)`` pairs in the input's order; ``array`` a float64 array
         whose rows (leading axis, C-contiguous) are the part's values, or one row repeated
         (ndim 1); ``index``, a uint8 array of n rows into ``array``, or None (row i).
-        The row widths must add up to the input size (else `ValueError`).
+        ``bounds``: ``(start, lower, upper)``, the input entries from ``start`` on that
+        must lie in ``[lower, upper]`` (arrays of one length), or None.
+
+        Returns:
+            False if a row left the bounds (the rows from it on are not evaluated).
+
+        Raises:
+            ValueError: The row widths do not add up to the input size, or the bounds do
+                not fit in it.
         """
         n = out.shape[0]
         k = len(parts)
@@ -159,10 +177,19 @@ class Compiled:
         if int(width.sum()) != self.n_in:
             raise ValueError(f"parts give rows of {int(width.sum())} values, the kernel "
                              f"takes {self.n_in}")
+        start, lo, hi = (0, _EMPTY, _EMPTY) if bounds is None else bounds
+        lo = np.ascontiguousarray(lo, dtype=float)
+        hi = np.ascontiguousarray(hi, dtype=float)
+        if lo.shape != hi.shape or lo.ndim != 1:
+            raise ValueError(f"bounds of shapes {lo.shape}, {hi.shape}: need two (m,)")
         loc = self._work()
-        if self._gather(src, width.ctypes.data, stride.ctypes.data, index, k, out.ctypes.data,
-                        n, loc.iw.ctypes.data, loc.w.ctypes.data) < 0:
-            raise ValueError("parts do not fit the kernel's input row")
+        flag = self._gather(src, width.ctypes.data, stride.ctypes.data, index, k, int(start),
+                            lo.size, lo.ctypes.data, hi.ctypes.data, out.ctypes.data, n,
+                            loc.iw.ctypes.data, loc.w.ctypes.data)
+        if flag == -1:
+            raise ValueError(f"bounds from entry {start} of {lo.size} do not fit an input "
+                             f"row of {self.n_in}")
+        return flag != -2
 
 
 class Interpreted:
@@ -198,9 +225,16 @@ class Interpreted:
         fm = self.fun.map(inp.shape[0], "thread", 2)
         out[:] = np.asarray(fm(inp.T)).T
 
-    def gather(self, parts, out: np.ndarray) -> None:
-        """`Compiled.gather`: the rows assembled in numpy, then `batch`."""
-        self.batch(assemble_rows(parts, out.shape[0]), out)
+    def gather(self, parts, out: np.ndarray, bounds=None) -> bool:
+        """`Compiled.gather`: the rows assembled in numpy, checked, then `batch`."""
+        rows = assemble_rows(parts, out.shape[0])
+        if bounds is not None:
+            start, lo, hi = bounds
+            x = rows[:, start:start + len(lo)]
+            if not ((x >= lo) & (x <= hi)).all():
+                return False
+        self.batch(rows, out)
+        return True
 
 
 def assemble_rows(parts, n: int) -> np.ndarray:

@@ -56,14 +56,16 @@ def estimate_batch(est, states, *, strict: bool = True, chunk: int = 4096,
 
     def run(lo: int) -> None:
         sl = slice(lo, min(lo + size, n))
-        q = sb.q[sl]
-        if not (np.all(q.min(axis=0) >= bounds[0]) and np.all(q.max(axis=0) <= bounds[1])):
-            out_of_range.append(lo)
-            return
         pattern[sl] = np.packbits(ic[sl], axis=1, bitorder="little")[:, 0]
-        if kernel is not None:  # compiled: each row assembled on the stack and evaluated
-            kernel.gather(row_parts(est, sb, sl, table, pattern[sl]), out[sl])
+        if kernel is not None:  # each row assembled, range-checked and evaluated (in C)
+            if not kernel.gather(row_parts(est, sb, sl, table, pattern[sl]), out[sl],
+                                 (lay.q.start, *bounds)):
+                out_of_range.append(lo)
         else:
+            q = sb.q[sl]
+            if not (np.all(q >= bounds[0]) and np.all(q <= bounds[1])):
+                out_of_range.append(lo)
+                return
             inp = pack_rows(est, sb, sl, table, pattern[sl])
             sel = table.rows(pattern[sl])
             out[sl] = np.array([est._reference_row(row, sel.row(i))

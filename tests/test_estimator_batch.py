@@ -163,3 +163,9 @@ def test_gather_assembles_the_rows_batch_evaluates(machine):
     np.testing.assert_array_equal(out_c, out_b)
     with pytest.raises(ValueError, match="takes"):
         kernel.gather(parts[:-1], out_c)
+    # Bounds on the rotation's entries: every row in them, then one row out.
+    assert kernel.gather(parts, out_c, (0, np.full(9, -1.0), np.full(9, 1.0)))
+    parts[0][0][20, 4] = 1.5
+    assert not kernel.gather(parts, out_c, (0, np.full(9, -1.0), np.full(9, 1.0)))
+    with pytest.raises(ValueError, match="do not fit"):
+        kernel.gather(parts, out_c, (100, np.zeros(9), np.ones(9)))
