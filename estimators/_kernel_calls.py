@@ -139,7 +139,6 @@ class Compiled:
         self._batch(inp.ctypes.data, out.ctypes.data, inp.shape[0], loc.iw.ctypes.data,
                     loc.w.ctypes.data)
 
-
     def gather(self, parts, out: np.ndarray, bounds=None) -> bool:
         """Evaluate rows assembled from ``parts`` into ``out`` (n, n_out), C-contiguous.
 
@@ -153,16 +152,20 @@ class Compiled:
             False if a row left the bounds (the rows from it on are not evaluated).
 
         Raises:
-            ValueError: The row widths do not add up to the input size, or the bounds do
-                not fit in it.
+            ValueError: ``out`` is not a C-contiguous float64 (n, n_out) array, a part has
+                fewer rows than ``out`` (or an index past its rows), the row widths do not
+                add up to the input size, or the bounds do not fit in it.
         """
+        if not (isinstance(out, np.ndarray) and out.dtype == np.float64 and out.ndim == 2
+                and out.shape[1] == self.n_out and out.flags.c_contiguous):
+            raise ValueError(f"out must be a C-contiguous float64 (n, {self.n_out}) array")
         n = out.shape[0]
         k = len(parts)
         src = (ctypes.c_void_p * k)()
         width = np.empty(k, np.int64)
         stride = np.empty(k, np.int64)
         index = (ctypes.c_void_p * k)()
-        keep = []
+        keep = []  # the contiguous copies the pointers point into, alive for the call
         for j, (a, idx) in enumerate(parts):
             a = np.ascontiguousarray(a, dtype=float)
             keep.append(a)
@@ -172,8 +175,14 @@ class Compiled:
             src[j] = a.ctypes.data
             if idx is not None:
                 idx = np.ascontiguousarray(idx, dtype=np.uint8)
+                if idx.shape != (n,) or (n and int(idx.max()) >= max(len(a), 1)) \
+                        or (a.ndim == 1 and n and int(idx.max()) > 0):
+                    raise ValueError(f"part {j}: its index must be (n,) = ({n},) rows of "
+                                     f"its {len(a) if a.ndim > 1 else 1}")
                 keep.append(idx)
                 index[j] = idx.ctypes.data
+            elif a.ndim > 1 and len(a) < n:
+                raise ValueError(f"part {j} has {len(a)} rows, out {n}")
         if int(width.sum()) != self.n_in:
             raise ValueError(f"parts give rows of {int(width.sum())} values, the kernel "
                              f"takes {self.n_in}")

@@ -169,3 +169,12 @@ def test_gather_assembles_the_rows_batch_evaluates(machine):
     assert not kernel.gather(parts, out_c, (0, np.full(9, -1.0), np.full(9, 1.0)))
     with pytest.raises(ValueError, match="do not fit"):
         kernel.gather(parts, out_c, (100, np.zeros(9), np.ones(9)))
+    # What would read past an array is refused before the C code runs.
+    short = [(a[:10], i) if a.ndim > 1 and i is None else (a, i) for a, i in parts]
+    with pytest.raises(ValueError, match="rows"):
+        kernel.gather(short, out_c)
+    bad_index = parts[:-2] + [(table, np.full(n, 16, np.uint8)), parts[-1]]
+    with pytest.raises(ValueError, match="index"):
+        kernel.gather(bad_index, out_c)
+    with pytest.raises(ValueError, match="C-contiguous"):
+        kernel.gather(parts, out_c[:, :5])
