@@ -1,10 +1,10 @@
 """The estimator over a log of states (`NormalForceEstimator.estimate_batch`).
 
-Packing the kernel inputs of many states, running the compiled kernel over chunks (in
-threads), and the least-squares rows. The kernel writes every chunk straight into one output
-block whose columns the `BatchEstimate` fields view (no copy, no scatter), each thread packs
-its chunks into one reused input buffer, and the contact modes come from a table of the 16
-contact patterns.
+Running the compiled kernel over chunks of many states (in threads), and the least-squares
+rows. The kernel assembles each row from the state's fields on the stack, checks its strokes'
+ranges and writes the chunk straight into one output block whose columns the
+`BatchEstimate` fields view (no packed input, no copy, no scatter: `Compiled.gather`); the
+contact modes come from a table of the 16 contact patterns, indexed in each chunk's thread.
 """
 
 from __future__ import annotations
@@ -118,8 +118,8 @@ def validate_batch(est, sb: StateBatch) -> None:
     """Raise `EstimatorInputError` for a stroke out of its chain's range in ``sb``.
 
     Shapes, finiteness and the rotations were checked when the `StateBatch` was built.
-    (`estimate_batch` tests each chunk's column extremes against `_range_bounds` in its
-    thread and calls this only when one leaves a range.)
+    (`estimate_batch` tests every row against `_range_bounds` as it evaluates it, and calls
+    this only when one leaves a range.)
     """
     for name, unit, i, lo, hi in est._ranges:
         x = sb.q[:, i]
