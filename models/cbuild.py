@@ -16,6 +16,7 @@ gets the portable build.
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import os
 import platform
@@ -29,8 +30,12 @@ HOST_OPTIONS = ("-march=native", "-ffp-contract=off")
 _CPU_KEYS = ("model name", "flags", "Features", "CPU part")  # x86; arm
 
 
+@functools.cache
 def _host_id() -> str:
-    """What a library built for this host's CPU depends on: its architecture, model, flags."""
+    """What a library built for this host's CPU depends on: its architecture, model, flags.
+
+    Read once per process (every library loaded asks for it).
+    """
     lines = []
     try:
         with open("/proc/cpuinfo") as f:
