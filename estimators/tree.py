@@ -13,11 +13,13 @@ pair ``(R, p)``: the rotation and position of a frame in another (the paper's ``
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 
 from estimators import spatial
+from estimators.errors import EstimatorInputError
 from estimators.numpy_ops import NumpyOps
 from models.description import Inertia, Machine
 
@@ -85,6 +87,11 @@ class ChainSpec:
     psi_b: float
     sigma: float
     stroke_range: tuple[float, float]
+
+    def __post_init__(self):
+        if self.sigma not in (1.0, -1.0):  # `TreeModel.chain_motion`'s trigonometry needs it
+            raise EstimatorInputError(f"ChainSpec {self.name}: sigma must be +1 or -1, got "
+                                      f"{self.sigma}")
 
 
 @dataclass
@@ -259,8 +266,12 @@ class TreeModel:
         """Driven-joint and barrel motion of one chain from its stroke, eqs. (2)-(7).
 
         Returns:
-            ``(theta, theta_d, theta_dd, barrel, barrel_d, barrel_dd, k1, k2, dk1, dk2)``
-            [rad, rad/s, rad/s^2, rad/m, rad/m^2], with ``dk = dk/dx``.
+            ``(theta, theta_d, theta_dd, barrel, barrel_d, barrel_dd, k1, k2, dk1, dk2,
+            trig_theta, trig_barrel)`` [rad, rad/s, rad/s^2, rad/m, rad/m^2], with
+            ``dk = dk/dx`` and ``trig = (cos, sin)`` of the angle, from the triangle's cosines
+            without going through the angle (``cos(acos c) = c``, ``sin(acos c) =
+            sqrt(1 - c^2)``): the compiled kernels then call no ``acos``, ``sin`` or ``cos``
+            for the chains.
         """
         la, lb = c.la, c.lb
         lx = c.lx0 + x
@@ -282,24 +293,33 @@ class TreeModel:
         sg = c.sigma
         k1, dk1 = sg * dq, sg * ddq  # eq. (6)
         k2, dk2 = -sg * dq1, -sg * ddq1  # eq. (7)
+        # theta = psi + sg q and barrel = psi_b - sg q1 with sg = +-1, cos q = cq,
+        # sin q = -sq, cos q1 = c1, sin q1 = -s1 (q, q1 = -acos).
+        cp, sp = math.cos(c.psi), math.sin(c.psi)
+        cb, sb = math.cos(c.psi_b), math.sin(c.psi_b)
+        trig_theta = (cp * cq + sg * sp * sq, sp * cq - sg * cp * sq)
+        trig_barrel = (cb * c1 - sg * sb * s1, sb * c1 + sg * cb * s1)
         return (c.psi + sg * q, k1 * xd, dk1 * xd * xd + k1 * xdd,  # eq. (5)
-                c.psi_b - sg * q1, k2 * xd, dk2 * xd * xd + k2 * xdd, k1, k2, dk1, dk2)
+                c.psi_b - sg * q1, k2 * xd, dk2 * xd * xd + k2 * xdd, k1, k2, dk1, dk2,
+                trig_theta, trig_barrel)
 
     def tree_coordinates(self, ops, q, qd, qdd):
         """Tree joint motion (per body) from the independent coordinates, eqs. (5)-(8).
 
         Returns:
-            ``(q_t, qd_t, qdd_t, k1, k2, dk1, dk2)``: per-body lists and per-chain lists.
+            ``(q_t, qd_t, qdd_t, k1, k2, dk1, dk2, trig)``: per-body lists (``trig[i]``:
+            ``(cos, sin)`` of a chain joint's angle, else None) and per-chain lists.
         """
         n = len(self.bodies)
         qt, qdt, qddt = [0.0] * n, [0.0] * n, [0.0] * n
+        trig = [None] * n
         for i, b in self.direct:
             qt[b], qdt[b], qddt[b] = q[i], qd[i], qdd[i]
         k1s, k2s, dk1s, dk2s = [], [], [], []
         for c in self.chains:
             i = c.coordinate
-            th, thd, thdd, br, brd, brdd, k1, k2, dk1, dk2 = self.chain_motion(
-                ops, c, q[i], qd[i], qdd[i])
+            (th, thd, thdd, br, brd, brdd, k1, k2, dk1, dk2, trig[c.driven],
+             trig[c.barrel]) = self.chain_motion(ops, c, q[i], qd[i], qdd[i])
             qt[c.driven], qdt[c.driven], qddt[c.driven] = th, thd, thdd
             qt[c.barrel], qdt[c.barrel], qddt[c.barrel] = br, brd, brdd
             qt[c.piston], qdt[c.piston], qddt[c.piston] = q[i], qd[i], qdd[i]
@@ -307,17 +327,21 @@ class TreeModel:
             k2s.append(k2)
             dk1s.append(dk1)
             dk2s.append(dk2)
-        return qt, qdt, qddt, k1s, k2s, dk1s, dk2s
+        return qt, qdt, qddt, k1s, k2s, dk1s, dk2s, trig
 
-    def joint_placement(self, ops, i: int, q):
-        """Pose (R, p) of body ``i`` in its parent at joint coordinate ``q``."""
+    def joint_placement(self, ops, i: int, q, trig=None):
+        """Pose (R, p) of body ``i`` in its parent at joint coordinate ``q``.
+
+        ``trig``: ``(cos q, sin q)`` of a revolute joint when known (not computed again).
+        """
         b = self.bodies[i]
         r0 = ops.const(b.rotation)
         p0 = ops.const(b.position)
         if b.kind == "revolute":
             k = spatial.skew(b.axis)
-            rot = ops.const(np.eye(3)) + ops.sin(q) * ops.const(k) \
-                + (1 - ops.cos(q)) * ops.const(k @ k)
+            cos_q, sin_q = (ops.cos(q), ops.sin(q)) if trig is None else trig
+            rot = ops.const(np.eye(3)) + sin_q * ops.const(k) \
+                + (1 - cos_q) * ops.const(k @ k)
             return r0 @ rot, p0
         if b.kind == "prismatic":
             return r0, p0 + ops.const(b.rotation @ b.axis) * q
@@ -341,7 +365,7 @@ class TreeModel:
         Returns:
             The per-body kinematics, wrenches and tree joint forces.
         """
-        qt, qdt, qddt, k1, k2, dk1, dk2 = self.tree_coordinates(ops, q, qd, qdd)
+        qt, qdt, qddt, k1, k2, dk1, dk2, trig = self.tree_coordinates(ops, q, qd, qdd)
         n = len(self.bodies)
         rot_fb, pos_fb = [None] * n, [None] * n
         nu, nud, wrench = [None] * n, [None] * n, [None] * n
@@ -355,7 +379,7 @@ class TreeModel:
                 nud[i] = acceleration + offset
             else:
                 p = b.parent
-                r_pi, p_pi = self.joint_placement(ops, i, qt[i])
+                r_pi, p_pi = self.joint_placement(ops, i, qt[i], trig[i])
                 local[i] = (r_pi, p_pi)
                 # Ad_{G_i^p}: twist of the parent expressed in this body's frame.
                 ad_ip = ops.adjoint_rp(r_pi.T, -(r_pi.T @ p_pi))

@@ -9,6 +9,7 @@ import pytest
 from estimators import NormalForceEstimator
 from estimators import full_dynamics as fd
 from estimators import spatial as sp
+from estimators.errors import EstimatorInputError
 from estimators.tree import NumpyOps, TreeModel
 from models import MachineState, WheelContacts, build_reference_machine
 from models.pinocchio_model import build_pinocchio
@@ -58,14 +59,25 @@ def test_chain_formulas_match_models_chain(machine, tree):
         lo, hi = c.stroke_range
         for x in np.linspace(lo + 1e-3, hi - 1e-3, 7):
             s = chain.state(x)
-            th, thd, thdd, br, brd, brdd, k1, k2, dk1, dk2 = tree.chain_motion(
-                NumpyOps, c, x, 0.3, -0.2)
+            (th, thd, thdd, br, brd, brdd, k1, k2, dk1, dk2, trig_th,
+             trig_br) = tree.chain_motion(NumpyOps, c, x, 0.3, -0.2)
+            # The (cos, sin) pairs the recursion uses instead of the angles.
+            np.testing.assert_allclose([*trig_th, *trig_br],
+                                       [np.cos(s.theta), np.sin(s.theta),
+                                        np.cos(s.theta_barrel), np.sin(s.theta_barrel)],
+                                       rtol=0, atol=1e-12)
             np.testing.assert_allclose([th, br, k1, k2, dk1, dk2],
                                        [s.theta, s.theta_barrel, s.k[0], s.k[1], s.dk_dx[0],
                                         s.dk_dx[1]], rtol=1e-10, atol=1e-12)
             np.testing.assert_allclose([thd, thdd], [s.k[0] * 0.3,
                                                      s.dk_dx[0] * 0.09 - 0.2 * s.k[0]],
                                        rtol=1e-10, atol=1e-12)
+
+
+def test_chain_spec_needs_a_unit_sign(tree):
+    """`chain_motion`'s (cos, sin) pairs hold for sigma = +-1 only."""
+    with pytest.raises(EstimatorInputError, match="sigma must be"):
+        replace(tree.chains[0], sigma=0.5)
 
 
 def test_tree_coordinates_match_models(machine, tree):
