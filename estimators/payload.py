@@ -141,12 +141,14 @@ class PayloadEstimator:
             result = la
         else:
             lb = self._b.linearize(state)
-            mixed = [self._mix(getattr(la, f), getattr(lb, f)) for f in _LINEAR_FIELDS]
-            if all(math.isfinite(x.sum()) for x in mixed):  # a finite mix of checked rows
-                result = ForceLinearization.trusted(*mixed, la.in_contact, la.mode,
-                                                    la.clipped, la.time)
-            else:  # the checks of the constructor: they raise
-                result = dataclasses.replace(la, **dict(zip(_LINEAR_FIELDS, mixed)))
+            result = la.interpolated(lb, self._w)  # both from kernel rows: one mix
+            if result is None:
+                mixed = [self._mix(getattr(la, f), getattr(lb, f)) for f in _LINEAR_FIELDS]
+                if all(math.isfinite(x.sum()) for x in mixed):  # a finite mix of checked rows
+                    result = ForceLinearization.trusted(*mixed, la.in_contact, la.mode,
+                                                        la.clipped, la.time)
+                else:  # the checks of the constructor: they raise
+                    result = dataclasses.replace(la, **dict(zip(_LINEAR_FIELDS, mixed)))
         self._last = (state, key, result)
         return result
 

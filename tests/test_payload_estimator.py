@@ -7,6 +7,7 @@ import pytest
 
 from estimators import NormalForceEstimator
 from estimators.errors import EstimatorError
+from estimators.linearization import ForceLinearization
 from estimators.payload import PayloadEstimator
 from models import build_reference_machine
 from testkit.estimator_states import random_state
@@ -67,3 +68,26 @@ def test_a_repeated_linearization_is_kept_only_for_the_same_state_and_mass():
     assert heavy is not again and not np.allclose(heavy.g0, again.g0)
     est._a.D = est._b.D = 0.9  # another D (the d-beta row): computed again
     assert est.linearize(equal) is not heavy
+
+
+def test_the_row_mix_has_the_bits_of_a_mix_of_each_field():
+    """`linearize` mixes the two kernel rows at once: each field as if mixed on its own."""
+    est = PayloadEstimator(MACHINE, fourth="cylinder-force", strokes="clip")
+    est.payload_mass = 231.7
+    w = (231.7 - est._m_a) / 100.0
+    rng = np.random.default_rng(8)
+    for _ in range(5):
+        s = replace(random_state(MACHINE, rng, max_tilt=0.3, speed=0.5),
+                    suspension_force=rng.uniform(2e4, 6e4, 2))
+        la, lb = est._a.linearize(s), est._b.linearize(s)
+        mixed = est.linearize(s)
+        assert mixed.__dict__.get("_row") is not None  # the row path, not the field path
+        for name in ("normal_forces", "G", "g0", "d_q", "d_qd"):
+            a, b = getattr(la, name), getattr(lb, name)
+            np.testing.assert_array_equal(getattr(mixed, name), a + w * (b - a))
+        assert mixed.mode == la.mode and (mixed.in_contact == la.in_contact).all()
+        assert not mixed.G.flags.writeable
+    # Results not made from a row (here an eager one) are not mixed this way.
+    eager = ForceLinearization(la.normal_forces, la.G, la.g0, la.d_q, la.d_qd, la.in_contact,
+                               la.mode, la.clipped, la.time)
+    assert eager.interpolated(lb, 0.5) is None and la.interpolated(eager, 0.5) is None

@@ -43,7 +43,7 @@ from estimators.observer._vec3 import norm
 from estimators.observer.base_filter import ANGULAR_ACCELERATION_TIME_CONSTANT, BaseFilter
 from estimators.observer.joint_filter import JointFilter
 from estimators.observer.payload_rls import PayloadRLS
-from estimators.uncertainty import StateUncertainty
+from estimators.uncertainty import StateUncertainty, model_normal_forces
 from models.coordinates import N_INDEPENDENT
 from models.description import Machine
 from models.sensing import (
@@ -288,7 +288,8 @@ class Observer:
         traction = np.zeros((4, 3))
         traction[:, 0] = self._longitudinal(previous)
         all_four = wheel_contacts(np.ones(4, bool), traction, points, normals)
-        four = np.asarray(self._normal_forces(with_fields(state, contacts=all_four)), float)
+        four = np.asarray(model_normal_forces(
+            self.force_model, with_fields(state, contacts=all_four)), float)
         self._contacts(four)
         traction = np.zeros((4, 3))
         traction[:, 0] = self._longitudinal(four)
@@ -299,16 +300,6 @@ class Observer:
         self._last_time = t
         self._last = ObserverEstimate(state, mass, std, self.payload.event, unc, four, stale)
         return self._last
-
-    def _normal_forces(self, state: MachineState) -> np.ndarray:
-        """The force model's ``normal_forces`` at ``state``, else its estimate's forces.
-
-        (`estimators.payload.PayloadEstimator`'s mixes only the forces.)
-        """
-        model = self.force_model
-        if hasattr(model, "normal_forces"):
-            return model.normal_forces(state)
-        return model.estimate(state).normal_forces
 
     def _crane_accelerations(self, state: MachineState, forces: np.ndarray,
                              mass: float) -> np.ndarray:

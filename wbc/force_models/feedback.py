@@ -44,6 +44,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from estimators.compliance import WarpCompliance
+from estimators.uncertainty import model_normal_forces
 from models.description import Machine
 from models.state import MachineState
 from wbc.axes import N_AXES, SUSPENSION_AXES
@@ -143,8 +144,8 @@ class ClosureFeedback:
             ForceModelError: A model raised or returned non-finite forces.
         """
         try:
-            f = np.asarray(self.closure.estimate(state).normal_forces, float)
-            g = np.asarray(model.estimate(state).normal_forces, float)
+            f = np.asarray(model_normal_forces(self.closure, state), float)
+            g = np.asarray(model_normal_forces(model, state), float)
         except MODEL_ERRORS as exc:
             raise ForceModelError(f"force feedback failed at t={state.time:.3f} s: "
                                   f"{type(exc).__name__}: {exc}") from exc
