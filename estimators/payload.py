@@ -11,6 +11,12 @@ starts, therefore give every other payload exactly:
 `PayloadEstimator` does that for `estimate`, `constraint` and `linearize`, with ``payload_mass``
 settable at every tick (an observer's estimate) and ``payload_sensitivity`` (``df/dm``) for
 the force margin. No kernel is compiled after construction, whatever the mass.
+
+The two estimators are those of the machine with its payload at the fixed
+`ANCHOR_MASSES` (`anchor_machines`), not at the machine's own payload: machines that differ
+only in the payload's mass (every scenario of a sweep) share the same two compiled kernel
+sets, so a new payload never compiles anything (before, each draw of a sweep with its own
+payload compiled six kernels, 20-40 s, on a cold cache).
 """
 
 from __future__ import annotations
@@ -28,9 +34,11 @@ from models.description import Machine
 from models.reference_machine import MAX_PAYLOAD_MASS
 from models.state import MachineState
 
-__all__ = ["SPAN", "PayloadEstimator", "with_payload_mass"]
+__all__ = ["ANCHOR_MASSES", "SPAN", "PayloadEstimator", "anchor_machines", "with_payload_mass"]
 
-SPAN = 100.0  # [kg] m_b - m_a
+ANCHOR_MASSES = (150.0, 250.0)  # [kg] m_a (the reference machine's payload) and m_b
+SPAN = ANCHOR_MASSES[1] - ANCHOR_MASSES[0]  # [kg] m_b - m_a
+_INERTIA_DIGITS = 12  # significant digits of the payload's inertia per kg (`anchor_machines`)
 _LINEAR_FIELDS = ("normal_forces", "G", "g0", "d_q", "d_qd")  # what a mix interpolates
 
 
@@ -45,11 +53,40 @@ def with_payload_mass(machine: Machine, mass: float) -> Machine:
     return dataclasses.replace(machine, bodies=bodies)
 
 
+def anchor_machines(machine: Machine) -> tuple[Machine, Machine]:
+    """``machine`` with its payload at each of the `ANCHOR_MASSES`, the same for any payload.
+
+    The payload's rotational inertia per kg (its shape: it scales with the mass about a
+    fixed centre of mass) is rounded to 12 significant digits before it is scaled to each
+    anchor, so that machines that differ only in the payload's mass, whose inertias per kg
+    differ in the last bits, give the same two machines and hence the same compiled kernels
+    (a rounding boundary between two of them would cost one more compile, no error). The
+    description's note on the payload (``sources``, part of the fingerprint the kernels are
+    cached by) says the anchor's mass.
+    """
+    body = next(b for b in machine.bodies if b.name == machine.payload)
+    per_kg = np.asarray(body.inertia.inertia, float) / body.inertia.mass
+    per_kg = np.array([float(f"{v:.{_INERTIA_DIGITS}g}") for v in per_kg.ravel()]).reshape(3, 3)
+
+    def at(mass: float) -> Machine:
+        inertia = dataclasses.replace(body.inertia, mass=float(mass), inertia=per_kg * mass)
+        note = (machine.payload, f"{mass:g} kg, the payload estimator's anchor", "derived")
+        return dataclasses.replace(
+            machine,
+            bodies=tuple(dataclasses.replace(b, inertia=inertia) if b.name == machine.payload
+                         else b for b in machine.bodies),
+            sources=tuple(note if src[0] == machine.payload else src
+                          for src in machine.sources))
+
+    return at(ANCHOR_MASSES[0]), at(ANCHOR_MASSES[1])
+
+
 class PayloadEstimator:
     """A `NormalForceEstimator` whose payload mass is set at run time (module docstring).
 
     Args:
-        machine: The machine description (its payload mass is ``m_a`` and the default).
+        machine: The machine description (its payload's shape; its mass is the first
+            ``payload_mass``).
         **options: `NormalForceEstimator` options (method, fourth, D, beta, strokes, ...).
 
     Attributes:
@@ -60,13 +97,13 @@ class PayloadEstimator:
     def __init__(self, machine: Machine, **options):
         body = next(b for b in machine.bodies if b.name == machine.payload)
         self.machine = machine
-        self._m_a = float(body.inertia.mass)
-        self._a = NormalForceEstimator(machine, **options)
-        self._b = NormalForceEstimator(with_payload_mass(machine, self._m_a + SPAN), **options)
+        self._m_a = ANCHOR_MASSES[0]
+        machine_a, machine_b = anchor_machines(machine)
+        self._a = NormalForceEstimator(machine_a, **options)
+        self._b = NormalForceEstimator(machine_b, **options)
         self.method, self.fourth = self._a.method, self._a.fourth
-        self._w = 0.0
-        self._mass = self._m_a
         self._last: tuple | None = None  # (key, linearization) of the last `linearize`
+        self.payload_mass = float(body.inertia.mass)  # the machine's payload to begin with
 
     @property
     def payload_mass(self) -> float:

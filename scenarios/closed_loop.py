@@ -350,11 +350,10 @@ def run_closed_loop(scenario: ClosedLoopScenario | str, out_dir: Path | None = N
 
 
 def _payload_machines(machine):
-    """The machines whose kernels a run uses: its own and the payload's second point."""
-    from estimators.payload import SPAN, with_payload_mass
+    """The machines whose kernels a run uses: the payload estimator's two anchors."""
+    from estimators.payload import anchor_machines
 
-    body = next(b for b in machine.bodies if b.name == machine.payload)
-    return machine, with_payload_mass(machine, body.inertia.mass + SPAN)
+    return anchor_machines(machine)
 
 
 def uncertainty_margin(ctrl: MpcController, seen, confidence: float) -> np.ndarray:

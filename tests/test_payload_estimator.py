@@ -8,7 +8,7 @@ import pytest
 from estimators import NormalForceEstimator
 from estimators.errors import EstimatorError
 from estimators.linearization import ForceLinearization
-from estimators.payload import PayloadEstimator
+from estimators.payload import ANCHOR_MASSES, PayloadEstimator, anchor_machines
 from models import build_reference_machine
 from testkit.estimator_states import random_state
 
@@ -91,3 +91,19 @@ def test_the_row_mix_has_the_bits_of_a_mix_of_each_field():
     eager = ForceLinearization(la.normal_forces, la.G, la.g0, la.d_q, la.d_qd, la.in_contact,
                                la.mode, la.clipped, la.time)
     assert eager.interpolated(lb, 0.5) is None and la.interpolated(eager, 0.5) is None
+
+
+def test_machines_that_differ_in_the_payload_share_the_anchor_kernels():
+    """Every scenario's payload gives the same two anchor machines: no compile per payload."""
+    prints = {tuple(m.fingerprint for m in anchor_machines(build_reference_machine(mass)))
+              for mass in (10.0, 77.7, 150.0, 231.4, 300.0)}
+    assert len(prints) == 1
+    a, b = anchor_machines(MACHINE)
+    masses = [next(x for x in m.bodies if x.name == m.payload).inertia.mass for m in (a, b)]
+    assert masses == list(ANCHOR_MASSES)
+    # The estimators of two scenarios use the very same kernels, and each starts at its
+    # machine's own payload.
+    e1 = PayloadEstimator(build_reference_machine(10.0), strokes="clip")
+    e2 = PayloadEstimator(build_reference_machine(231.4), strokes="clip")
+    assert e1._a._kernels is e2._a._kernels and e1._b._kernels is e2._b._kernels
+    assert (e1.payload_mass, e2.payload_mass) == (10.0, 231.4)
