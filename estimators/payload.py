@@ -16,7 +16,7 @@ The two estimators are those of the machine with its payload at the fixed
 `ANCHOR_MASSES` (`anchor_machines`), not at the machine's own payload: machines that differ
 only in the payload's mass (every scenario of a sweep) share the same two compiled kernel
 sets, so a new payload never compiles anything (before, each draw of a sweep with its own
-payload compiled six kernels, 20-40 s, on a cold cache).
+payload built six kernels, 25.6 s, on a cold cache; now 0.5 s from the disk cache).
 """
 
 from __future__ import annotations
