@@ -34,23 +34,12 @@ from models.description import Machine
 from models.reference_machine import MAX_PAYLOAD_MASS
 from models.state import MachineState
 
-__all__ = ["ANCHOR_MASSES", "SPAN", "PayloadEstimator", "anchor_machines", "with_payload_mass"]
+__all__ = ["ANCHOR_MASSES", "SPAN", "PayloadEstimator", "anchor_machines"]
 
 ANCHOR_MASSES = (150.0, 250.0)  # [kg] m_a (the reference machine's payload) and m_b
 SPAN = ANCHOR_MASSES[1] - ANCHOR_MASSES[0]  # [kg] m_b - m_a
 _INERTIA_DIGITS = 12  # significant digits of the payload's inertia per kg (`anchor_machines`)
 _LINEAR_FIELDS = ("normal_forces", "G", "g0", "d_q", "d_qd")  # what a mix interpolates
-
-
-def with_payload_mass(machine: Machine, mass: float) -> Machine:
-    """``machine`` with its payload body's mass set to ``mass`` (inertia scaled alike)."""
-    body = next(b for b in machine.bodies if b.name == machine.payload)
-    scale = mass / body.inertia.mass
-    inertia = dataclasses.replace(body.inertia, mass=float(mass),
-                                  inertia=np.asarray(body.inertia.inertia) * scale)
-    bodies = tuple(dataclasses.replace(b, inertia=inertia) if b.name == machine.payload else b
-                   for b in machine.bodies)
-    return dataclasses.replace(machine, bodies=bodies)
 
 
 def anchor_machines(machine: Machine) -> tuple[Machine, Machine]:
