@@ -90,6 +90,8 @@ class PayloadEstimator:
         machine_a, machine_b = anchor_machines(machine)
         self._a = NormalForceEstimator(machine_a, **options)
         self._b = NormalForceEstimator(machine_b, **options)
+        for est in (self._a, self._b):  # loaded now, not in a controller's first tick
+            est.warm()
         self.method, self.fourth = self._a.method, self._a.fourth
         self._last: tuple | None = None  # (key, linearization) of the last `linearize`
         self.payload_mass = float(body.inertia.mass)  # the machine's payload to begin with

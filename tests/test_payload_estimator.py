@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from estimators import NormalForceEstimator
+from estimators._symbolic import Kernels
 from estimators.errors import EstimatorError
 from estimators.linearization import ForceLinearization
 from estimators.payload import ANCHOR_MASSES, PayloadEstimator, anchor_machines
@@ -107,3 +108,16 @@ def test_machines_that_differ_in_the_payload_share_the_anchor_kernels():
     e2 = PayloadEstimator(build_reference_machine(231.4), strokes="clip")
     assert e1._a._kernels is e2._a._kernels and e1._b._kernels is e2._b._kernels
     assert (e1.payload_mass, e2.payload_mass) == (10.0, 231.4)
+
+
+def test_the_kernels_are_loaded_when_it_is_built(monkeypatch):
+    """A controller's first tick does not generate or load kernels."""
+    monkeypatch.setattr(Kernels, "_registry", {})  # this process's loaded kernels forgotten
+    lazy = NormalForceEstimator(MACHINE, strokes="clip")
+    assert set(lazy._kernels._kernels) != set(lazy._kernels.functions)  # loaded on first use
+    lazy.warm()
+    assert set(lazy._kernels._kernels) == set(lazy._kernels.functions)
+    monkeypatch.setattr(Kernels, "_registry", {})
+    est = PayloadEstimator(build_reference_machine(42.0), strokes="clip")
+    for e in (est._a, est._b):
+        assert set(e._kernels._kernels) == set(e._kernels.functions)
