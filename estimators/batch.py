@@ -121,9 +121,9 @@ def validate_batch(est, sb: StateBatch) -> None:
     (`estimate_batch` tests every row against `_range_bounds` as it evaluates it, and calls
     this only when one leaves a range.)
     """
-    for name, unit, i, lo, hi in est._ranges:
+    for (name, unit, i, lo, hi), (_, lo_tol, hi_tol) in zip(est._ranges, est._bounds):
         x = sb.q[:, i]
-        bad = ~((x >= lo - 1e-12) & (x <= hi + 1e-12))
+        bad = ~((x >= lo_tol) & (x <= hi_tol))
         if bad.any():
             k = int(np.flatnonzero(bad)[0])
             raise EstimatorInputError(
@@ -134,12 +134,13 @@ def validate_batch(est, sb: StateBatch) -> None:
 def _range_bounds(est) -> tuple[np.ndarray, np.ndarray]:
     """(lower, upper) bounds of q's coordinates, shape (13,) each, with the tolerance.
 
-    +-inf where a coordinate has no range; the tolerance is `validate_batch`'s.
+    +-inf where a coordinate has no range; the packer's widened bounds
+    (`packing.RANGE_TOLERANCE`), as `validate_batch` and the per-state check use.
     """
     n = LAYOUT.q.stop - LAYOUT.q.start
     lower, upper = np.full(n, -np.inf), np.full(n, np.inf)
-    for _, _, i, lo, hi in est._ranges:
-        lower[i], upper[i] = max(lower[i], lo - 1e-12), min(upper[i], hi + 1e-12)
+    for i, lo, hi in est._bounds:
+        lower[i], upper[i] = max(lower[i], lo), min(upper[i], hi)
     return lower, upper
 
 

@@ -200,13 +200,15 @@ def run_closed_loop(scenario: ClosedLoopScenario | str, out_dir: Path | None = N
     sim = Simulator(machine, terrain, noise=noise)
     sim.reset(scenario.start_pose.q(machine), scenario.start)
     n_sub = int(round(CONTROL_PERIOD / sim.timestep))
+    # Compile before the clock starts (and before the controller and the observer, whose
+    # force models load the kernels when built, so that a compile is announced): every
+    # payload is a run-time input of two machines' kernels (estimators.payload), so nothing
+    # compiles in the loop.
+    warm_estimator_kernels(list(_payload_machines(machine)),
+                           notice=_notice if progress else None)
     ctrl = make_controller(controller, machine, config)
     sensing = Sensing(sim, machine, sensors, seed if sensor_seed is None else sensor_seed)
     mpc = isinstance(ctrl, MpcController)
-    # Compile before the clock starts: every payload is a run-time input of two machines'
-    # kernels (estimators.payload), so nothing compiles in the loop.
-    warm_estimator_kernels(list(_payload_machines(machine)),
-                           notice=_notice if progress else None)
     kin = TcpKinematics(machine)
     goals = _GoalSequence([JointGoal(crane=p.coordinates(machine)) for p in scenario.goals],
                           scenario.first_goal_time, scenario.dwell)

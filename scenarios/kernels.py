@@ -14,7 +14,6 @@ import time
 from collections.abc import Callable, Iterable
 
 from estimators import NormalForceEstimator
-from estimators._symbolic import Kernels
 from models.description import Machine
 
 __all__ = ["COMPILE_NOTICE", "warm_estimator_kernels"]
@@ -45,10 +44,7 @@ def warm_estimator_kernels(machines: Iterable[Machine],
         timer.start()
     try:
         for machine in machines:
-            tree = NormalForceEstimator(machine, strokes="clip").tree
-            kernels = Kernels.for_tree(tree)
-            for name in kernels.functions:
-                kernels.kernel(name)
+            NormalForceEstimator(machine, strokes="clip").warm()
     finally:
         if timer is not None:
             timer.cancel()

@@ -85,11 +85,6 @@ class Sensing:
             self.observer = Observer(machine, self.spec, self.closure,
                                      initial_payload=initial_payload)
 
-    @property
-    def machines(self) -> tuple[Machine, ...]:
-        """Machines whose estimator kernels the observer uses (to warm before a run)."""
-        return self.closure.machines if self.closure is not None else ()
-
     def tell_payload(self, mass: float) -> None:
         """The oracle is told a payload change (the observer finds it by itself)."""
         self._told_mass = float(mass)
