@@ -56,6 +56,35 @@ def effort_ranges(machine: Machine) -> tuple[np.ndarray, np.ndarray]:
     return lo[:N_SERVO_AXES], hi[:N_SERVO_AXES]
 
 
+_SHARED: dict[str, list] = {}
+
+
+def _shared_last(machine: Machine) -> list:
+    """``[key, ((E_1, e_1), (E_2, e_2))]``: the last motion's pair results, one per machine.
+
+    Kept by the machine's fingerprint, so every `ActuatorEfforts` of the same description
+    (whatever its payload mass: the pair's results do not depend on it) reads and writes the
+    same entry. Callers must not write into the arrays.
+    """
+    key = machine.fingerprint
+    if key not in _SHARED:
+        if len(_SHARED) >= 8:
+            _SHARED.pop(next(iter(_SHARED)))
+        _SHARED[key] = [None, None]
+    return _SHARED[key]
+
+
+def _motion_key(state: MachineState) -> bytes:
+    """What `ActuatorEfforts._tree_motion` reads from ``state``, as bytes (exact equality).
+
+    The nine axes' accelerations are left out: `affine` takes them as its free ``u``.
+    """
+    return b"".join((state.base_position.tobytes(), state.base_rotation.tobytes(),
+                     state.base_twist.tobytes(), state.base_acceleration.tobytes(),
+                     state.q.tobytes(), state.qd.tobytes(),
+                     state.qdd[N_SERVO_AXES:].tobytes()))
+
+
 class ActuatorEfforts:
     """``e = E u + e_0`` of the nine servo axes (module docstring).
 
@@ -74,6 +103,7 @@ class ActuatorEfforts:
         self._tree_map()
         self._motion_of: MachineState | None = None  # `_tree_motion`'s last state and result
         self._motion: tuple | None = None
+        self._shared = _shared_last(machine)
         body = next(b for b in machine.bodies if b.name == machine.payload)
         self.payload_mass = body.inertia.mass if payload_mass is None else payload_mass
 
@@ -163,13 +193,22 @@ class ActuatorEfforts:
         """``(E (9, 9), e_0 (9,))`` at ``state`` for the current payload mass.
 
         ``state.qdd`` of the nine axes is ignored (they are the free ``u``); the wheels'
-        and the base's accelerations are used.
+        and the base's accelerations are used. The two payload models' results of the last
+        motion are kept for every `ActuatorEfforts` of the same machine (`_shared_last`):
+        the observer and the MPC's effort limit ask about the same motion each tick.
         """
         if not isinstance(state, MachineState):
             raise EstimatorError(f"expected a MachineState, got {type(state).__name__}")
-        motion = self._tree_motion(state)
-        (e1, f1), (e2, f2) = (self._one(pm, entries, *motion)
-                              for pm, entries in zip(self._pair, self._mass_entries))
+        key = _motion_key(state)
+        shared = self._shared
+        if shared[0] == key:
+            (e1, f1), (e2, f2) = shared[1]
+        else:
+            motion = self._tree_motion(state)
+            pair = tuple(self._one(pm, entries, *motion)
+                         for pm, entries in zip(self._pair, self._mass_entries))
+            shared[:] = [key, pair]
+            (e1, f1), (e2, f2) = pair
         m1, m2 = PAYLOAD_PAIR_MASSES
         w = (self._mass - m1) / (m2 - m1)
         return e1 + w * (e2 - e1), f1 + w * (f2 - f1)

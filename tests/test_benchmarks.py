@@ -39,6 +39,7 @@ def test_targets_are_ratios_to_anchors_of_the_same_run():
                       "estimate_batch_2_thread_states_per_s": 1.2e6},
         "controller": {"qp_tracking": {"median_ms": 0.3, "solver_median_ms": 0.05},
                        "mpc_full": {"median_ms": 2.5, "solver_median_ms": 0.5,
+                                    "solver_call_median_ms": 0.2,
                                     "p99_ms": 4.0, "first_ms": 30.0},
                        "closed_loop": {"real_time_factor": 1.6, "peak_memory_mb": 250.0,
                                        "max_tick_after_first_ms": 9.0}},
@@ -50,6 +51,10 @@ def test_targets_are_ratios_to_anchors_of_the_same_run():
     assert rows["constraint_over_rnea"]["value"] == 1.5 and rows["constraint_over_rnea"]["met"]
     assert rows["estimate_batch_states_per_s"]["met"]
     assert rows["qp_step_over_solver"]["value"] == 6.0
+    assert "over_solver_call" not in rows["qp_step_over_solver"]  # not measured: not shown
+    assert rows["mpc_step_over_solver"]["value"] == 5.0
+    assert rows["mpc_step_over_solver"]["over_solver_call"] == 12.5
+    assert "12.5x the solver's library call" in "\n".join(format_table(rows))
     assert rows["mpc_first_tick_over_median"]["value"] == 12.0
     assert rows["closed_loop_rtf_over_bare"]["value"] == 0.04
     assert rows["closed_loop_peak_memory_mb"]["met"] and rows["closed_loop_max_tick_ms"]["met"]

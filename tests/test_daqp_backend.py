@@ -130,3 +130,32 @@ def test_bad_settings_are_refused():
         DaqpBackend(primal_tol=0.0)
     with pytest.raises(ConfigurationError):
         DaqpBackend(iter_limit=0)
+
+
+def test_constant_row_blocks_reuse_their_product_bit_for_bit(corpus):
+    """Rows marked constant (`wbc.qp.QP.constant_rows`) are multiplied by the factor once;
+    the solves are the same, bit for bit, as without the mark."""
+    from wbc.qp import QP
+
+    block = next(b for b in corpus.blocks() if len(b) >= 5)
+    first = corpus.problems[block[0]]
+    n = first.q.size
+    rows = np.random.default_rng(5).normal(size=(40, n)) * 0.1  # far from binding
+    constant = np.vstack([rows, -rows])
+    constant.setflags(write=False)
+    h_const = np.full(2 * rows.shape[0], 1e3)
+    h_const[::7] = 0.05  # some rows the box does not make redundant
+    marked, plain = DaqpBackend(), DaqpBackend()
+    products = []
+    for i in block:
+        p = corpus.problems[i]
+        G = np.vstack([p.G, constant])
+        h = np.concatenate([p.h, h_const])
+        args = (p.P, p.q, G, h, None, None, p.lb, p.ub)
+        a = marked.solve(QP(*args, constant_rows=((p.G.shape[0], constant),)))
+        b = plain.solve(qpsolvers.Problem(*args))
+        assert np.array_equal(a.x, b.x), i
+        if marked.form == "least-distance":  # from the second solve on (the kept factor)
+            products.append(marked._products[id(constant)][2])
+    assert len(products) == len(block) - 1
+    assert all(x is products[0] for x in products)  # computed once

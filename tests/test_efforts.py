@@ -69,3 +69,27 @@ def test_bad_payload_and_state():
         ActuatorEfforts(MACHINE, payload_mass=-1.0)
     with pytest.raises(EstimatorError, match="MachineState"):
         ActuatorEfforts(MACHINE).affine("state")
+
+
+def test_efforts_of_one_machine_share_the_last_motion(moving_samples, monkeypatch):
+    """The observer's and the MPC's `ActuatorEfforts` evaluate the same motion once a tick:
+    a second instance (another payload mass) reads the first one's pair results, bit for
+    bit what it would compute; any other motion (here the wheels' accelerations) is
+    computed again."""
+    state = moving_samples[-1][0]
+    first = ActuatorEfforts(MACHINE)
+    fresh = ActuatorEfforts(MACHINE, payload_mass=180.0)
+    fresh._shared[:] = [None, None]
+    expected = fresh.affine(state)  # computed
+    first.affine(moving_samples[0][0])  # another motion in between
+    first.affine(state)
+    second = ActuatorEfforts(MACHINE, payload_mass=180.0)
+    monkeypatch.setattr(ActuatorEfforts, "_tree_motion",
+                        lambda self, s: pytest.fail("recomputed a shared motion"))
+    qdd = state.qdd.copy()
+    qdd[:9] += 1.0  # the axes' accelerations are affine's free u: the same motion
+    E, e0 = second.affine(dataclasses.replace(state, qdd=qdd))
+    assert np.array_equal(E, expected[0]) and np.array_equal(e0, expected[1])
+    monkeypatch.undo()
+    qdd[9:] += 0.5  # the wheels' accelerations enter e_0: another motion
+    assert not np.array_equal(second.affine(dataclasses.replace(state, qdd=qdd))[1], e0)

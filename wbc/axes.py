@@ -18,6 +18,7 @@ import numpy as np
 
 from models.coordinates import CRANE, SUSPENSION
 from models.description import Machine
+from models.numeric import clip
 from wbc.errors import ConfigurationError
 
 __all__ = ["CRANE_AXES", "N_AXES", "SUSPENSION_AXES", "AxisLimits"]
@@ -134,4 +135,4 @@ class AxisLimits:
         constraint of this package admits it, so a QP built from them is never infeasible
         because of the limits alone.
         """
-        return -np.clip(velocity / dt, -self.acceleration, self.acceleration)
+        return -clip(velocity / dt, -self.acceleration, self.acceleration)

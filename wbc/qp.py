@@ -11,7 +11,22 @@ from wbc.constraints.constraint import Box, Constraint, Inequality
 from wbc.errors import ConfigurationError, WbcError
 from wbc.tasks.task import Task
 
-__all__ = ["QPBuilder", "build_qp"]
+__all__ = ["QP", "QPBuilder", "build_qp"]
+
+
+class QP(qpsolvers.Problem):
+    """A `qpsolvers.Problem` that also says which blocks of its ``G`` rows are constant.
+
+    Attributes:
+        constant_rows: ``(first row, block)`` pairs: ``G[first:first + len(block)]`` is the
+            read-only array ``block``, the very object a constraint returned at earlier ticks
+            too. `wbc.solvers.DaqpBackend` keeps what it derives from such a block (its rows
+            times the Hessian's inverse factor) while the block and the factor stay the same.
+    """
+
+    def __init__(self, *args, constant_rows: tuple = (), **kwargs):
+        super().__init__(*args, **kwargs)
+        self.constant_rows = constant_rows
 
 
 class QPBuilder:
@@ -57,7 +72,7 @@ class QPBuilder:
             self._bounds, self._layout = layout.default_bounds(), layout
         return self._bounds[0].copy(), self._bounds[1].copy()
 
-    def build(self, ctx) -> qpsolvers.Problem:
+    def build(self, ctx) -> QP:
         r"""The QP at ``ctx`` (a context with a ``layout``: `QPContext` or `HorizonContext`).
 
         Raises:
@@ -78,7 +93,8 @@ class QPBuilder:
             q += c
         P = self._hessian(n, hessians)
         lb, ub = self._default_bounds(ctx.layout)
-        Gs, hs = [], []
+        Gs, hs, constant = [], [], []
+        rows = 0
         for con in self.constraints:
             r = con.compute(ctx)
             if r is None:
@@ -90,6 +106,9 @@ class QPBuilder:
                 if r.G.ndim != 2 or r.G.shape[1] != n or r.h.shape != (r.G.shape[0],):
                     raise WbcError(f"{type(con).__name__} returned G {r.G.shape}, h "
                                    f"{r.h.shape}; expected (m, {n}), (m,)")
+                if not r.G.flags.writeable:
+                    constant.append((rows, r.G))
+                rows += r.G.shape[0]
                 Gs.append(r.G)
                 hs.append(r.h)
             else:
@@ -100,7 +119,7 @@ class QPBuilder:
             raise WbcError(f"empty bounds on x[{i}]: [{lb[i]}, {ub[i]}]")
         G = np.concatenate(Gs) if Gs else None
         h = np.concatenate(hs) if hs else None
-        return qpsolvers.Problem(P, q, G, h, None, None, lb, ub)
+        return QP(P, q, G, h, None, None, lb, ub, constant_rows=tuple(constant))
 
 
 def build_qp(ctx, tasks: Sequence[Task], constraints: Sequence[Constraint],

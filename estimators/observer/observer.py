@@ -46,6 +46,7 @@ from estimators.observer.payload_rls import PayloadRLS
 from estimators.uncertainty import StateUncertainty, model_normal_forces
 from models.coordinates import N_INDEPENDENT
 from models.description import Machine
+from models.numeric import clip
 from models.sensing import (
     N_LINEAR_AXES,
     PRESSURE_CYLINDERS,
@@ -256,7 +257,7 @@ class Observer:
             self._suspension = forces
         forces = self._suspension if self._suspension is not None else np.zeros(5)
         q = np.empty(N_INDEPENDENT)
-        q[:N_SERVO_AXES] = np.clip(x[:, 0], self._q_lo, self._q_hi)
+        q[:N_SERVO_AXES] = clip(x[:, 0], self._q_lo, self._q_hi)
         q[N_SERVO_AXES:] = self._wheel_angle
         qd = np.concatenate([x[:, 1], self._wheel_rate])
         base = self.base

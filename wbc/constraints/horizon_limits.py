@@ -33,6 +33,7 @@ class HorizonLimit(Constraint):
         P, lower, upper, brake, free = self._quantity(ctx)
         if self._key != ctx.structure_key:
             self._G = np.vstack([P, -P])
+            self._G.setflags(write=False)  # the same rows every tick (`wbc.qp.QP`)
             self._key = ctx.structure_key
         hi = np.maximum(upper[None, :], brake)
         lo = np.minimum(lower[None, :], brake)

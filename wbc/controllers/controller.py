@@ -24,6 +24,7 @@ import numpy as np
 import qpsolvers
 
 from models.description import Machine
+from models.numeric import clip
 from models.state import MachineState
 from wbc.axes import CRANE_AXES, N_AXES, SUSPENSION_AXES, AxisLimits
 from wbc.context import ControlContext, ReferenceSample
@@ -148,7 +149,7 @@ class Controller(abc.ABC):
                 k = int(np.argmax(outside))
                 raise WbcInputError(f"goal {g[k]:.6g} outside [{lo[k]:.6g}, {hi[k]:.6g}] for "
                                     f"axis '{ref.names[k]}' (its physical range)")
-            c = np.clip(g, ref.position_lower, ref.position_upper)
+            c = clip(g, ref.position_lower, ref.position_upper)
             for k in np.flatnonzero(c != g):
                 notes.append(f"'{ref.names[k]}' {g[k]:.6g} -> {c[k]:.6g}")
             parts[key] = c
@@ -307,10 +308,10 @@ class Controller(abc.ABC):
     def _command(self, state: MachineState, qdd: np.ndarray, scale: float, info: dict,
                  fallback: bool) -> ControlCommand:
         qd = self._rate_basis(state)
-        rates = np.clip(qd + qdd * self.dt, self.limits.velocity_lower,
-                        self.limits.velocity_upper)
+        rates = clip(qd + qdd * self.dt, self.limits.velocity_lower,
+                     self.limits.velocity_upper)
         self._commanded(rates)
-        scale = float(np.clip(scale, 0.0, 1.0))  # solver tolerance aside, s is in [0, 1]
+        scale = float(clip(scale, 0.0, 1.0))  # solver tolerance aside, s is in [0, 1]
         self._last_qdd = qdd.copy()
         self._speed_scale = scale
         if self._goal_error is not None:

@@ -287,6 +287,7 @@ class MpcController(Controller):
         N = self.layout.n_steps
         info = {"status": sol.status, "iterations": sol.iterations,
                 "solve_time": sol.solve_time, "warm_started": sol.warm_started,
+                "solver_call_time": sol.call_time,
                 "slack": plan.slack, "horizon": self.horizon,
                 "linearization_steps": self.force_constraint.linearization_steps.copy()}
         if ctx.feedback is not None:

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from models.numeric import clip
 from models.state import MachineState
 from wbc.axes import N_AXES, SUSPENSION_AXES
 
@@ -83,5 +84,5 @@ class ServoState:
         """Advance the setpoints by the rates just commanded, over one period."""
         self.rates = np.asarray(rates, float).copy()
         if self.setpoint is not None:
-            self.setpoint = np.clip(self.setpoint + self.dt * self.rates, self.lower,
-                                    self.upper)
+            self.setpoint = clip(self.setpoint + self.dt * self.rates, self.lower,
+                                 self.upper)

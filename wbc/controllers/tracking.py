@@ -103,7 +103,8 @@ class WholeBodyQPController(Controller):
         qdd = sol.x[lay.step(0)].copy()
         scale = 1.0 if lay.scale is None else float(sol.x[lay.scale])
         info = {"status": sol.status, "iterations": sol.iterations,
-                "solve_time": sol.solve_time, "warm_started": sol.warm_started}
+                "solve_time": sol.solve_time, "warm_started": sol.warm_started,
+                "solver_call_time": sol.call_time}
         fcon = self.force_constraint
         if fcon is not None and fcon.last_forces_map is not None:
             A, b = fcon.last_forces_map

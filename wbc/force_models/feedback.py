@@ -46,6 +46,7 @@ import numpy as np
 from estimators.compliance import WarpCompliance
 from estimators.uncertainty import model_normal_forces
 from models.description import Machine
+from models.numeric import clip
 from models.state import MachineState
 from wbc.axes import N_AXES, SUSPENSION_AXES
 from wbc.errors import ForceModelError
@@ -122,7 +123,7 @@ def leveling_offset(forces, thresholds, in_contact=None, limit: float = np.inf) 
         f[~np.asarray(in_contact, bool)] = 0.0
     m = f - np.asarray(thresholds, float)
     delta = 0.5 * (min(m[1], m[2]) - min(m[0], m[3]))
-    return float(np.clip(delta, -limit, limit))
+    return float(clip(delta, -limit, limit))
 
 
 class ClosureFeedback:
@@ -194,7 +195,7 @@ class WarpDrift:
             dt = feedback.time - self._last[0]
             raw = (d - self._last[1]) / dt
             self.rate += dt / (self.time_constant + dt) * (raw - self.rate)
-            self.rate = float(np.clip(self.rate, -self.limit, self.limit))
+            self.rate = float(clip(self.rate, -self.limit, self.limit))
         self._last = (feedback.time, d)
         return self.rate
 

@@ -44,6 +44,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from models.numeric import clip
+
 __all__ = ["SpeedGovernor"]
 
 _MIN_SCALE = 0.05  # below this the commanded speed cannot be inferred from the measured one
@@ -129,4 +131,4 @@ class SpeedGovernor:
         if not np.any(wheels):
             return 1.0
         headroom = self.mean - np.asarray(thresholds, float)
-        return float(np.clip(np.min(headroom[wheels] / need[wheels]), 0.0, 1.0))
+        return float(clip(np.min(headroom[wheels] / need[wheels]), 0.0, 1.0))

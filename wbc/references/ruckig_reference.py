@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import ruckig
 
+from models.numeric import clip
 from wbc.axes import N_AXES, AxisLimits
 from wbc.errors import ConfigurationError, TrajectoryError, WbcInputError
 
@@ -96,8 +97,8 @@ class RuckigReference:
 
     def hold(self, position) -> None:
         """Reference = constant ``position`` (n,) (clipped into the limits)."""
-        self._hold = np.clip(np.asarray(position, float), self.position_lower,
-                             self.position_upper)
+        self._hold = clip(np.asarray(position, float), self.position_lower,
+                          self.position_upper)
         self.goal = self._hold.copy()
         self._planned = False
 
@@ -117,9 +118,9 @@ class RuckigReference:
         inp = self._inp
         inp.current_position = np.asarray(position, float).tolist()
         inp.current_velocity = np.asarray(velocity, float).tolist()
-        inp.current_acceleration = np.clip(np.asarray(acceleration, float),
-                                           -self.max_acceleration,
-                                           self.max_acceleration).tolist()
+        inp.current_acceleration = clip(np.asarray(acceleration, float),
+                                        -self.max_acceleration,
+                                        self.max_acceleration).tolist()
         inp.target_position = g.tolist()
         inp.target_velocity = [0.0] * self.n
         inp.target_acceleration = [0.0] * self.n
@@ -155,7 +156,7 @@ class RuckigReference:
             z = np.zeros(self.n)
             return self._hold.copy(), z, z.copy()
         p, v, a = self._traj.at_time(max(t - self.start_time, 0.0))[:3]
-        return (np.clip(p, self.position_lower, self.position_upper), np.asarray(v),
+        return (clip(p, self.position_lower, self.position_upper), np.asarray(v),
                 np.asarray(a))
 
     def sample_many(self, times) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -166,5 +167,5 @@ class RuckigReference:
         at, t0 = self._traj.at_time, self.start_time
         pva = np.array([at(max(t - t0, 0.0))[:3] for t in np.asarray(times, float).tolist()],
                        float).reshape(-1, 3, self.n)
-        return (np.clip(pva[:, 0], self.position_lower, self.position_upper),
+        return (clip(pva[:, 0], self.position_lower, self.position_upper),
                 pva[:, 1].copy(), pva[:, 2].copy())

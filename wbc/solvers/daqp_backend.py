@@ -16,9 +16,12 @@ DAQP solves the least-distance form of the QP: with ``H = L L'`` and ``x = L^-T 
 0.8 ms solve of the MPC's QP: 108 variables, ~220 kept rows); here the factor is kept while
 ``H`` is unchanged (the MPC's Hessian is constant tick after tick) and ``M`` is one BLAS
 product, and DAQP gets an identity Hessian, which it recognises as diagonal (no factorisation,
-no products). The rows and hence the multipliers are the same as the QP's, so the warm start
-and the tolerance mean what they did. A Hessian that is not numerically positive definite
-goes to DAQP as it is (its own regularisation).
+no products). The rows of a block that stays the same tick after tick (``constant_rows`` of a
+`wbc.qp.QP`: the MPC's stroke and speed limits, about half the kept rows) are multiplied by
+``L^-T`` once and then read from that product (each row's product is the same BLAS sum
+whichever rows it is computed with). The rows and hence the multipliers are the same as the
+QP's, so the warm start and the tolerance mean what they did. A Hessian that is not
+numerically positive definite goes to DAQP as it is (its own regularisation).
 """
 
 from __future__ import annotations
@@ -30,6 +33,7 @@ import numpy as np
 import qpsolvers
 from scipy.linalg import lapack
 
+from models.numeric import clip
 from wbc.errors import ConfigurationError, QPSolveError
 from wbc.solvers.solution import QPSolution
 
@@ -104,6 +108,7 @@ class DaqpBackend:
         self.rows_kept = 0
         self._lam: np.ndarray | None = None  # multipliers of every row, dropped ones 0
         self._n: int | None = None
+        self._products: dict = {}  # id(block) -> (block, L^-T, block @ L^-T)
 
     def reset(self) -> None:
         """Forget the previous multipliers (the next solve is cold)."""
@@ -144,6 +149,32 @@ class DaqpBackend:
                 self._inv_factor = (np.ascontiguousarray(inv_low.T), np.eye(H.shape[0]))
         return self._inv_factor
 
+    def _times_factor(self, G: np.ndarray, kept: np.ndarray, inv_t: np.ndarray,
+                      blocks: tuple) -> np.ndarray:
+        """``G[kept] @ inv_t``, the rows of constant blocks from their kept products.
+
+        ``blocks``: ``(first row, read-only block)`` pairs (`wbc.qp.QP.constant_rows`). A
+        block's product is kept while the same block object comes with the same factor.
+        """
+        if not blocks:
+            return G[kept] @ inv_t
+        out = np.empty((kept.size, G.shape[1]))
+        known = np.zeros(kept.size, dtype=bool)
+        products = {}
+        for first, block in blocks:
+            entry = self._products.get(id(block))
+            if entry is None or entry[0] is not block or entry[1] is not inv_t:
+                entry = (block, inv_t, block @ inv_t)
+            products[id(block)] = entry
+            inside = (kept >= first) & (kept < first + block.shape[0])
+            out[inside] = entry[2][kept[inside] - first]
+            known |= inside
+        self._products = products  # the blocks of this problem only
+        rest = ~known
+        if rest.any():
+            out[rest] = G[kept[rest]] @ inv_t
+        return out
+
     def solve(self, problem: qpsolvers.Problem) -> QPSolution:
         """Solve; raise `QPSolveError` if DAQP finds no finite solution."""
         t0 = time.perf_counter()
@@ -161,8 +192,13 @@ class DaqpBackend:
         self.rows_kept = m_k = kept.size
         # DAQP's rows: the kept inequalities, then the equalities; its bounds [lower, upper]
         # on x and then on every row (an inequality's lower bound -_BIG).
+        factor = (self._factor(H) if self.least_distance and n >= _LEAST_DISTANCE_SIZE
+                  else None)
+        blocks = getattr(problem, "constant_rows", ())
         if m_in == 0:
             a_all = np.zeros((0, n)) if m_eq == 0 else A
+        elif factor is not None and blocks and m_eq == 0:  # G[kept] @ L^-T, below
+            a_all = None
         elif m_k == m_in:  # nothing screened out: DAQP reads G as it is
             a_all = G if m_eq == 0 else np.concatenate([G, A])
         else:
@@ -177,8 +213,6 @@ class DaqpBackend:
         if m_eq:
             upper[n + m_k:] = b
             lower[n + m_k:] = b
-        factor = (self._factor(H) if self.least_distance and n >= _LEAST_DISTANCE_SIZE
-                  else None)
         self.form = "direct" if factor is None else "least-distance"
         if factor is None:
             hessian, cost = H, f
@@ -188,27 +222,33 @@ class DaqpBackend:
             shift = inv_t @ v  # x = L^-T u - shift
             upper[:n] += shift
             lower[:n] += shift
-            a_all = np.concatenate([inv_t, a_all @ inv_t])
+            rows_t = (self._times_factor(G, kept, inv_t, blocks) if a_all is None
+                      else a_all @ inv_t)
+            a_all = np.concatenate([inv_t, rows_t])
             row_shift = a_all[n:] @ v
             upper[n:] += row_shift
             lower[n:] += row_shift
             cost = np.zeros(n)
-        np.clip(upper, -_BIG, _BIG, out=upper)
-        np.clip(lower, -_BIG, _BIG, out=lower)
+        clip(upper, -_BIG, _BIG, out=upper)
+        clip(lower, -_BIG, _BIG, out=lower)
         a_all = np.ascontiguousarray(a_all)
         rows = kept if m_eq == 0 else np.concatenate([kept, m_in + np.arange(m_eq)])
         n_all = n + m_in + m_eq
         warm = (self.warm_start and self._lam is not None and self._lam.size == n_all)
         dual = np.concatenate([self._lam[:n], self._lam[n + rows]]) if warm else None
+        t_call = time.perf_counter()
         x, _, flag, info = daqp.solve(hessian, cost, a_all, upper, lower,
                                       _senses(upper.size, n + m_k), dual_start=dual,
                                       **self.tolerances)
+        call = time.perf_counter() - t_call
         iterations = int(info["iterations"])
         if warm and not (flag > 0 and np.all(np.isfinite(x))):
             warm = False
+            t_call = time.perf_counter()
             x, _, flag, info = daqp.solve(hessian, cost, a_all, upper, lower,
                                           _senses(upper.size, n + m_k),
                                           **self.tolerances)
+            call += time.perf_counter() - t_call
             iterations += int(info["iterations"])
         if factor is not None:
             x = factor[0] @ x - shift
@@ -220,4 +260,4 @@ class DaqpBackend:
         lam[:n] = info["lam"][:n]
         lam[n + rows] = info["lam"][n:]
         self._lam, self._n = lam, n
-        return QPSolution(np.asarray(x, float), "solved", iterations, elapsed, warm)
+        return QPSolution(np.asarray(x, float), "solved", iterations, elapsed, warm, call)

@@ -17,8 +17,11 @@ class QPSolution:
         x: Primal solution, shape (n,).
         status: The solver's status word.
         iterations: Iterations (-1 if the backend does not say).
-        solve_time: Wall-clock time of update and solve [s].
+        solve_time: Wall-clock time of update and solve [s] (the backend's own work on the
+            problem included: `DaqpBackend`'s row screening and least-distance form).
         warm_started: Whether the solve started from the previous result.
+        call_time: Of that, the time inside the solver library's call(s) [s]; None when the
+            backend does not measure it.
     """
 
     x: np.ndarray
@@ -26,3 +29,4 @@ class QPSolution:
     iterations: int
     solve_time: float
     warm_started: bool
+    call_time: float | None = None
