@@ -263,3 +263,25 @@ def test_a_nan_reading_is_held_for_its_tick_and_the_observer_recovers(stream):
                   st.contacts.force_in_fb, e.forces_four):
             assert np.all(np.isfinite(a)), k
         assert np.isfinite(e.payload_mass) and np.isfinite(e.payload_std)
+
+
+def test_payload_rls_covariance_stays_positive_at_a_huge_regressor():
+    """A machine lying on its side (a tip-over a run must still report) gives the crane's
+    regression 1e10 N/kg: ``p - p k'y`` then rounds below zero, and the mass's std was the
+    square root of a negative number (a sweep run lost to ``math domain error``). The values
+    are those of that tick."""
+    import math
+
+    from estimators.observer.payload_rls import EVENT_TICKS, PayloadRLS
+
+    rls = PayloadRLS(-739.8776772144694, 0.0, np.sqrt([59749291.33758166, 40449743.97425386]),
+                     [243.55069144, 243.55069144], event_variance_scale=0.1)
+    rls._run = EVENT_TICKS - 1  # this tick's innovation completes an event: P reset
+    rls.update(8.028, 0.01, [-10223.250557087227, -83509.77061303661],
+               [16586714951591.828, 46984154218.37842],
+               [22420782063.968056, 64723457.24967057], [0.0, 0.0])
+    assert rls.event is not None
+    assert rls.P > 0 and math.isfinite(rls.std)
+    y = np.array([22420782063.968056, 64723457.24967057])
+    info = 1 / 300.0**2 + np.sum(y**2 / rls.R)  # the scalar RLS's exact posterior
+    assert rls.P == pytest.approx(1 / info, rel=1e-12)

@@ -110,6 +110,8 @@ class PayloadRLS:
         k0, k1 = (p * _gain(y0, y1, p, r[0], r[1], [y0, y1])).tolist()
         self.mass = mass + float(k0 * nu[0] + k1 * nu[1])
         self.P = float(p - p * (k0 * y0 + k1 * y1))
+        if not self.P > 0 and p > 0:  # round-off: p k'y ~ p when y'R^-1 y p >> 1
+            self.P = 1.0 / (1.0 / p + y0 * y0 / r[0] + y1 * y1 / r[1])  # the same, exactly
         if event:
             self.event = "pick" if self.mass > mass else "release"
             self.event_time = time
