@@ -19,13 +19,14 @@ All from the moment the machine was ready (`scenarios.startup`; at the earliest 
   tasks: none) (None if never); ``task_completed``.
 
 `scenarios.closed_loop.run_closed_loop` adds ``control_step_ms`` (median and p99 of the
-controller's ``step`` wall time), ``fallbacks``, ``sim_seconds``, ``wall_seconds`` and
-``real_time_factor``.
+controller's ``step`` wall time), ``fallbacks``, ``sim_seconds``, ``wall_seconds``,
+``real_time_factor`` and ``force_margin_coverage`` (`margin_coverage`).
 """
 
 from __future__ import annotations
 
 import math
+from statistics import NormalDist
 
 import numpy as np
 
@@ -34,7 +35,8 @@ from models.log import SETTLE_SECONDS
 from scenarios.closed_loop_scenarios import CONTROL_PERIOD, TASK_TOLERANCE, ClosedLoopScenario
 from scenarios.stability_margins import force_angle_and_zmp
 
-__all__ = ["TIP_ANGLE_DEG", "TIP_CONTACT_SECONDS", "closed_loop_metrics", "json_default"]
+__all__ = ["TIP_ANGLE_DEG", "TIP_CONTACT_SECONDS", "closed_loop_metrics", "json_default",
+           "margin_coverage"]
 
 TIP_CONTACT_SECONDS = 0.2  # fewer than three wheels in contact this long: tipped
 CONTACT_FORCE_N = 1.0  # a wheel with more normal force than this is in contact
@@ -65,6 +67,40 @@ def json_default(o):
     if isinstance(o, np.ndarray):
         return o.tolist()
     raise TypeError(f"not JSON serializable: {type(o)}")
+
+
+def margin_coverage(log: dict, start: float, confidence: float) -> dict | None:
+    """How often the MPC's per-wheel margin covered the error of the forces it was fed.
+
+    The MPC keeps each wheel's measured force (the closure feedback, ``measured_forces``)
+    ``z sigma`` (``force_margin``) above its threshold, ``z`` of a one-sided ``confidence``;
+    that bound is right when the true force is at least ``measured - margin`` on that share
+    of the samples. Counted per wheel on the control ticks from ``start`` [s] on where all
+    four wheels touch (truth) and a margin was set.
+
+    Returns:
+        ``{"stated", "covered", "samples", "error_rms_N", "sigma_median_N",
+        "error_over_sigma_p1"}`` (``covered``: the share of wheel samples with the truth at
+        or above ``measured - margin``; ``error_over_sigma_p1``: the 1st percentile of
+        ``(true - measured) / sigma``, ``-z`` when the model is right), or None without
+        margins (oracle, or no feedback).
+    """
+    if "measured_forces" not in log or "force_margin" not in log:
+        return None
+    t, measured, margin = log["time"], log["measured_forces"], log["force_margin"]
+    ok = ((t >= start - 1e-9) & log["in_contact"].all(axis=1)
+          & np.isfinite(measured).all(axis=1) & (margin > 0).all(axis=1))
+    if not ok.any():
+        return None
+    z = NormalDist().inv_cdf(confidence)
+    error = (log["normal_force"] - measured)[ok]
+    sigma = margin[ok] / z
+    return {"stated": float(confidence),
+            "covered": float(np.mean(error >= -margin[ok])),
+            "samples": int(error.size),
+            "error_rms_N": float(np.sqrt(np.mean(error ** 2))),
+            "sigma_median_N": float(np.median(sigma)),
+            "error_over_sigma_p1": float(np.percentile(error / sigma, 1))}
 
 
 def closed_loop_metrics(log: dict, scenario: ClosedLoopScenario, threshold_n: float,

@@ -207,6 +207,21 @@ def lift_off_prediction(rows: list[dict]) -> dict:
     return out
 
 
+def _coverage(rows: list[dict]) -> dict | None:
+    """The margin's coverage over the draws (`scenarios.metrics.margin_coverage`).
+
+    Pooled over every wheel sample, and the worst draw's.
+    """
+    cov = [r["metrics"].get("force_margin_coverage") for r in rows]
+    cov = [c for c in cov if c]
+    if not cov:
+        return None
+    n = sum(c["samples"] for c in cov)
+    return {"stated": cov[0]["stated"],
+            "pooled": sum(c["covered"] * c["samples"] for c in cov) / n,
+            "worst_draw": min(c["covered"] for c in cov), "samples": n, "draws": len(cov)}
+
+
 def summarize(rows: list[dict]) -> dict:
     """The per-controller summary of sweep rows (module docstring)."""
     by_controller: dict[str, list[dict]] = {}
@@ -244,6 +259,7 @@ def summarize(rows: list[dict]) -> dict:
             "task_time_ratio": ({"median": float(np.median(ratios)),
                                  "max": float(max(ratios)), "pairs": len(ratios)}
                                 if ratios else None),
+            "force_margin_coverage": _coverage(ok),
             "unsafe_draws": sorted(r["index"] for r in unsafe),
             "failed_draws": sorted(r["index"] for r in rs if "error" in r),
         }

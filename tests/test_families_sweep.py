@@ -3,6 +3,7 @@
 import json
 import math
 
+import numpy as np
 import pytest
 
 from scenarios.errors import RunInputError, ScenarioFileError
@@ -132,3 +133,46 @@ def test_every_pose_holds_the_heaviest_payload_within_the_mpcs_effort_bounds(fam
                                              np.zeros(6), q, zero, zero))[cylinders]
             used = np.where(e > 0, e / hi[cylinders], e / lo[cylinders])
             assert used.max() <= bound, (family, i, pose, used)
+
+
+def test_margin_coverage_counts_four_wheel_samples_after_ready():
+    """A Gaussian error of the stated sigma is covered on ~99 %; twice that sigma on ~88 %
+    (the one-sided 1 - Phi(-z / 2)); three-wheel ticks, ticks before ready and ticks without
+    a margin are not counted."""
+    from statistics import NormalDist
+
+    from scenarios.metrics import margin_coverage
+
+    rng = np.random.default_rng(11)
+    n, sigma, z = 40000, 150.0, NormalDist().inv_cdf(0.99)
+    t = np.arange(n) * 0.01
+    measured = np.full((n, 4), 5000.0)
+    margin = np.full((n, 4), z * sigma)
+    contact = np.ones((n, 4), bool)
+    contact[::10, 2] = False  # three-wheel ticks
+    margin[5::10] = 0.0  # no margin set (oracle ticks)
+    for scale, expected in ((1.0, 0.99), (2.0, 1 - NormalDist().cdf(-z / 2))):
+        truth = measured + scale * sigma * rng.normal(size=(n, 4))
+        truth[t < 1.0] = 0.0  # before ready: would be uncovered
+        log = {"time": t, "measured_forces": measured, "force_margin": margin,
+               "normal_force": truth, "in_contact": contact}
+        cov = margin_coverage(log, 1.0, 0.99)
+        assert cov["samples"] == 4 * int(np.sum((t >= 1.0) & (np.arange(n) % 10 >= 1)
+                                                & (np.arange(n) % 10 != 5)))
+        assert cov["covered"] == pytest.approx(expected, abs=0.004)
+        assert cov["sigma_median_N"] == pytest.approx(sigma)
+    assert margin_coverage({"time": t, "normal_force": truth, "in_contact": contact},
+                           1.0, 0.99) is None
+
+
+def test_summary_pools_the_margin_coverage():
+    rows = [_row(0, "mpc-full", 0.0, 10.0), _row(1, "mpc-full", 0.0, 10.0),
+            _row(2, "mpc-full", 0.0, 10.0)]
+    rows[0]["metrics"]["force_margin_coverage"] = {"stated": 0.99, "covered": 0.9,
+                                                   "samples": 100}
+    rows[1]["metrics"]["force_margin_coverage"] = {"stated": 0.99, "covered": 1.0,
+                                                   "samples": 300}
+    cov = summarize(rows)["mpc-full"]["force_margin_coverage"]
+    assert cov["pooled"] == pytest.approx(0.975) and cov["worst_draw"] == 0.9
+    assert cov["draws"] == 2 and cov["samples"] == 400
+    assert summarize(rows[2:])["mpc-full"]["force_margin_coverage"] is None

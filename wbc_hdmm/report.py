@@ -69,4 +69,10 @@ def sweep_lines(summary: dict, controllers) -> list[str]:
                    f"{s.get('draws_below_threshold', 0):4d}  safe {s.get('fraction_safe')}  "
                    f"unsafe <= {s.get('unsafe_upper_95', 1.0):.3f} (95 %)  tip-overs "
                    f"{s.get('tipovers', 0)}  exceptions {s.get('exceptions', 0)}")
+        cov = s.get("force_margin_coverage")
+        if cov:
+            out.append(f"   {'':18s} force margin covered the feedback's error on "
+                       f"{100 * cov['pooled']:.1f} % of {cov['samples']} four-wheel samples "
+                       f"(stated {100 * cov['stated']:.0f} %; worst draw "
+                       f"{100 * cov['worst_draw']:.1f} %)")
     return out
