@@ -17,7 +17,7 @@ DAQP solves the least-distance form of the QP: with ``H = L L'`` and ``x = L^-T 
 ``H`` is unchanged (the MPC's Hessian is constant tick after tick) and ``M`` is one BLAS
 product, and DAQP gets an identity Hessian, which it recognises as diagonal (no factorisation,
 no products). The rows of a block that stays the same tick after tick (``constant_rows`` of a
-`wbc.qp.QP`: the MPC's stroke and speed limits, about half the kept rows) are multiplied by
+`wbc.qp.QP`: the MPC's stroke and speed limits, ~60 % of the kept rows) are multiplied by
 ``L^-T`` once and then read from that product (each row's product is the same BLAS sum
 whichever rows it is computed with). The rows and hence the multipliers are the same as the
 QP's, so the warm start and the tolerance mean what they did. A Hessian that is not
