@@ -22,6 +22,8 @@ ground); the MPC bounds the crane's efforts.
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 import pinocchio as pin
 
@@ -56,22 +58,15 @@ def effort_ranges(machine: Machine) -> tuple[np.ndarray, np.ndarray]:
     return lo[:N_SERVO_AXES], hi[:N_SERVO_AXES]
 
 
-_SHARED: dict[str, list] = {}
-
-
-def _shared_last(machine: Machine) -> list:
+@functools.lru_cache(maxsize=8)
+def _shared_last(fingerprint: str) -> list:
     """``[key, ((E_1, e_1), (E_2, e_2))]``: the last motion's pair results, one per machine.
 
     Kept by the machine's fingerprint, so every `ActuatorEfforts` of the same description
     (whatever its payload mass: the pair's results do not depend on it) reads and writes the
     same entry. Callers must not write into the arrays.
     """
-    key = machine.fingerprint
-    if key not in _SHARED:
-        if len(_SHARED) >= 8:
-            _SHARED.pop(next(iter(_SHARED)))
-        _SHARED[key] = [None, None]
-    return _SHARED[key]
+    return [None, None]
 
 
 def _motion_key(state: MachineState) -> bytes:
@@ -103,7 +98,7 @@ class ActuatorEfforts:
         self._tree_map()
         self._motion_of: MachineState | None = None  # `_tree_motion`'s last state and result
         self._motion: tuple | None = None
-        self._shared = _shared_last(machine)
+        self._shared = _shared_last(machine.fingerprint)
         body = next(b for b in machine.bodies if b.name == machine.payload)
         self.payload_mass = body.inertia.mass if payload_mass is None else payload_mass
 

@@ -26,7 +26,7 @@ import numpy as np
 
 from estimators.uncertainty import force_margin, normal_force_std, suspension_sensitivity
 from models import build_reference_machine
-from models.log import SETTLE_SECONDS, ScenarioLog
+from models.log import ScenarioLog
 from models.state import MachineState
 from scenarios.closed_loop_scenarios import (
     CONTROL_PERIOD,
@@ -340,9 +340,7 @@ def run_closed_loop(scenario: ClosedLoopScenario | str, out_dir: Path | None = N
         "payload_estimate_final_kg": float(arrays["payload_estimate"][-1]),
         "force_margin_N": {"median": float(np.median(arrays["force_margin"])),
                            "max": float(np.max(arrays["force_margin"]))},
-        "force_margin_coverage": margin_coverage(
-            arrays, SETTLE_SECONDS if readiness.time is None
-            else max(readiness.time, SETTLE_SECONDS), confidence),
+        "force_margin_coverage": margin_coverage(arrays, readiness.time, confidence),
         "fallbacks": fallbacks,
     }
     if out_dir is not None:

@@ -69,14 +69,20 @@ def json_default(o):
     raise TypeError(f"not JSON serializable: {type(o)}")
 
 
-def margin_coverage(log: dict, start: float, confidence: float) -> dict | None:
+def _start(ready_time: float | None) -> float:
+    """When the safety metrics start counting [s]: ready, and settled at the earliest."""
+    return SETTLE_SECONDS if ready_time is None else max(ready_time, SETTLE_SECONDS)
+
+
+def margin_coverage(log: dict, ready_time: float | None, confidence: float) -> dict | None:
     """How often the MPC's per-wheel margin covered the error of the forces it was fed.
 
     The MPC keeps each wheel's measured force (the closure feedback, ``measured_forces``)
     ``z sigma`` (``force_margin``) above its threshold, ``z`` of a one-sided ``confidence``;
     that bound is right when the true force is at least ``measured - margin`` on that share
-    of the samples. Counted per wheel on the control ticks from ``start`` [s] on where all
-    four wheels touch (truth) and a margin was set.
+    of the samples. Counted per wheel on the control ticks from the start of the safety
+    metrics (``ready_time`` as in `closed_loop_metrics`) on where all four wheels touch
+    (truth) and a margin was set.
 
     Returns:
         ``{"stated", "covered", "samples", "error_rms_N", "sigma_median_N",
@@ -88,7 +94,7 @@ def margin_coverage(log: dict, start: float, confidence: float) -> dict | None:
     if "measured_forces" not in log or "force_margin" not in log:
         return None
     t, measured, margin = log["time"], log["measured_forces"], log["force_margin"]
-    ok = ((t >= start - 1e-9) & log["in_contact"].all(axis=1)
+    ok = ((t >= _start(ready_time) - 1e-9) & log["in_contact"].all(axis=1)
           & np.isfinite(measured).all(axis=1) & (margin > 0).all(axis=1))
     if not ok.any():
         return None
@@ -130,7 +136,7 @@ def closed_loop_metrics(log: dict, scenario: ClosedLoopScenario, threshold_n: fl
         ts, fz_all = t, log["normal_force"]
         n_contact = log["in_contact"].sum(axis=1)
     dt = float(np.median(np.diff(ts))) if ts.size > 1 else CONTROL_PERIOD
-    start = SETTLE_SECONDS if ready_time is None else max(ready_time, SETTLE_SECONDS)
+    start = _start(ready_time)
     keep = ts >= start - 1e-9
     if not keep.any():  # a run shorter than the settling: judge all of it
         keep = np.ones_like(keep)
