@@ -78,6 +78,18 @@ def test_closed_loop_options_outside_range(tmp_path, capsys, option):
     _error_line(capsys)
 
 
+@pytest.mark.parametrize("controllers, says", [("foo", "unknown ['foo']"),
+                                               ("tracking,bar", "unknown ['bar']"),
+                                               (",", "none given"), ("", "none given")])
+def test_sweep_controllers_checked_before_anything_runs(tmp_path, capsys, controllers, says):
+    out = tmp_path / "sweep"
+    assert main(["sweep", "--draws", "1", "--controllers", controllers,
+                 "--out", str(out), "--no-progress"]) == 2
+    line = _error_line(capsys)
+    assert f"--controllers: {says}; valid: tracking, mpc-quasi-static, mpc-full" in line
+    assert not out.exists()  # refused before the output folder is made
+
+
 def test_open_loop_takes_no_noise(tmp_path, capsys):
     assert main(["run", "flat", "--noise", "default", "--out", str(tmp_path)]) == 2
     assert "open loop; it takes no noise" in _error_line(capsys)

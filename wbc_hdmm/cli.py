@@ -189,8 +189,9 @@ def sweep_cmd(family, draws, first, controllers, master_seed, jobs, ray_address,
     names = [c.strip() for c in controllers.split(",") if c.strip()]
     unknown = [c for c in names if c not in CONTROLLERS]
     if not names or unknown:
-        raise ValueError(f"--controllers: unknown {unknown or 'none given'}; valid: "
-                         f"{', '.join(CONTROLLERS)}")
+        what = f"unknown {unknown}" if unknown else "none given"
+        raise ValueError(f"--controllers: {what}; valid: {', '.join(CONTROLLERS)} "
+                         f"(comma-separated)")
     out = prepare_out_dir(out, force)
     from scenarios.progress import Progress
     from scenarios.sweep import run_sweep
