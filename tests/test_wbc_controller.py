@@ -226,13 +226,23 @@ def test_telescope_goal_at_101_m_is_refused(tracking, machine):
         tracking.set_goal(JointGoal(crane=crane))
 
 
-@pytest.mark.parametrize("field,value", [("qd", 1e300), ("base_twist", 1e200)])
+@pytest.mark.parametrize("field,value", [("qd", 1e300), ("base_twist", 1e200),
+                                         ("base_acceleration", -1e200), ("q", 1e250),
+                                         ("qdd", -1e300)])
 def test_step_refuses_a_state_that_would_overflow(tracking, machine, field, value):
     state = make_state(machine)
     x = getattr(state, field).copy()
-    x[0] = value
-    with pytest.raises(WbcInputError, match=field):
+    x[-1] = value
+    with pytest.raises(WbcInputError, match=rf"state\.{field} has an entry of magnitude"):
         tracking.step(dataclasses.replace(state, **{field: x}))
+
+
+def test_step_names_the_first_field_that_would_overflow(tracking, machine):
+    state = make_state(machine)
+    big = dict(qd=state.qd.copy(), qdd=state.qdd.copy())
+    big["qd"][0], big["qdd"][0] = 1e300, 1e300
+    with pytest.raises(WbcInputError, match=r"state\.qd has"):
+        tracking.step(dataclasses.replace(state, **big))
 
 
 @pytest.mark.parametrize("kw", [dict(dt="0.01"), dict(max_iter=2.5), dict(eps_abs=10**400),

@@ -121,5 +121,19 @@ def test_sample_many_equals_one_sample_at_a_time(limits):
     for k, t in enumerate(times):
         for got, want in zip((m[k] for m in many), ref.sample(t)):
             np.testing.assert_array_equal(got, want)
+        one = ref.sample_many([t])  # the single-time path, shapes (1, 7)
+        for got, want in zip(one, (m[k:k + 1] for m in many)):
+            assert got.shape == (1, 7)
+            np.testing.assert_array_equal(got, want)
     ref.hold(start)
     np.testing.assert_array_equal(ref.sample_many([0.0, 2.0])[0], [start, start])
+
+
+def test_contiguous_axes_index_as_a_slice(limits):
+    """`index` addresses the same entries as `axes` (a slice when they are contiguous)."""
+    x = np.arange(9.0)
+    for axes in (CRANE_AXES, SUSPENSION_AXES, [0, 3, 4]):
+        ref = RuckigReference(limits, axes)
+        np.testing.assert_array_equal(x[ref.index], x[np.asarray(axes)])
+    assert isinstance(RuckigReference(limits, CRANE_AXES).index, slice)
+    assert not isinstance(RuckigReference(limits, [0, 3, 4]).index, slice)

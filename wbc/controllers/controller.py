@@ -220,7 +220,7 @@ class Controller(abc.ABC):
                 continue
             clock = self._clock[key]
             p, _, _ = ref.sample(clock[0])
-            err = float(np.max(np.abs(p - state.q[ref.axes])))
+            err = float(np.max(np.abs(p - state.q[ref.index])))
             clock[1] = float(min(max(2.0 * (1.0 - err / e_g), 0.0), 1.0))  # a scalar clip
             clock[0] += clock[1] * elapsed
 
@@ -239,7 +239,8 @@ class Controller(abc.ABC):
         for key, ref in self._references():
             tau, sigma = self._clock[key]
             rp, rv, ra = ref.sample_many(tau + sigma * offsets)
-            p[:, ref.axes], v[:, ref.axes], a[:, ref.axes] = rp, sigma * rv, sigma**2 * ra
+            i = ref.index
+            p[:, i], v[:, i], a[:, i] = rp, sigma * rv, sigma**2 * ra
         return ReferenceSample(p, v, a)
 
     # ------------------------------------------------------------------ loop
@@ -251,11 +252,14 @@ class Controller(abc.ABC):
         """
         if not isinstance(state, MachineState):
             raise WbcInputError(f"state must be a models.MachineState, got {type(state)!r}")
-        for name in ("base_twist", "base_acceleration", "q", "qd", "qdd"):
-            big = float(np.abs(getattr(state, name)).max())
-            if big > MAX_STATE_MAGNITUDE:
-                raise WbcInputError(f"state.{name} has an entry of magnitude {big:.3g}; valid: "
-                                    f"|{name}| <= {MAX_STATE_MAGNITUDE:g} (a sensor fault?)")
+        fields = (state.base_twist, state.base_acceleration, state.q, state.qd, state.qdd)
+        if np.abs(np.concatenate(fields)).max() > MAX_STATE_MAGNITUDE:  # one pass; then which
+            for name in ("base_twist", "base_acceleration", "q", "qd", "qdd"):
+                big = float(np.abs(getattr(state, name)).max())
+                if big > MAX_STATE_MAGNITUDE:
+                    raise WbcInputError(f"state.{name} has an entry of magnitude {big:.3g}; "
+                                        f"valid: |{name}| <= {MAX_STATE_MAGNITUDE:g} (a sensor "
+                                        f"fault?)")
         if abs(state.time) > MAX_STATE_TIME:
             raise WbcInputError(f"state.time {state.time:.6g} s outside "
                                 f"[-{MAX_STATE_TIME:g}, {MAX_STATE_TIME:g}] s")

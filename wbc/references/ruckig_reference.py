@@ -38,6 +38,10 @@ class RuckigReference:
     def __init__(self, limits: AxisLimits, axes, jerk_time: float = 0.25,
                  velocity_fraction: float = 0.8, acceleration_fraction: float = 0.8):
         self.axes = np.asarray(axes, dtype=int).reshape(-1)
+        # the same axes as a slice when they are contiguous (basic indexing is cheaper)
+        run = self.axes.size and np.array_equal(
+            self.axes, np.arange(self.axes[0], self.axes[0] + self.axes.size))
+        self.index = slice(int(self.axes[0]), int(self.axes[-1]) + 1) if run else self.axes
         if self.axes.size == 0 or np.any((self.axes < 0) | (self.axes >= N_AXES)):
             raise ConfigurationError(f"axes must be indices in [0, {N_AXES}), got {axes}")
         if not (jerk_time > 0 and 0 < velocity_fraction <= 1 and 0 < acceleration_fraction <= 1):
@@ -165,7 +169,11 @@ class RuckigReference:
             out = [self.sample(t) for t in times]
             return tuple(np.array([o[k] for o in out]) for k in range(3))
         at, t0 = self._traj.at_time, self.start_time
-        pva = np.array([at(max(t - t0, 0.0))[:3] for t in np.asarray(times, float).tolist()],
-                       float).reshape(-1, 3, self.n)
+        times = np.asarray(times, float).tolist()
+        if len(times) == 1:  # one sample (the whole-body QP's): no list to build
+            pva = np.array(at(max(times[0] - t0, 0.0))[:3], float).reshape(1, 3, self.n)
+        else:
+            pva = np.array([at(max(t - t0, 0.0))[:3] for t in times],
+                           float).reshape(-1, 3, self.n)
         return (clip(pva[:, 0], self.position_lower, self.position_upper),
                 pva[:, 1].copy(), pva[:, 2].copy())
