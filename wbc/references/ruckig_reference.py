@@ -33,17 +33,21 @@ class RuckigReference:
         jerk_time: Time to build up full acceleration [s].
         velocity_fraction: In (0, 1].
         acceleration_fraction: In (0, 1].
+
+    Attributes:
+        axes: The axes' indices, (n,).
+        index: The same axes as a slice when they are contiguous (basic indexing: cheaper
+            than an index array, the same entries), else ``axes``.
     """
 
     def __init__(self, limits: AxisLimits, axes, jerk_time: float = 0.25,
                  velocity_fraction: float = 0.8, acceleration_fraction: float = 0.8):
         self.axes = np.asarray(axes, dtype=int).reshape(-1)
-        # the same axes as a slice when they are contiguous (basic indexing is cheaper)
-        run = self.axes.size and np.array_equal(
-            self.axes, np.arange(self.axes[0], self.axes[0] + self.axes.size))
-        self.index = slice(int(self.axes[0]), int(self.axes[-1]) + 1) if run else self.axes
         if self.axes.size == 0 or np.any((self.axes < 0) | (self.axes >= N_AXES)):
             raise ConfigurationError(f"axes must be indices in [0, {N_AXES}), got {axes}")
+        first = int(self.axes[0])
+        contiguous = np.array_equal(self.axes, np.arange(first, first + self.axes.size))
+        self.index = slice(first, first + self.axes.size) if contiguous else self.axes
         if not (jerk_time > 0 and 0 < velocity_fraction <= 1 and 0 < acceleration_fraction <= 1):
             raise ConfigurationError(
                 f"need jerk_time > 0 and fractions in (0, 1]; got {jerk_time}, "
