@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import abc
 import logging
+import operator
 from typing import ClassVar
 
 import numpy as np
@@ -48,6 +49,8 @@ __all__ = ["Controller", "MAX_STATE_MAGNITUDE", "MAX_STATE_TIME"]
 # Bounds of a measured state: far beyond any real machine, well inside double precision.
 MAX_STATE_MAGNITUDE = 1e6  # [m, rad, m/s, rad/s, m/s^2, rad/s^2]
 MAX_STATE_TIME = 1e9  # [s], about 30 years
+_MAGNITUDE_FIELDS = ("base_twist", "base_acceleration", "q", "qd", "qdd")  # checked per tick
+_magnitudes = operator.attrgetter(*_MAGNITUDE_FIELDS)
 
 
 class Controller(abc.ABC):
@@ -252,9 +255,8 @@ class Controller(abc.ABC):
         """
         if not isinstance(state, MachineState):
             raise WbcInputError(f"state must be a models.MachineState, got {type(state)!r}")
-        fields = (state.base_twist, state.base_acceleration, state.q, state.qd, state.qdd)
-        if np.abs(np.concatenate(fields)).max() > MAX_STATE_MAGNITUDE:  # one pass; then which
-            for name in ("base_twist", "base_acceleration", "q", "qd", "qdd"):
+        if np.abs(np.concatenate(_magnitudes(state))).max() > MAX_STATE_MAGNITUDE:
+            for name in _MAGNITUDE_FIELDS:  # one pass above; here which field it was
                 big = float(np.abs(getattr(state, name)).max())
                 if big > MAX_STATE_MAGNITUDE:
                     raise WbcInputError(f"state.{name} has an entry of magnitude {big:.3g}; "

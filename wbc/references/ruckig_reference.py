@@ -173,11 +173,7 @@ class RuckigReference:
             out = [self.sample(t) for t in times]
             return tuple(np.array([o[k] for o in out]) for k in range(3))
         at, t0 = self._traj.at_time, self.start_time
-        times = np.asarray(times, float).tolist()
-        if len(times) == 1:  # one sample (the whole-body QP's): no list to build
-            pva = np.array(at(max(times[0] - t0, 0.0))[:3], float).reshape(1, 3, self.n)
-        else:
-            pva = np.array([at(max(t - t0, 0.0))[:3] for t in times],
-                           float).reshape(-1, 3, self.n)
+        pva = np.array([at(max(t - t0, 0.0))[:3] for t in np.asarray(times, float).tolist()],
+                       float).reshape(-1, 3, self.n)
         return (clip(pva[:, 0], self.position_lower, self.position_upper),
                 pva[:, 1].copy(), pva[:, 2].copy())
