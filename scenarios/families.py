@@ -20,12 +20,14 @@ Families (ranges drawn uniformly; slopes in degrees, the side slope's downhill s
 
 Every goal is checked at construction against the limits the controller uses
 (`check_reachable`): an unreachable goal is a `ScenarioFileError` before the run. Goals are
-also drawn where the crane can hold the heaviest payload of the draw (its rated payload on
-level ground from the load chart, `models.load_chart.rated_payload`, with the cylinder forces
-the MPC allows itself, `EFFORT_FRACTION` of each range, at least 1 / `HOLD_FRACTION` times
-that mass): an operator does not command a pose the cylinders cannot hold, and the
-controller would not move the load there; whether the machine stays on four wheels there is
-the controller's business.
+also drawn where the crane can hold the heaviest payload of the draw (its rated payload from
+the load chart, `models.load_chart.rated_payload`, with the cylinder forces the MPC allows
+itself, `EFFORT_FRACTION` of each range, at least 1 / `HOLD_FRACTION` times that mass), both
+on level ground and with the chassis on the draw's side slope at its heading
+(`ground_attitude`; the rough terrain's local tilt is not in the check): an operator does
+not command a pose the cylinders cannot hold where the machine stands, and the controller
+would not move the load there; whether the machine stays on four wheels there is the
+controller's business.
 """
 
 from __future__ import annotations
@@ -44,7 +46,7 @@ from scenarios.scenario import TRANSPORT, ClosedLoopScenario, CranePose
 from wbc.controllers.config import MpcConfig
 
 __all__ = ["EFFORT_FRACTION", "FAMILIES", "GRAPPLE_MASS", "HOLD_FRACTION", "POSITION_MARGIN",
-           "SUMMARIES", "Draw", "check_reachable", "draw"]
+           "SUMMARIES", "Draw", "check_reachable", "draw", "ground_attitude"]
 
 GRAPPLE_MASS = 10.0  # [kg] an empty grapple
 POSITION_MARGIN = 0.01  # the controller's margin (`wbc.ControllerConfig.position_margin`)
@@ -73,13 +75,35 @@ class Draw:
     parameters: dict
 
 
+def ground_attitude(side_slope_deg: float, heading: float) -> np.ndarray:
+    """The chassis attitude (world <- fb) standing on the side slope at ``heading`` [rad].
+
+    The plane ``h = y tan(side_slope)`` of `models.terrain.side_slope`: its normal is world
+    z turned about world x by the slope angle, and the chassis is yawed by the heading
+    about that normal.
+    """
+    a = math.radians(side_slope_deg)
+    ca, sa, cy, sy = math.cos(a), math.sin(a), math.cos(heading), math.sin(heading)
+    tilt = np.array([[1.0, 0.0, 0.0], [0.0, ca, -sa], [0.0, sa, ca]])
+    yaw = np.array([[cy, -sy, 0.0], [sy, cy, 0.0], [0.0, 0.0, 1.0]])
+    return tilt @ yaw
+
+
+def _holds(machine: Machine, q: np.ndarray, mass: float, attitudes) -> bool:
+    return all(HOLD_FRACTION * rated_payload(machine, q, 0.0, base_rotation=rot,
+                                             effort_fraction=EFFORT_FRACTION).mass >= mass
+               for rot in attitudes)
+
+
 def _pose_in_workspace(rng: np.random.Generator, machine: Machine, slew_deg=None,
-                       reach: tuple[float, float] = (0.0, 1.0), hold: float = 0.0
-                       ) -> CranePose:
+                       reach: tuple[float, float] = (0.0, 1.0), hold: float = 0.0,
+                       attitude: np.ndarray | None = None) -> CranePose:
     """A random pose inside the controller's ranges; ``reach`` picks the telescope range.
 
-    ``hold`` [kg]: the pose must hold this payload with the room `HOLD_FRACTION` leaves.
+    ``hold`` [kg]: the pose must hold this payload with the room `HOLD_FRACTION` leaves, on
+    level ground and, if given, with the chassis at ``attitude`` (world <- fb).
     """
+    attitudes = (None,) if attitude is None else (None, attitude)
     ch = machine.chains
     for _ in range(1000):
         angles = []
@@ -96,8 +120,7 @@ def _pose_in_workspace(rng: np.random.Generator, machine: Machine, slew_deg=None
         telescope = rng.uniform(t_lo + max(_EDGE, reach[0]) * span,
                                 t_lo + min(1 - _EDGE, reach[1]) * span)
         pose = CranePose(*angles, telescope)
-        if hold > 0 and HOLD_FRACTION * rated_payload(
-                machine, pose.q(machine), 0.0, effort_fraction=EFFORT_FRACTION).mass < hold:
+        if hold > 0 and not _holds(machine, pose.q(machine), hold, attitudes):
             continue
         return pose
     raise RunInputError(f"no crane pose found in the workspace that holds {hold:.0f} kg "
@@ -152,11 +175,13 @@ def _random(rng, machine, name):
     elif kind == "release":
         event = (first + rng.uniform(3.0, 6.0), GRAPPLE_MASS)
     heaviest = max(payload, event[1] if event else 0.0)
-    goals = tuple(_pose_in_workspace(rng, machine, hold=heaviest) for _ in range(n_goals))
     heading = rng.uniform(-math.pi, math.pi) if standing else rng.uniform(-0.5, 0.5)
     duration = 10.0 + 5.0 * n_goals
     start = (rng.uniform(6, 12), rng.uniform(-2, 2), heading) if standing else (
         0.0, rng.uniform(-2, 2), heading)
+    goals = tuple(_pose_in_workspace(rng, machine, hold=heaviest,
+                                     attitude=ground_attitude(side, heading))
+                  for _ in range(n_goals))
     crane_speed = (rng.uniform(0.3, 0.8), rng.uniform(0.1, 0.4))
     return dict(name=name, side_slope_deg=side, rough_slope_deg=rough, drive_speed=speed,
                 drive_distance=0.8 * speed * (duration - 2.0), goals=goals,
@@ -170,7 +195,7 @@ def _heavy_pick(rng, machine, name):
     down = _downhill_slew(side)
     mass = rng.uniform(230, 300)
     grab = _pose_in_workspace(rng, machine, slew_deg=down * rng.uniform(0.6, 1.0),
-                              reach=(0.7, 1.0), hold=mass)
+                              reach=(0.7, 1.0), hold=mass, attitude=ground_attitude(side, 0.0))
     return dict(name=name, side_slope_deg=side, rough_slope_deg=rng.uniform(5, 15),
                 drive_speed=0.0, drive_distance=0.0, goals=(TRANSPORT,),
                 payload_mass=GRAPPLE_MASS, payload_event=(2.0, mass),
@@ -182,13 +207,14 @@ def _fast_swing(rng, machine, name):
     side = rng.uniform(8, 12) * rng.choice([-1.0, 1.0])
     speed = rng.uniform(0.3, 0.6)
     payload = rng.uniform(100, 250)
+    start = (0.0, rng.uniform(-2, 2), rng.uniform(-0.3, 0.3))
     out = [_pose_in_workspace(rng, machine, slew_deg=s * rng.uniform(40, 60),
-                              reach=(0.6, 1.0), hold=payload) for s in (1.0, -1.0)]
+                              reach=(0.6, 1.0), hold=payload,
+                              attitude=ground_attitude(side, start[2])) for s in (1.0, -1.0)]
     return dict(name=name, side_slope_deg=side, rough_slope_deg=rng.uniform(10, 20),
                 drive_speed=speed, drive_distance=0.8 * speed * 13.0, goals=tuple(out),
                 payload_mass=payload, payload_event=None,
-                first_goal_time=rng.uniform(1.0, 2.0),
-                start=(0.0, rng.uniform(-2, 2), rng.uniform(-0.3, 0.3)),
+                first_goal_time=rng.uniform(1.0, 2.0), start=start,
                 crane_speed=(rng.uniform(0.7, 0.8), rng.uniform(0.3, 0.4)), duration=15.0,
                 start_pose=TRANSPORT)
 
@@ -196,13 +222,16 @@ def _fast_swing(rng, machine, name):
 def _standing_rough(rng, machine, name):
     n_goals = int(rng.integers(1, 4))
     payload = rng.uniform(50, 300)
-    return dict(name=name, side_slope_deg=rng.uniform(0, 8) * rng.choice([-1.0, 1.0]),
-                rough_slope_deg=rng.uniform(12, 20), drive_speed=0.0, drive_distance=0.0,
-                goals=tuple(_pose_in_workspace(rng, machine, hold=payload)
+    side = rng.uniform(0, 8) * rng.choice([-1.0, 1.0])
+    rough = rng.uniform(12, 20)
+    start = (rng.uniform(6, 12), rng.uniform(-2, 2), rng.uniform(-math.pi, math.pi))
+    return dict(name=name, side_slope_deg=side,
+                rough_slope_deg=rough, drive_speed=0.0, drive_distance=0.0,
+                goals=tuple(_pose_in_workspace(rng, machine, hold=payload,
+                                               attitude=ground_attitude(side, start[2]))
                             for _ in range(n_goals)),
                 payload_mass=payload, payload_event=None,
-                first_goal_time=rng.uniform(1.0, 2.0),
-                start=(rng.uniform(6, 12), rng.uniform(-2, 2), rng.uniform(-math.pi, math.pi)),
+                first_goal_time=rng.uniform(1.0, 2.0), start=start,
                 crane_speed=(rng.uniform(0.3, 0.8), rng.uniform(0.1, 0.4)),
                 duration=10.0 + 5.0 * n_goals, start_pose=TRANSPORT)
 
