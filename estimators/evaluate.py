@@ -54,7 +54,7 @@ import numpy as np
 from estimators import calibration
 from estimators.errors import EstimatorInputError
 from estimators.estimator import NormalForceEstimator
-from estimators.evaluate_sensors import suites_report
+from estimators.evaluate_sensors import check_suites, suites_report
 from estimators.full_dynamics import D_BETA_COEFFICIENTS
 from estimators.log_batch import log_to_batch
 from estimators.results import BatchEstimate
@@ -178,7 +178,8 @@ def _equilibrium_rows(res: BatchEstimate, gt: np.ndarray, rows: np.ndarray,
 def evaluate_log(log_path, out_dir=None, plots: bool = True, *, machine: Machine | None = None,
                  settle: float = SETTLE_SECONDS, window_seconds: float = SLIDING_WINDOW_SECONDS,
                  D: float = 0.5, beta: float = 0.0,  # noqa: N803
-                 progress: Callable[[float], None] | None = None) -> dict:
+                 progress: Callable[[float], None] | None = None,
+                 suites=None) -> dict:
     """Evaluate every normal-force method on a scenario log; write ``estimation.json``.
 
     Args:
@@ -191,6 +192,9 @@ def evaluate_log(log_path, out_dir=None, plots: bool = True, *, machine: Machine
         D: Default D of eq. (29) for ``full/d-beta`` and ``quasi-static/d-beta`` [-].
         beta: Default beta of eq. (29) [N].
         progress: Called with the fraction done (0 to 1) after each stage, or None.
+        suites: The sensor suites to score in ``sensor_suites`` (``oracle``, ``ideal``,
+            ``realistic``; default: every suite the log has). The other entries are the
+            oracle's (the simulator's measured state).
 
     Returns:
         The report (also written as JSON): ``summary`` (a short table, what the CLI prints),
@@ -201,13 +205,15 @@ def evaluate_log(log_path, out_dir=None, plots: bool = True, *, machine: Machine
 
     Raises:
         FileNotFoundError: No log at ``log_path``.
-        EstimatorInputError: The log lacks fields or its strokes leave their ranges.
+        EstimatorInputError: The log lacks fields or its strokes leave their ranges, or a
+            suite asked for is unknown or not in the log.
     """
     from models import build_reference_machine
     from models.log import load_log
 
     log_path = Path(log_path)
     log = load_log(log_path)
+    suites = check_suites(log, suites)  # a bad name fails before the work, not after it
     log_file = log_path / "log.npz" if log_path.is_dir() else log_path
     out_dir = Path(out_dir) if out_dir is not None else log_file.parent
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -364,7 +370,7 @@ def evaluate_log(log_path, out_dir=None, plots: bool = True, *, machine: Machine
         "goals_pct": GOALS.get(scenario, {}),
         "paper_pct": PAPER.get(scenario, {}),
     }
-    report["sensor_suites"] = suites_report(log, machine, sb, rows, static_load)
+    report["sensor_suites"] = suites_report(log, machine, sb, rows, static_load, suites)
     report["summary"] = _summary(report)
     figures = []
     tick(0.8)

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from estimators.errors import EstimatorInputError
 from estimators.payload import PayloadEstimator
 from models.coordinates import SUSPENSION
 from models.description import Machine
@@ -30,7 +31,7 @@ from models.log import OBSERVED_SUITES
 from models.mujoco import servo_specs
 from models.state_batch import StateBatch
 
-__all__ = ["suite_batch", "suites_report"]
+__all__ = ["check_suites", "suite_batch", "suites_present", "suites_report"]
 
 METHODS = (("full", "d-beta"), ("full", "cylinder-force"), ("full", "compliance"),
            ("quasi-static", "d-beta"))
@@ -92,9 +93,41 @@ def _errors(f: np.ndarray, gt: np.ndarray, rows: np.ndarray, four: np.ndarray,
     return out
 
 
+def suites_present(log: dict) -> tuple[str, ...]:
+    """The suites a log can be scored on: ``oracle`` and each suite it has the observer of."""
+    return ("oracle",) + tuple(s for s in OBSERVED_SUITES if f"obs_{s}_q" in log)
+
+
+def check_suites(log: dict, suites) -> tuple[str, ...]:
+    """The suites to score: ``suites`` checked against the log, or all it has if None.
+
+    Raises:
+        EstimatorInputError: A name that is not a suite, or a suite the log has no observer
+            columns of.
+    """
+    present = suites_present(log)
+    if suites is None:
+        return present
+    suites = tuple(suites)
+    valid = ("oracle",) + OBSERVED_SUITES
+    for name in suites:
+        if name not in valid:
+            raise EstimatorInputError(f"unknown sensor suite {name!r}; valid: "
+                                      f"{', '.join(valid)}")
+        if name not in present:
+            raise EstimatorInputError(
+                f"the log has no observer columns of the {name!r} sensor suite (it has: "
+                f"{', '.join(present)}); the open-loop logs `wbc run` writes have every suite")
+    return suites
+
+
 def suites_report(log: dict, machine: Machine, oracle: StateBatch, rows: np.ndarray,
-                  static_load: float) -> dict:
-    """Per suite (``oracle`` first) and method, the errors (module docstring)."""
+                  static_load: float, suites=None) -> dict:
+    """Per suite (``oracle`` first) and method, the errors (module docstring).
+
+    ``suites``: the names to score (default: every suite the log has; `check_suites`).
+    """
+    wanted = check_suites(log, suites)
     gt = np.asarray(log["fz_in_fb"], float)
     true_flags = np.asarray(log["in_contact"], bool)
     four = true_flags.all(axis=1)
@@ -102,13 +135,14 @@ def suites_report(log: dict, machine: Machine, oracle: StateBatch, rows: np.ndar
     payload_true = np.asarray(log.get("payload_now", np.full(gt.shape[0],
                                                              body.inertia.mass)), float)
     report: dict = {}
-    suites = [("oracle", oracle, payload_true,
-               log.get("servo_setpoint"))]
+    batches = [("oracle", oracle, payload_true, log.get("servo_setpoint"))]
     for suite in OBSERVED_SUITES:
-        if f"obs_{suite}_q" in log:
+        if suite in wanted:
             sb, payload = suite_batch(log, suite)
-            suites.append((suite, sb, payload, log[f"obs_{suite}_servo_setpoint"]))
-    for name, sb, payload, setpoint in suites:
+            batches.append((suite, sb, payload, log[f"obs_{suite}_servo_setpoint"]))
+    for name, sb, payload, setpoint in batches:
+        if name not in wanted:
+            continue
         methods = {}
         for method, fourth in METHODS:
             if fourth == "cylinder-force" and sb.suspension_force is None:

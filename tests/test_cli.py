@@ -149,6 +149,12 @@ def test_estimate_truncated_and_foreign_files(tmp_path, capsys):
         _error_line(capsys)
 
 
+def test_estimate_refuses_an_unknown_sensor_suite(tmp_path, capsys):
+    assert main(["estimate", str(tmp_path), "--sensors", "exact", "--no-plots"]) == 2
+    err = _error_line(capsys)
+    assert "'exact' is not one of 'oracle', 'ideal', 'realistic'" in err
+
+
 def _interrupt_after(monkeypatch, n_calls):
     real_step = Simulator.step
     calls = {"n": 0}

@@ -223,3 +223,25 @@ def test_evaluate_log_on_three_wheels_skips_calibration(flat_log, tmp_path):
     assert np.isfinite(rep["methods"]["full/d-beta"]["error_pct"]["mean"])
     assert "full/d-beta on three-contact samples" in rep["contact_loss"]
     assert (tmp_path / "estimation.json").is_file()
+
+
+def test_a_chosen_sensor_suite_is_scored_alone_and_as_in_the_full_report(flat_log, report,
+                                                                         tmp_path):
+    full = report[0]["sensor_suites"]
+    assert set(full) == {"oracle", "ideal", "realistic"}
+    one = evaluate_log(flat_log, tmp_path, plots=False, suites=("realistic",))
+    assert set(one["sensor_suites"]) == {"realistic"}
+    assert json.dumps(one["sensor_suites"]["realistic"], sort_keys=True) == json.dumps(
+        full["realistic"], sort_keys=True)
+    assert set(one["summary"]["sensor_suites_pct"]) == {"realistic"}
+
+
+def test_an_unknown_or_missing_sensor_suite_is_a_typed_error(flat_log, tmp_path):
+    with pytest.raises(EstimatorInputError, match="unknown sensor suite 'exact'.*valid: oracle"):
+        evaluate_log(flat_log, tmp_path, plots=False, suites=("exact",))
+    log = {k: v for k, v in load_log(flat_log).items() if not k.startswith("obs_ideal_")}
+    np.savez(tmp_path / "log.npz", **log)
+    with pytest.raises(EstimatorInputError, match="no observer columns of the 'ideal'.*"
+                                                  "it has: oracle, realistic"):
+        evaluate_log(tmp_path, plots=False, suites=("ideal",))
+    assert not (tmp_path / "estimation.json").exists()  # refused before the work

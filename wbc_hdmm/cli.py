@@ -252,9 +252,16 @@ def compare_cmd(scenario, scenario_file, duration, seed, out, force, no_progress
 @click.option("--out", type=click.Path(path_type=Path), default=None,
               help="Output folder  [default: the log's folder]")
 @click.option("--no-plots", is_flag=True, help="Skip the figures.")
+@click.option("--sensors", type=click.Choice(("oracle", "ideal", "realistic")), multiple=True,
+              help="Sensor suite to score (repeat for several)  [default: every suite the "
+                   "log has]")
 @_progress_option
-def estimate_cmd(log, out, no_plots, no_progress) -> int:
-    """Evaluate every estimator method on a scenario log (log.npz or its folder)."""
+def estimate_cmd(log, out, no_plots, sensors, no_progress) -> int:
+    """Evaluate every estimator method on a scenario log (log.npz or its folder).
+
+    The methods' main table is on the simulator's measured state (the oracle); each sensor
+    suite's observer state is scored beside it (``sensor_suites`` in estimation.json).
+    """
     import json
 
     from estimators.evaluate import evaluate_log
@@ -272,7 +279,8 @@ def estimate_cmd(log, out, no_plots, no_progress) -> int:
         load_log(log)  # a bad file is one line before the progress bar starts
         with Progress(1.0, "estimate", enabled=False if no_progress else None,
                       unit="") as bar:
-            report = evaluate_log(log, out, plots=not no_plots, progress=bar.update)
+            report = evaluate_log(log, out, plots=not no_plots, progress=bar.update,
+                                  suites=sensors or None)
     except (zipfile.BadZipFile, EOFError, pickle.UnpicklingError) as exc:
         raise ValueError(f"'{log}' is not a readable scenario log (a log.npz written by "
                          f"wbc run): {exc}") from exc
