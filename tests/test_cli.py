@@ -149,6 +149,37 @@ def test_estimate_truncated_and_foreign_files(tmp_path, capsys):
         _error_line(capsys)
 
 
+def test_run_a_family_draw_gives_the_sweeps_row_and_a_log(tmp_path, capsys):
+    from scenarios.families import FAMILIES
+    from scenarios.sweep import run_one
+    from wbc_hdmm.cli import FAMILY_NAMES
+
+    assert FAMILY_NAMES == tuple(FAMILIES)
+    out = tmp_path / "draw"
+    assert main(["run", "--family", "standing-on-rough", "--draw", "0", "--master-seed", "11",
+                 "--duration", "3", "--out", str(out), "--no-progress"]) == 0
+    assert "standing-on-rough-0000" in capsys.readouterr().out
+    ran = json.loads((out / "metrics.json").read_text())
+    assert np.load(out / "log.npz")["time"].size > 100
+    row = run_one("standing-on-rough", 0, 11, "mpc-full", {"duration": 3.0})
+    for key in ("min_normal_force_N", "time_below_threshold_s", "tipped", "time_to_ready_s"):
+        assert ran[key] == pytest.approx(row["metrics"][key], rel=1e-6), key  # JSON rounds
+
+
+@pytest.mark.parametrize("args, says", [
+    (["--family", "random"], "--family and --draw go together"),
+    (["--draw", "3"], "--family and --draw go together"),
+    (["swing-out", "--family", "random", "--draw", "3"], "exactly one"),
+    (["--family", "random", "--draw", "3", "--seed", "5"], "has its own terrain seed"),
+    (["--family", "nope", "--draw", "3"], "'nope' is not one of 'random'"),
+    (["--family", "random", "--draw", "-1"], "-1 is not in the range x>=0"),
+])
+def test_run_a_family_draw_refuses_bad_arguments(tmp_path, capsys, args, says):
+    assert main(["run", *args, "--out", str(tmp_path / "x")]) == 2
+    assert says in _error_line(capsys)
+    assert not (tmp_path / "x").exists()
+
+
 def test_estimate_refuses_an_unknown_sensor_suite(tmp_path, capsys):
     assert main(["estimate", str(tmp_path), "--sensors", "exact", "--no-plots"]) == 2
     err = _error_line(capsys)

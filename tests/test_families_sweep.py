@@ -73,6 +73,23 @@ def test_summary_counts_and_ratios():
     assert s["mpc-full"]["failed_draws"] == [2]
 
 
+def test_the_sweep_lines_name_the_unsafe_and_failed_draws_and_how_to_rerun_one():
+    from wbc_hdmm.report import sweep_lines
+
+    rows = [_row(i, "mpc-full", 0.5 if i in (3, 7) else 0.0, 10.0) for i in range(30)]
+    rows += [_row(i, "tracking", 0.5, 10.0) for i in range(25)]
+    rows.append({"family": "random", "index": 30, "controller": "mpc-full", "error": "boom"})
+    lines = sweep_lines(summarize(rows), ["tracking", "mpc-full"],
+                        "wbc sweep --first {index} --controllers {controller}")
+    text = "\n".join(lines)
+    assert "unsafe draws: 3, 7\n" in text + "\n" and "failed draws: 30" in text
+    assert "unsafe draws: " + ", ".join(map(str, range(20))) + " and 5 more" in text
+    assert lines[-1].endswith("wbc sweep --first 0 --controllers tracking")
+    safe = [_row(i, "mpc-full", 0.0, 10.0) for i in range(3)]
+    assert not any("draws:" in line or "again" in line
+                   for line in sweep_lines(summarize(safe), ["mpc-full"], "x {index}"))
+
+
 def test_a_failing_run_is_a_row_not_the_end_of_the_sweep(tmp_path):
     summary = run_sweep("random", 2, ["tracking"], tmp_path, master_seed=1,
                         options={"duration": -1.0})

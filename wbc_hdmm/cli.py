@@ -21,6 +21,7 @@ __all__ = ["cli", "main"]
 CONTROLLERS = ("tracking", "mpc-quasi-static", "mpc-full")
 BENCHES = ("simulator", "estimator", "controller", "observer", "qp")  # `benchmarks.BENCHES`
 EXTRA_BENCHES = ("ticks",)  # `benchmarks.EXTRA`: only when named
+FAMILY_NAMES = ("random", "heavy-pick-downhill", "fast-swing-steep", "standing-on-rough")
 EXIT_ERROR = 2
 EXIT_INTERRUPTED = 130
 
@@ -134,8 +135,15 @@ def _scenario_argument(scenario, scenario_file):
 @click.option("--duration", type=float, default=None,
               help="Simulated time [s], more than the 1 s settling  [default: the "
                    "scenario's]")
-@click.option("--seed", type=int, default=0, show_default=True,
-              help="Terrain seed, an integer >= 0.")
+@click.option("--family", type=click.Choice(FAMILY_NAMES), default=None,
+              help="Run draw --draw of this scenario family (as `wbc sweep` runs it, with "
+                   "the draw's terrain seed) instead of SCENARIO.")
+@click.option("--draw", "draw_index", type=click.IntRange(min=0), default=None,
+              help="Index of the family's draw.")
+@click.option("--master-seed", type=click.IntRange(min=0), default=0, show_default=True,
+              help="Master seed of the family's draws.")
+@click.option("--seed", type=int, default=None,
+              help="Terrain seed, an integer >= 0  [default: 0; a family draw has its own]")
 @click.option("--threshold", type=float, default=None,
               help="Normal-force threshold [N] (closed loop)  [default: 10 % of the static "
                    "wheel load]")
@@ -147,10 +155,28 @@ def _scenario_argument(scenario, scenario_file):
 @_out_option("out/run")
 @_force_option
 @_progress_option
-def run_cmd(scenario, scenario_file, controller, duration, seed, threshold, sensors, noise,
-            delay, out, force, no_progress) -> int:
-    """Run one scenario (by name or from --scenario-file); write log.npz and metrics.json."""
-    scenario = _scenario_argument(scenario, scenario_file)
+def run_cmd(scenario, scenario_file, controller, duration, family, draw_index, master_seed,
+            seed, threshold, sensors, noise, delay, out, force, no_progress) -> int:
+    """Run one scenario (a name, --scenario-file or a family's --draw); write its log.
+
+    The log (log.npz) and metrics.json go to --out; a family's draw runs as `wbc sweep` runs
+    it, with the draw's own terrain seed.
+    """
+    if (family is None) != (draw_index is None):
+        raise ValueError("--family and --draw go together (a family's draw K)")
+    if family is not None:
+        if scenario is not None or scenario_file is not None:
+            raise ValueError("give a SCENARIO name, --scenario-file FILE or --family with "
+                             "--draw (exactly one)")
+        if seed is not None:
+            raise ValueError("a family's draw has its own terrain seed; drop --seed")
+        from scenarios.families import draw
+
+        d = draw(family, draw_index, master_seed)
+        scenario, seed = d.scenario, d.terrain_seed
+    else:
+        scenario = _scenario_argument(scenario, scenario_file)
+        seed = 0 if seed is None else seed
     out = prepare_out_dir(out, force)
     from scenarios import registry
 
@@ -165,8 +191,7 @@ def run_cmd(scenario, scenario_file, controller, duration, seed, threshold, sens
 
 
 @cli.command("sweep")
-@click.option("--family", type=click.Choice(("random", "heavy-pick-downhill",
-                                             "fast-swing-steep", "standing-on-rough")),
+@click.option("--family", type=click.Choice(FAMILY_NAMES),
               default="random", show_default=True, help="Scenario family to draw from.")
 @click.option("--draws", type=click.IntRange(min=1), default=20, show_default=True, help="Draws.")
 @click.option("--first", type=click.IntRange(min=0), default=0, show_default=True,
@@ -201,7 +226,9 @@ def sweep_cmd(family, draws, first, controllers, master_seed, jobs, ray_address,
         summary = run_sweep(family, draws, names, out, master_seed=master_seed, jobs=jobs,
                             ray_address=ray_address, first=first, options={"sensors": sensors},
                             progress=lambda done, total: bar.update(done))
-    click.echo("\n".join(sweep_lines(summary, names)))
+    rerun = (f"wbc run --family {family} --draw {{index}} --master-seed {master_seed} "
+             f"--controller {{controller}} --sensors {sensors} --out out/draw-{{index}}")
+    click.echo("\n".join(sweep_lines(summary, names, rerun)))
     click.echo(f"   wrote {out / 'sweep.jsonl'}, {out / 'summary.json'}")
     return 0
 

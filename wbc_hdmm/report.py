@@ -60,9 +60,17 @@ def comparison_table(metrics_by_controller: dict) -> list[str]:
     return lines
 
 
-def sweep_lines(summary: dict, controllers) -> list[str]:
-    """One line per controller of a sweep's summary (`scenarios.sweep.summarize`)."""
+_LISTED_DRAWS = 20  # unsafe or failed draws listed per controller (summary.json has all)
+
+
+def sweep_lines(summary: dict, controllers, rerun: str | None = None) -> list[str]:
+    """One line per controller of a sweep's summary (`scenarios.sweep.summarize`).
+
+    Its unsafe and failed draws follow it; ``rerun``, a command with ``{controller}`` and
+    ``{index}`` fields, is shown for the first of them: how to run that draw again.
+    """
     out = []
+    first = None
     for name in controllers:
         s = summary.get(name, {})
         out.append(f"   {name:18s} draws {s.get('draws', 0):4d}  below threshold "
@@ -75,4 +83,15 @@ def sweep_lines(summary: dict, controllers) -> list[str]:
                        f"{100 * cov['pooled']:.1f} % of {cov['samples']} four-wheel samples "
                        f"(stated {100 * cov['stated']:.0f} %; worst draw "
                        f"{100 * cov['worst_draw']:.1f} %)")
+        for what in ("unsafe_draws", "failed_draws"):
+            draws = s.get(what) or []
+            if draws:
+                more = f" and {len(draws) - _LISTED_DRAWS} more" if len(draws) > _LISTED_DRAWS \
+                    else ""
+                out.append(f"   {'':18s} {what.replace('_', ' ')}: "
+                           f"{', '.join(map(str, draws[:_LISTED_DRAWS]))}{more}")
+                first = first or (name, draws[0])
+    if rerun and first:
+        out.append("   run one again, with its log: " + rerun.format(controller=first[0],
+                                                                     index=first[1]))
     return out
