@@ -135,14 +135,13 @@ def suites_report(log: dict, machine: Machine, oracle: StateBatch, rows: np.ndar
     payload_true = np.asarray(log.get("payload_now", np.full(gt.shape[0],
                                                              body.inertia.mass)), float)
     report: dict = {}
-    batches = [("oracle", oracle, payload_true, log.get("servo_setpoint"))]
+    batches = [("oracle", oracle, payload_true, log.get("servo_setpoint"))] \
+        if "oracle" in wanted else []
     for suite in OBSERVED_SUITES:
         if suite in wanted:
             sb, payload = suite_batch(log, suite)
             batches.append((suite, sb, payload, log[f"obs_{suite}_servo_setpoint"]))
     for name, sb, payload, setpoint in batches:
-        if name not in wanted:
-            continue
         methods = {}
         for method, fourth in METHODS:
             if fourth == "cylinder-force" and sb.suspension_force is None:

@@ -124,6 +124,23 @@ def _scenario_argument(scenario, scenario_file):
     return load_scenario_file(scenario_file)
 
 
+def _run_target(scenario, scenario_file, family, draw_index, master_seed, seed):
+    """``(scenario, terrain seed)`` of `wbc run`: a name, a file, or a family's draw."""
+    if (family is None) != (draw_index is None):
+        raise ValueError("--family and --draw go together (a family's draw K)")
+    if family is None:
+        return _scenario_argument(scenario, scenario_file), 0 if seed is None else seed
+    if scenario is not None or scenario_file is not None:
+        raise ValueError("give a SCENARIO name, --scenario-file FILE or --family with --draw "
+                         "(exactly one)")
+    if seed is not None:
+        raise ValueError("a family's draw has its own terrain seed; drop --seed")
+    from scenarios.families import draw
+
+    d = draw(family, draw_index, master_seed)
+    return d.scenario, d.terrain_seed
+
+
 @cli.command("run", cls=_ScenarioHelp)
 @click.argument("scenario", required=False)
 @click.option("--scenario-file", type=click.Path(dir_okay=False), default=None,
@@ -162,21 +179,8 @@ def run_cmd(scenario, scenario_file, controller, duration, family, draw_index, m
     The log (log.npz) and metrics.json go to --out; a family's draw runs as `wbc sweep` runs
     it, with the draw's own terrain seed.
     """
-    if (family is None) != (draw_index is None):
-        raise ValueError("--family and --draw go together (a family's draw K)")
-    if family is not None:
-        if scenario is not None or scenario_file is not None:
-            raise ValueError("give a SCENARIO name, --scenario-file FILE or --family with "
-                             "--draw (exactly one)")
-        if seed is not None:
-            raise ValueError("a family's draw has its own terrain seed; drop --seed")
-        from scenarios.families import draw
-
-        d = draw(family, draw_index, master_seed)
-        scenario, seed = d.scenario, d.terrain_seed
-    else:
-        scenario = _scenario_argument(scenario, scenario_file)
-        seed = 0 if seed is None else seed
+    scenario, seed = _run_target(scenario, scenario_file, family, draw_index, master_seed,
+                                 seed)
     out = prepare_out_dir(out, force)
     from scenarios import registry
 
