@@ -80,7 +80,8 @@ def ground_attitude(side_slope_deg: float, heading: float) -> np.ndarray:
 
     The plane ``h = y tan(side_slope)`` of `models.terrain.side_slope`: its normal is world
     z turned about world x by the slope angle, and the chassis is yawed by the heading
-    about that normal.
+    about that normal. Written out, not `models.rotations.axis_rotation` (its Rodrigues form
+    differs in the last bits on 4 of 10 angles, and a draw's pose rejections depend on them).
     """
     a = math.radians(side_slope_deg)
     ca, sa, cy, sy = math.cos(a), math.sin(a), math.cos(heading), math.sin(heading)
