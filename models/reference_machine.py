@@ -49,6 +49,9 @@ LPM = 1e-3 / 60  # [m^3/s] per litre/minute
 # Production cranes of this class run 250-300 bar; 260 bar gives the crane a usable
 # workspace with the published bores.
 SUPPLY_PRESSURE = 260 * BAR
+# Where the lift's stroke ends [m], boom 79.6 deg, short of the linkage's dead centre
+# (0.553 m): see the "lift stroke range" note.
+LIFT_STROKE_END = 0.49
 
 # VDC planar frames are y-up with joint axes along z; ours are z-up with the crane plane x-z
 # and the crane joint axes along -y. P maps VDC vectors to ours.
@@ -138,20 +141,29 @@ def _sealed(cylinder: HydraulicCylinder) -> HydraulicCylinder:
                                                              cylinder.supply_pressure))
 
 
-def build_reference_machine(payload_mass: float = 150.0) -> Machine:
+def build_reference_machine(payload_mass: float = 150.0,
+                            lift_stroke_end: float = LIFT_STROKE_END) -> Machine:
     """Build the reference machine.
 
     Args:
         payload_mass: Mass of the payload held by the tool [kg], in (0, `MAX_PAYLOAD_MASS`].
+        lift_stroke_end: Where the lift's stroke ends [m], in (0.3, 0.59]; from 0.553 m on the
+            stroke runs to the linkage's dead centre, as the published XS031 figures do (for
+            measurements of what the end stop avoids).
 
     Raises:
-        ModelError: ``payload_mass`` not a real number in (0, `MAX_PAYLOAD_MASS`] kg.
+        ModelError: ``payload_mass`` or ``lift_stroke_end`` not a real number in its range.
     """
-    ok = isinstance(payload_mass, (int, float, np.integer, np.floating)) and not isinstance(
-        payload_mass, (bool, np.bool_))
-    if not ok or not 0.0 < payload_mass <= MAX_PAYLOAD_MASS:
+    def real(v):
+        return isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(
+            v, (bool, np.bool_))
+
+    if not real(payload_mass) or not 0.0 < payload_mass <= MAX_PAYLOAD_MASS:
         raise ModelError(f"payload_mass must be a number in (0, {MAX_PAYLOAD_MASS:g}] kg, got "
                          f"{payload_mass!r}")
+    if not real(lift_stroke_end) or not 0.3 < lift_stroke_end <= 0.59:
+        raise ModelError(f"lift_stroke_end must be a number in (0.3, 0.59] m, got "
+                         f"{lift_stroke_end!r}")
     src: list[tuple[str, str, str]] = []
     supply = SUPPLY_PRESSURE
 
@@ -299,12 +311,23 @@ def build_reference_machine(payload_mass: float = 150.0) -> Machine:
     chains["slew"] = ChainBinding(slew_chain, slew_cyl, "slew", barrel.name, piston.name)
 
     # Lift chain (x-z plane of the slew body; axis -y).
-    lift_chain = CylinderChain("lift", tuple(bc1 - b11), tuple(tc1), 0.085, 0.745, 0.59)
+    lift_chain = CylinderChain("lift", tuple(bc1 - b11), tuple(tc1), 0.085, 0.745,
+                               float(lift_stroke_end))
     lift_cyl = _sealed(HydraulicCylinder("lift", 0.080, 0.045, 0.59, supply, 100 * LPM, 1.0))
     note("lift/tilt cylinders", "bore 0.080, rod 0.045, stroke 0.59 m, L_c0 0.085, L_c 0.745 m, "
          "100 L/min", "XS031 s3")
-    note("lift stroke range", "[0, 0.553] m: the 0.59 m stroke is cut by the triangle",
-         "XS031 flag F3")
+    end = lift_chain.stroke_range[1]
+    reach = f"[0, {end:.3f}] m (boom up to {math.degrees(lift_chain.joint_angle(end)):.1f} deg)"
+    if end == lift_stroke_end:
+        note("lift stroke range", f"{reach}: an end stop short of the linkage's dead centre at "
+             "0.553 m (118.6 deg), where the triangle cuts the 0.59 m stroke. At 0.49 m the "
+             "linkage gain dtheta/dx is 5.5 rad/m, twice its mid-stroke value; further up the "
+             "servo's stiffness in boom angle (kp / gain^2) falls fast, and a boom past "
+             "vertical overshoots its goal and falls back over the dead centre",
+             "design (XS031 flag F3)")
+    else:
+        note("lift stroke range", f"{reach}: the 0.59 m stroke cut by the triangle at the "
+             "linkage's dead centre, no end stop", "XS031 flag F3")
     lift_a = _vdc(25.52660174, [0.23805608, 0.13201777, 0],
                   [[0.28426, -0.06487287, 0], [-0.06487287, 0.54237481, 0],
                    [0, 0, 0.6789102]], _rz(-beta2))

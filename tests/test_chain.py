@@ -5,7 +5,8 @@ import math
 import numpy as np
 import pytest
 
-from models import CylinderChain, JointOutOfRangeError, StrokeOutOfRangeError
+from models import CylinderChain, JointOutOfRangeError, ModelError, StrokeOutOfRangeError
+from models.reference_machine import LIFT_STROKE_END, build_reference_machine
 
 H = 1e-6
 
@@ -67,22 +68,42 @@ def test_inverse_map_round_trip(machine):
 def test_published_lift_and_tilt_angles(machine):
     # XS031 figures (machine-facts s2.5): lift x1 = 0, 0.3, 0.5 -> -9.24, 38.0, 82.8 deg;
     # tilt x2 = 0, 0.5 -> -146.1, -32.4 deg (the tilt map is CAD-exact: within 0.1 deg).
-    lift, tilt = machine.chains["lift"].chain, machine.chains["tilt"].chain
+    # The published stroke (0.59 m), not the machine's end stop at 0.49 m.
+    lift = build_reference_machine(lift_stroke_end=0.59).chains["lift"].chain
+    tilt = machine.chains["tilt"].chain
     for x, deg in ((0.0, -9.24), (0.3, 38.0), (0.5, 82.8)):
         assert abs(math.degrees(lift.joint_angle(x)) - deg) < 0.05
     for x, deg in ((0.0, -146.1), (0.5, -32.4)):
         assert abs(math.degrees(tilt.joint_angle(x)) - deg) < 0.1
 
 
-def test_lift_stroke_cut_by_geometry(machine):
-    # Flag F3: L1 + L11 - 0.83 = 0.5532 m < 0.59 m stroke.
-    lo, hi = machine.chains["lift"].chain.stroke_range
-    assert lo == 0.0 and 0.552 < hi < 0.5533
+def test_lift_stroke_ends_short_of_dead_centre(machine):
+    lift = machine.chains["lift"].chain
+    assert lift.stroke_range == (0.0, LIFT_STROKE_END)
+    # Flag F3: the published 0.59 m stroke is cut by the triangle at its dead centre,
+    # L1 + L11 - 0.83 = 0.5532 m.
+    published = build_reference_machine(lift_stroke_end=0.59).chains["lift"].chain
+    assert 0.552 < published.stroke_range[1] < 0.5533
+
+    def gain(x, h=1e-6):  # d theta / dx [rad/m]
+        return (published.joint_angle(x + h) - published.joint_angle(x - h)) / (2 * h)
+
+    # The stop keeps the linkage gain within about twice its smallest value; the dead
+    # centre's is unbounded (ten times the smallest 0.4 mm short of it).
+    smallest = min(gain(x) for x in np.linspace(0.01, LIFT_STROKE_END, 50))
+    assert gain(LIFT_STROKE_END) < 2.1 * smallest
+    assert gain(published.stroke_range[1] - 4e-4) > 10 * smallest
+
+
+@pytest.mark.parametrize("end", [0.3, 0.6, float("nan"), True, "0.49"])
+def test_lift_stroke_end_out_of_range_is_a_typed_error(end):
+    with pytest.raises(ModelError, match=r"lift_stroke_end must be a number in \(0.3, 0.59\]"):
+        build_reference_machine(lift_stroke_end=end)
 
 
 def test_out_of_range_raises_typed_error(machine):
     chain = machine.chains["lift"].chain
-    with pytest.raises(StrokeOutOfRangeError, match=r"outside \[0, 0.5532.*'lift'"):
+    with pytest.raises(StrokeOutOfRangeError, match=r"outside \[0, 0.49\].*'lift'"):
         chain.state(0.93)
     with pytest.raises(StrokeOutOfRangeError):
         chain.state(float("nan"))

@@ -139,9 +139,9 @@ def test_every_pose_holds_the_heaviest_payload_within_the_mpcs_effort_bounds(fam
     bound = 1.0 - MpcConfig().effort_margin
     cylinders = slice(2, 6)  # slew, lift, tilt, telescope
     zero = np.zeros(13)
-    # + a draw whose pick pose the level-ground check alone let through (the lift at 96 %
-    # of its range on the draw's 11.2 deg slope)
-    extra = [(98, 1)] if family == "heavy-pick-downhill" else []
+    # + a draw whose pick pose the level-ground check alone lets through (a cylinder at 96 %
+    # of its range on the draw's 7.4 deg slope; draw 98 before the lift's end stop)
+    extra = [(63, 1)] if family == "heavy-pick-downhill" else []
     for i, seed in [(i, 3) for i in range(12)] + extra:
         sc = draw(family, i, seed).scenario
         efforts.payload_mass = max(sc.payload_mass,

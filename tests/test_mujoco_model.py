@@ -338,8 +338,8 @@ def test_damping_schedule_keeps_the_explicit_servo_step_stable_at_every_pose(pay
                                   model.opt.timestep)
     kp = np.array([s.kp for s in specs])
     h = mm.DEFAULT_TIMESTEP
-    poses = [(45.0, -90.0, 0.5), (87.0, -18.0, 0.0), (87.0, -18.0, 1.0), (60.0, -18.0, 0.0),
-             (87.0, -60.0, 0.0), (30.0, -140.0, 1.1), (0.0, -90.0, 0.0), (70.0, -40.0, 0.5)]
+    poses = [(45.0, -90.0, 0.5), (79.0, -18.0, 0.0), (79.0, -18.0, 1.0), (60.0, -18.0, 0.0),
+             (79.0, -60.0, 0.0), (30.0, -140.0, 1.1), (0.0, -90.0, 0.0), (70.0, -40.0, 0.5)]
     designed = []
     for lift, tilt, tele in poses:
         q = _crane_pose(machine, lift, tilt, tele)
@@ -355,4 +355,4 @@ def test_damping_schedule_keeps_the_explicit_servo_step_stable_at_every_pose(pay
     data.qpos[:], _ = mm.home_keyframe(machine, T.flat(), q)
     mujoco.mj_forward(model, data)
     np.testing.assert_array_equal(schedule.damping(data, q), schedule.designed)
-    assert designed[0] <= 1 + 1e-7 and designed[1] > 1.5
+    assert designed[0] <= 1 + 1e-7 and designed[1] > 1.2  # 1.40 at 10 kg, at the end stop
