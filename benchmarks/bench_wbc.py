@@ -35,7 +35,7 @@ def _time_loop(controller, machine, steps: int = STEPS) -> dict:
     st = make_state(machine)
     goal = st.q[2:9].copy()
     goal[0] += 0.12  # slew: moves load to one side
-    goal[1] += 0.15  # lift
+    goal[1] += 0.14  # lift, to 0.479 m: inside the range the end stop leaves (0.485 m)
     goal[3] += 0.45  # telescope out
     controller.set_goal(JointGoal(crane=goal, suspension=st.q[:2] + 0.03))
     plant = KinematicPlant(st, DT, servo_time_constant=0.02)
