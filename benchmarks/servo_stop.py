@@ -46,6 +46,7 @@ def main() -> list[dict]:
 
 def _coasts(machine, starts) -> list[dict]:
     chain = machine.chains["lift"].chain
+    # Its strokes on the machine that reaches its lift angle; each start replaces the lift's.
     pose = POSE.coordinates(build_reference_machine(lift_stroke_end=0.59))
     rows = []
     for start in starts:
