@@ -177,6 +177,24 @@ class CylinderChain:
         return ChainState(stroke=float(x), length=lx, q=q, q1=q1, q2=q2, theta=theta,
                           theta_barrel=theta_b, k=kk, dk_dx=dk)
 
+    def angles(self, x: float, check: bool = True) -> tuple[float, float]:
+        """(theta, theta_barrel) at stroke ``x`` [rad]: `state`'s two angles alone.
+
+        The same operations as `state`, without the rates (a hot path: the tree's joint
+        positions, `models.coordinates.TreeCoordinates.joint_positions`).
+        """
+        if check:
+            self.check_stroke(x)
+        k = self._consts
+        la, lb = k["la"], k["lb"]
+        lx = k["lx0"] + x
+        c = (la * la + lb * lb - lx * lx) / (2 * la * lb)
+        c1 = (la * la + lx * lx - lb * lb) / (2 * la * lx)
+        q = -math.acos(min(max(c, -1.0), 1.0))
+        q1 = -math.acos(min(max(c1, -1.0), 1.0))
+        sigma = self.sigma
+        return k["psi"] + sigma * q, k["psi_b"] - sigma * q1
+
     @property
     def sigma(self) -> float:
         """Sign of eq. (5) for the driven joint: +1 or -1, from the triangle's orientation."""

@@ -131,3 +131,15 @@ def test_driven_rate_coefficients_match_state(machine):
             s = chain.state(x)
             np.testing.assert_allclose(chain.driven_rate_coefficients(x),
                                        (s.k[0], s.dk_dx[0]), rtol=1e-12)
+
+
+def test_angles_are_the_state_angles(machine):
+    # `angles` is `state`'s two angles alone (the tree's joint positions use it): the same
+    # numbers to the bit over the whole range, ends included, and the same range check.
+    for chain in _chains(machine):
+        lo, hi = chain.stroke_range
+        for x in [lo, hi, *np.linspace(lo, hi, 23)[1:-1]]:
+            s = chain.state(x)
+            assert chain.angles(float(x)) == (s.theta, s.theta_barrel)
+        with pytest.raises(StrokeOutOfRangeError):
+            chain.angles(hi + 1e-3)

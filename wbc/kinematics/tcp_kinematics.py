@@ -41,6 +41,10 @@ class TcpKinematics:
         names = self.pm.coordinates.joint_names
         self._tree_v = np.array([self.pm.joint_v_index[n] for n in names])
         self._eye = np.eye(3)
+        # Pinocchio's configuration of a state at the fb origin, level: the base part of
+        # `PinocchioMachine.configuration` for the identity attitude (quaternion 0, 0, 0, 1).
+        self._q_level = np.zeros(self.model.nq)
+        self._q_level[6] = 1.0
 
     def _configuration(self, q, qd=None):
         q = np.asarray(q, dtype=float)
@@ -53,8 +57,17 @@ class TcpKinematics:
         return self.pm.configuration(st)
 
     def position(self, q) -> np.ndarray:
-        """TCP position in fb [m], shape (3,), for independent coordinates q (13,)."""
-        qp, _, _ = self._configuration(q)
+        """TCP position in fb [m], shape (3,), for independent coordinates q (13,).
+
+        Positions only: the tree's joint positions (`TreeCoordinates.joint_positions`, the
+        same numbers `_configuration` gives), without its velocities and Jacobian.
+        """
+        q = np.asarray(q, dtype=float)
+        if q.shape != (N_INDEPENDENT,) or not np.all(np.isfinite(q)):
+            raise WbcInputError(f"q must be finite with shape ({N_INDEPENDENT},), got "
+                                f"shape {q.shape}")
+        qp = self._q_level.copy()
+        qp[self.pm._tree_q_idx] = self.pm.coordinates.joint_positions(q)
         pin.framesForwardKinematics(self.model, self.data, qp)
         return self.data.oMf[self.frame_id].translation.copy()
 
