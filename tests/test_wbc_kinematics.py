@@ -34,6 +34,9 @@ def test_position_matches_pinocchio_frame(machine, kin):
         world = pm.data.oMf[pm.frame_id["tcp"]].translation
         # kin is in fb; the state's base is at base_position with identity rotation.
         np.testing.assert_allclose(kin.position(st.q) + st.base_position, world, atol=1e-12)
+    for bad in (np.full(13, np.nan), np.zeros(12)):
+        with pytest.raises(WbcInputError, match="q must be finite"):
+            kin.position(bad)
 
 
 def test_jacobian_finite_differences(machine, kin):

@@ -46,11 +46,16 @@ class TcpKinematics:
         self._q_level = np.zeros(self.model.nq)
         self._q_level[6] = 1.0
 
-    def _configuration(self, q, qd=None):
+    @staticmethod
+    def _checked(q) -> np.ndarray:
         q = np.asarray(q, dtype=float)
         if q.shape != (N_INDEPENDENT,) or not np.all(np.isfinite(q)):
             raise WbcInputError(f"q must be finite with shape ({N_INDEPENDENT},), got "
                                 f"shape {q.shape}")
+        return q
+
+    def _configuration(self, q, qd=None):
+        q = self._checked(q)
         qd = np.zeros(N_INDEPENDENT) if qd is None else np.asarray(qd, dtype=float)
         st = MachineState(np.zeros(3), self._eye, np.zeros(6), np.zeros(6), q, qd,
                           np.zeros(N_INDEPENDENT))
@@ -62,12 +67,8 @@ class TcpKinematics:
         Positions only: the tree's joint positions (`TreeCoordinates.joint_positions`, the
         same numbers `_configuration` gives), without its velocities and Jacobian.
         """
-        q = np.asarray(q, dtype=float)
-        if q.shape != (N_INDEPENDENT,) or not np.all(np.isfinite(q)):
-            raise WbcInputError(f"q must be finite with shape ({N_INDEPENDENT},), got "
-                                f"shape {q.shape}")
         qp = self._q_level.copy()
-        qp[self.pm._tree_q_idx] = self.pm.coordinates.joint_positions(q)
+        qp[self.pm._tree_q_idx] = self.pm.coordinates.joint_positions(self._checked(q))
         pin.framesForwardKinematics(self.model, self.data, qp)
         return self.data.oMf[self.frame_id].translation.copy()
 
