@@ -152,10 +152,7 @@ class ActuatorEfforts:
         q_ind, qd_ind = state.q.tolist(), state.qd.tolist()
         for i, chain, d, br, pi in self._chains:
             x, xd = q_ind[i], qd_ind[i]
-            try:
-                c = chain.state(x, check=False)
-            except ZeroDivisionError:  # a singular stroke, far out of range: numpy's inf
-                c = chain.state(np.float64(x), check=False)
+            c = chain.float_state(x, check=False)
             q_tree[d], q_tree[br], q_tree[pi] = c.theta, c.theta_barrel, x
             jac[d, i], jac[br, i] = c.k[0], c.k[1]
             jdot_qd[d] = c.dk_dx[0] * xd * xd

@@ -55,19 +55,6 @@ class Coordinate:
     upper: float
 
 
-def _chain_state(chain, x: float):
-    """``chain.state(x)`` on a Python float.
-
-    The same IEEE operations as on a numpy scalar, faster. A stroke where the triangle is
-    flat divides by zero on a float where numpy's scalar gives inf: that case runs on numpy's
-    scalar, as before.
-    """
-    try:
-        return chain.state(x)
-    except ZeroDivisionError:
-        return chain.state(np.float64(x))
-
-
 class TreeCoordinates:
     """The coordinate table of a machine, and the map independent -> tree coordinates.
 
@@ -168,7 +155,7 @@ class TreeCoordinates:
             jac[j, i] = 1.0
         strokes = q_ind.tolist()
         for i, b in self._chains:
-            s = _chain_state(b.chain, strokes[i])
+            s = b.chain.float_state(strokes[i])
             for name, k, dk in ((b.driven_joint, s.k[0], s.dk_dx[0]),
                                 (b.barrel, s.k[1], s.dk_dx[1])):
                 jac[self.index[name], i] = k

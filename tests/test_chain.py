@@ -143,3 +143,18 @@ def test_angles_are_the_state_angles(machine):
             assert chain.angles(float(x)) == (s.theta, s.theta_barrel)
         with pytest.raises(StrokeOutOfRangeError):
             chain.angles(hi + 1e-3)
+
+
+def test_float_state_is_state(machine):
+    # The hot paths' `float_state` gives `state`'s numbers to the bit, and far out of range
+    # (check off), where a Python float divides by zero, numpy scalar's inf and nan as before.
+    for chain in _chains(machine):
+        lo, hi = chain.stroke_range
+        for x in [*np.linspace(lo, hi, 9), hi + 10.0, lo - 10.0]:
+            with np.errstate(all="ignore"):
+                want = chain.state(np.float64(x), check=False)
+                got = chain.float_state(x, check=False)
+            np.testing.assert_array_equal([got.theta, got.theta_barrel, *got.k, *got.dk_dx],
+                                          [want.theta, want.theta_barrel, *want.k, *want.dk_dx])
+        with pytest.raises(StrokeOutOfRangeError):
+            chain.float_state(hi + 1e-3)
