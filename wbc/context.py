@@ -6,6 +6,7 @@
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -52,6 +53,13 @@ class ControlContext:
     dt: float
     layout: VariableLayout
     limits: AxisLimits
+
+    @functools.cached_property
+    def brake(self) -> np.ndarray:
+        """``limits.brake_acceleration(qd, dt)`` (9,), once per context (read-only)."""
+        a = self.limits.brake_acceleration(self.qd, self.dt)
+        a.setflags(write=False)
+        return a
 
     @property
     def structure_key(self) -> tuple:

@@ -42,27 +42,34 @@ class PositionLimit(Constraint):
                                      f"{braking_fraction}")
         self.horizon = horizon
         self.braking_fraction = float(braking_fraction)
+        self._key: tuple | None = None
+        self._const: tuple = ()
 
-    @staticmethod
-    def _viable_speed(b, dt, d, v):
-        """Largest speed towards the limit after one period that can still stop [m/s]."""
-        rest = np.maximum(d - 0.5 * v * dt, 0.0)
-        return -b * dt + np.sqrt((b * dt) ** 2 + 2.0 * b * rest)
+    def _constants(self, lim, dt: float) -> tuple:
+        """``(b dt, (b dt)^2, 2 b)`` of both sides (18,), kept for the limits and period."""
+        if self._key is None or self._key[0] is not lim or self._key[1] != dt:
+            b = self.braking_fraction * lim.acceleration
+            bdt = np.concatenate((b, b)) * dt
+            self._key = (lim, dt)
+            self._const = (bdt, bdt**2, 2.0 * np.concatenate((b, b)))
+        return self._const
 
     def compute(self, ctx) -> Box:
         """Box on step 0's accelerations."""
         lim, dt, q, qd = ctx.limits, ctx.dt, ctx.q, ctx.qd
         T = dt if self.horizon is None else self.horizon
-        b = self.braking_fraction * lim.acceleration
-        d_up = lim.position_upper - q
-        d_lo = q - lim.position_lower
-        upper = np.minimum(2.0 * (d_up - qd * T) / T**2,
-                           (self._viable_speed(b, dt, d_up, qd) - qd) / dt)
-        lower = np.maximum(-2.0 * (d_lo + qd * T) / T**2,
-                           (-self._viable_speed(b, dt, d_lo, -qd) - qd) / dt)
-        brake = lim.brake_acceleration(qd, dt)
-        n = ctx.layout.n
+        bdt, bdt2, two_b = self._constants(lim, dt)
+        # Both sides in one pass: the upper side (distance d = q_hi - q, speed v = qd towards
+        # it) and the lower side mirrored (d = q - q_lo, v = -qd), whose bound is the negated
+        # upper one: the same operations on each element as side by side.
+        d = np.concatenate((lim.position_upper - q, q - lim.position_lower))
+        v = np.concatenate((qd, -qd))
+        rest = np.maximum(d - 0.5 * v * dt, 0.0)
+        viable = -bdt + np.sqrt(bdt2 + two_b * rest)  # the largest speed that can still stop
+        bound = np.minimum(2.0 * (d - v * T) / T**2, (viable - v) / dt)
+        brake = ctx.brake
+        n, s = ctx.layout.n, ctx.layout.step(0)
         lb, ub = np.full(n, -np.inf), np.full(n, np.inf)
-        s = ctx.layout.step(0)
-        lb[s], ub[s] = np.minimum(lower, brake), np.maximum(upper, brake)
+        m = s.stop - s.start
+        lb[s], ub[s] = np.minimum(-bound[m:], brake), np.maximum(bound[:m], brake)
         return Box(lb, ub)

@@ -21,7 +21,7 @@ class VelocityLimit(Constraint):
     def compute(self, ctx) -> Box:
         """Box on step 0's accelerations."""
         lim, dt, qd = ctx.limits, ctx.dt, ctx.qd
-        brake = lim.brake_acceleration(qd, dt)
+        brake = ctx.brake
         lower = np.minimum((lim.velocity_lower - qd) / dt, brake)
         upper = np.maximum((lim.velocity_upper - qd) / dt, brake)
         n = ctx.layout.n

@@ -26,10 +26,15 @@ class DampingTask(ConstantJacobianTask):
             raise ConfigurationError(f"time_constant must be > 0, got {time_constant}")
         super().__init__(weight)
         self.time_constant = float(time_constant)
+        self._weights: np.ndarray | None = None  # the weight per axis, read-only
 
     def compute_weight(self, ctx) -> np.ndarray:
-        """The weight for every axis."""
-        return np.broadcast_to(self.weight, (ctx.layout.n_axes,)).copy()
+        """The weight for every axis (read-only)."""
+        n = ctx.layout.n_axes
+        if self._weights is None or self._weights.size != n:
+            self._weights = np.broadcast_to(self.weight, (n,)).copy()
+            self._weights.setflags(write=False)
+        return self._weights
 
     def compute_error(self, ctx) -> np.ndarray:
         """``qd / T``."""

@@ -43,6 +43,10 @@ class JointTask(ConstantJacobianTask):
     def __init__(self, axes, kp, kd, weight=1.0):
         self.axes = _axes(axes)
         n = self.axes.size
+        first = int(self.axes[0])
+        contiguous = np.array_equal(self.axes, np.arange(first, first + n))
+        # basic indexing where the axes are contiguous: cheaper, the same entries
+        self._index = slice(first, first + n) if contiguous else self.axes
         super().__init__(np.broadcast_to(np.asarray(weight, float), (n,)).copy())
         self.kp = _gain("kp", kp, n)
         self.kd = _gain("kd", kd, n)
@@ -54,7 +58,7 @@ class JointTask(ConstantJacobianTask):
     def desired_acceleration(self, ctx) -> np.ndarray:
         """The PD law's acceleration of the task's axes, shape (len(axes),)."""
         ref = ctx.reference
-        i = self.axes
+        i = self._index
         return (ref.acceleration[i] + self.kp * (ref.position[i] - ctx.q[i])
                 + self.kd * (ref.velocity[i] - ctx.qd[i]))
 

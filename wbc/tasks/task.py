@@ -44,10 +44,11 @@ class Task(abc.ABC):
     """
 
     def __init__(self, weight=1.0):
-        w = np.asarray(weight, dtype=float)
+        w = np.array(weight, dtype=float)  # a copy, read-only
         if not np.all(np.isfinite(w)) or np.any(w < 0):
             raise ConfigurationError(f"{type(self).__name__}: weight must be finite and >= 0, "
                                      f"got {weight}")
+        w.setflags(write=False)
         self.weight = w
 
     def compute_weight(self, ctx) -> np.ndarray:
@@ -89,14 +90,20 @@ class ConstantJacobianTask(Task):
     def __init__(self, weight=1.0):
         super().__init__(weight)
         self._cache_key = None
+        self._weight = None  # the weight array the cache was made with
         self._jw = None
         self._H = None
 
     def compute_qp_objective(self, ctx) -> Objective:
         """(H, c) with ``H`` and ``J^T W`` cached per structure."""
         weight = self.compute_weight(ctx)
-        key = (self.structure_key(ctx), weight.tobytes())
-        if self._cache_key != key:
+        structure = self.structure_key(ctx)
+        # a read-only weight array seen before is the same weight (no bytes compared)
+        same_weight = weight is self._weight and not weight.flags.writeable
+        if (self._cache_key is None or self._cache_key[0] != structure
+                or (not same_weight and self._cache_key[1] != weight.tobytes())):
+            key = (structure, weight.tobytes())
+            self._weight = weight
             jac = self.compute_jacobian(ctx)
             self._jw = jac.T * weight
             self._H = self._jw @ jac
