@@ -125,4 +125,8 @@ def test_cli_render_export_view(runs, tmp_path, capsys):
     assert "exists" in capsys.readouterr().err
     assert main(["render", str(tmp_path / "nothing"), "--out", str(tmp_path / "n.mp4"),
                  "--no-progress"]) == 2
+    capsys.readouterr()
+    assert main(["render", str(tmp_path / "nothing"), "--out", str(tmp_path / "m.mp4")]) == 2
+    err = capsys.readouterr().err  # refused before its progress bar starts
+    assert "no scenario log" in err and "render" not in err.split("wbc: error")[0]
     assert main(["view", str(runs / "flat")]) == 2  # no display here: one line, exit 2

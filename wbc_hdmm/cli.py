@@ -404,6 +404,7 @@ def render_cmd(run_dir, out_file, fps, width, height, force, no_progress) -> int
     A chase camera, force arrows coloured by their margin to the threshold, the forces
     plotted beside.
     """
+    from models.log import load_log
     from scenarios.progress import Progress
     from wbc_hdmm.render import check_out, render_run
 
@@ -411,6 +412,7 @@ def render_cmd(run_dir, out_file, fps, width, height, force, no_progress) -> int
     if out_file.exists() and not force:
         raise OutputError(f"--out '{out_file}' exists; use --force to overwrite it")
     check_out(out_file)  # refused in one line before the progress bar starts
+    load_log(run_dir)  # so is a missing or unreadable log
     with Progress(1.0, "render", enabled=None if not no_progress else False,
                   unit="") as bar:
         path = render_run(run_dir, out_file, fps=fps, width=width, height=height,
