@@ -22,18 +22,27 @@ _AXES_IN_A = slice(6, 6 + N_AXES)
 _MIN_SCALE = 0.05  # below this the drift is not attributed to the driving speed
 
 
-def _without_suspension(lin: ForceLinearization) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """``(G, d_q, d_qd)`` of the linearization with the suspension axes' columns zeroed.
+_SUSPENSION = slice(int(SUSPENSION_AXES[0]), int(SUSPENSION_AXES[-1]) + 1)  # contiguous
+_SUSPENSION_IN_A = slice(6 + _SUSPENSION.start, 6 + _SUSPENSION.stop)
 
-    The model holds the base acceleration and the contact points fixed, so its columns for
-    the bogie strokes describe wheels pushed into the ground, not the machine: there the
-    chassis moves instead (common mode) or warps (difference, `ctx.warp`).
+
+def _stacked(lins: list[ForceLinearization], warp: bool
+             ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """``(G, d_q, d_qd, g0)`` of the linearizations, stacked (n_lin, 4, .).
+
+    With ``warp`` the suspension axes' columns are zeroed: the model holds the base
+    acceleration and the contact points fixed, so its columns for the bogie strokes describe
+    wheels pushed into the ground, not the machine: there the chassis moves instead (common
+    mode) or warps (difference, `ctx.warp`).
     """
-    G, dq, dqd = lin.G.copy(), lin.d_q.copy(), lin.d_qd.copy()
-    G[:, 6 + SUSPENSION_AXES] = 0.0
-    dq[:, SUSPENSION_AXES] = 0.0
-    dqd[:, SUSPENSION_AXES] = 0.0
-    return G, dq, dqd
+    G = np.stack([lin.G for lin in lins])
+    dq = np.stack([lin.d_q for lin in lins])
+    dqd = np.stack([lin.d_qd for lin in lins])
+    if warp:
+        G[:, :, _SUSPENSION_IN_A] = 0.0
+        dq[:, :, _SUSPENSION] = 0.0
+        dqd[:, :, _SUSPENSION] = 0.0
+    return G, dq, dqd, np.stack([lin.g0 for lin in lins])
 
 
 class HorizonNormalForceConstraint(ForceRowsConstraint):
@@ -57,7 +66,7 @@ class HorizonNormalForceConstraint(ForceRowsConstraint):
     minus the model's, is added at every step (exact at step 0), and with ``ctx.warp`` and
     all four wheels in contact the chassis warp ``W (q_k - q_0)`` of the suspension setpoints
     is added at steps k >= 1 (the model's own suspension columns are dropped whenever there
-    is a warp model, `_without_suspension`: on three wheels the warp is free);
+    is a warp model, `_stacked`: on three wheels the warp is free);
     ``ctx.warp_drift`` adds the terrain's predicted twist along the diagonal, proportional
     to the wheel-speed scale (``drift * s / s_prev``). A terminal node (``T_b``) constrains
     the forces while every axis brakes to rest after the horizon (`forces_map`).
@@ -189,16 +198,10 @@ class HorizonNormalForceConstraint(ForceRowsConstraint):
         # without moving load (`lifted_wheel_thresholds` keeps the load it will need).
         if in_contact is None:
             in_contact = contact_flags(self.model, st)
-        warp = ctx.warp if np.all(in_contact) else None
-        if ctx.warp is not None:  # the suspension acts through the warp model only
-            maps = [_without_suspension(lin) for lin in lins]
-        else:
-            maps = [(lin.G, lin.d_q, lin.d_qd) for lin in lins]
-        # Every step at once: (n_eval, 4, .) stacks of the linearization each step uses.
-        G = np.stack([m[0] for m in maps])[which]
-        d_q = np.stack([m[1] for m in maps])[which]
-        d_qd = np.stack([m[2] for m in maps])[which]
-        g0 = np.stack([lin.g0 for lin in lins])[which]
+        warp = ctx.warp if np.asarray(in_contact, dtype=bool).all() else None
+        # Every step at once: (n_eval, 4, .) stacks of the linearization each step uses
+        # (the suspension acts through the warp model only when there is one).
+        G, d_q, d_qd, g0 = (m[which] for m in _stacked(lins, ctx.warp is not None))
         dq, dqd = d_q[:, :, :N_AXES], d_qd[:, :, :N_AXES]
         G_axes = G[:, :, _AXES_IN_A]
         A = np.zeros((n_eval, 4, lay.n))
@@ -225,9 +228,9 @@ class HorizonNormalForceConstraint(ForceRowsConstraint):
         A = A.reshape(4 * n_eval, lay.n)
         b = b.reshape(4 * n_eval)
         if ctx.feedback is not None:  # the load split measured now, held over the horizon
-            b += np.tile(ctx.feedback.bias, n_eval)
+            b.reshape(n_eval, 4)[:] += ctx.feedback.bias
         if warp is not None and ctx.warp_drift is not None:  # the terrain keeps twisting
-            drift = np.kron(ctx.warp_drift[:n_eval], DIAGONAL)
+            drift = (ctx.warp_drift[:n_eval, None] * DIAGONAL).reshape(-1)  # kron(drift, D)
             b += drift
             if lay.scale is not None:
                 s_prev = max(ctx.speed_scale, _MIN_SCALE)
