@@ -246,9 +246,10 @@ def test_force_rows_start_at_the_configured_time(machine):
     ctrl, _, st = _mpc_with_feedback(machine, force_constraint_start=0.05)
     ctrl.step(st)
     ineq = ctrl.force_constraint.compute(ctrl.context(st))
-    # Steps starting at 0 and 0.01 s have no rows; the other N - 2 steps and the terminal
-    # node have one per wheel.
-    assert ineq.G.shape[0] == 4 * (ctrl.layout.n_steps - 2 + 1)
+    # Steps starting at 0, 0.01 and 0.04 s (the first step, the first early step) have no
+    # rows; the other N - 3 steps and the terminal node have one per wheel.
+    assert ctrl.planner.prediction.start_times[:4] == pytest.approx([0.0, 0.01, 0.04, 0.1])
+    assert ineq.G.shape[0] == 4 * (ctrl.layout.n_steps - 3 + 1)
 
 
 def test_leveling_task_residual_is_the_warp_it_names(machine):

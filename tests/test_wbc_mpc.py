@@ -73,10 +73,34 @@ def _extension_model(machine, st):
 
 def test_horizon_is_at_least_one_second(machine):
     with pytest.raises(ConfigurationError, match="shorter than 1 s"):
-        ControllerConfig(mpc=MpcConfig(step=0.1, n_steps=10))  # 0.01 + 9 x 0.1 s
+        ControllerConfig(mpc=MpcConfig(step=0.1, n_steps=10))  # 0.01 + 0.03 + 0.06 + 7 x 0.1 s
     st = make_state(machine)
     c = _mpc(machine, _extension_model(machine, st))
-    assert c.horizon >= 1.0
+    assert c.horizon >= 1.0 - 1e-9  # 1 s up to round-off
+
+
+def test_early_steps_refine_the_start_of_the_horizon(machine):
+    assert MpcConfig().step_lengths(0.01).tolist() == pytest.approx([0.01, 0.03, 0.06]
+                                                                     + [0.1] * 9)
+    assert MpcConfig(early_steps=(), n_steps=11).step_lengths(0.01).tolist() == (
+        pytest.approx([0.01] + [0.1] * 10))  # the grid before early_steps
+    cfg = ControllerConfig(mpc=MpcConfig(early_steps=(0.02, 0.04, 0.04), n_steps=13))
+    h = cfg.mpc.step_lengths(cfg.dt)
+    assert h.tolist() == pytest.approx([cfg.dt, 0.02, 0.04, 0.04] + [0.1] * 9)
+    st = make_state(machine)
+    c = make_controller("mpc-full", machine, cfg, force_model=_extension_model(machine, st))
+    assert c.layout.n_steps == 13 and c.horizon == pytest.approx(h.sum())
+    c.set_goal(JointGoal(crane=st.q[2:9] + 0.05))
+    plant = KinematicPlant(st, DT)
+    for _ in range(20):
+        cmd = c.step(plant.state)
+        assert not cmd.fallback and np.all(np.isfinite(cmd.rates))
+        plant.apply(cmd)
+    with pytest.raises(ConfigurationError, match="shorter than 1 s"):
+        ControllerConfig(mpc=MpcConfig(early_steps=(0.03, 0.06), n_steps=11))  # 0.9 s
+    for bad in (0.03, None, (0.03, -0.01), ("a",), (0.01,) * 12, (float("nan"),)):
+        with pytest.raises(ConfigurationError, match="early_steps"):
+            MpcConfig(early_steps=bad)
 
 
 def test_linearization_along_the_plan_is_exact_for_an_affine_model(machine):

@@ -22,7 +22,7 @@ def _mpc_problems(machine, n=40):
     """A stream of MPC problems along a closed loop (what the workspace sees in use)."""
     st = make_state(machine)
     model = AffineForceModel.reference(machine, st.q)
-    cfg = ControllerConfig(mpc=MpcConfig(n_steps=11, step=0.1))
+    cfg = ControllerConfig(mpc=MpcConfig())
     ctrl = make_controller("mpc-full", machine, cfg, force_model=model)
     goal = st.q[2:9].copy()
     goal[0] += 0.15

@@ -125,10 +125,14 @@ class MpcConfig:
     """MPC (the ``mpc-*`` controllers).
 
     Attributes:
-        step: Length of the steps after the first [s].
-        n_steps: N, the number of steps.
+        step: Length of the steps after the first and the early ones [s].
+        n_steps: N, the number of steps (the first, the early ones and the rest).
         first_step: Length of the first step [s]; None: the control period (the applied
             input then sees the constraints exactly one period ahead).
+        early_steps: Lengths of the steps after the first and before the ``step``-long
+            ones [s]: a finer grid where the plan must answer a sudden change (a pick's
+            load swing lasts about 0.1 s, within which one ``step`` would hold one
+            acceleration).
         crane_position_weight, crane_velocity_weight: Tracking weights of the crane axes,
             scalar or per axis (7,), order slew, lift, tilt, telescope, wrist pitch, roll,
             rotator.
@@ -160,12 +164,14 @@ class MpcConfig:
             the rated force) and what the rigid-body efforts miss while an axis accelerates
             hard (up to 10 % of the range on the slew's soft four-bar, `tests/test_efforts`).
 
-    The horizon ``first_step + (n_steps - 1) step`` must be >= 1 s.
+    The horizon ``first_step + sum(early_steps) + (n_steps - 1 - len(early_steps)) step``
+    must be >= 1 s.
     """
 
     step: float = 0.1
-    n_steps: int = 11
+    n_steps: int = 12
     first_step: float | None = None
+    early_steps: tuple = (0.03, 0.06)
     crane_position_weight: float = 400.0
     crane_velocity_weight: float = 20.0
     crane_axis_factors: tuple = (1.0, 4.0, 4.0, 0.01, 1.0, 1.0, 1.0)
@@ -199,6 +205,16 @@ class MpcConfig:
             raise ConfigurationError(f"crane_axis_factors must be 7 positive numbers, got "
                                      f"{self.crane_axis_factors}")
         object.__setattr__(self, "crane_axis_factors", tuple(float(x) for x in f))
+        if not isinstance(self.early_steps, (tuple, list)):
+            raise ConfigurationError(f"early_steps must be a sequence of step lengths [s], "
+                                     f"got {self.early_steps!r}")
+        early = (_numbers(self, "early_steps", self.early_steps, len(self.early_steps))
+                 if len(self.early_steps) else np.zeros(0))
+        if np.any(early <= 0) or len(early) > self.n_steps - 1:
+            raise ConfigurationError(f"early_steps must be at most n_steps - 1 = "
+                                     f"{self.n_steps - 1} lengths > 0 [s], got "
+                                     f"{self.early_steps!r}")
+        object.__setattr__(self, "early_steps", tuple(float(x) for x in early))
         for name in ("first_step", "terminal_brake_time"):
             if getattr(self, name) is not None:
                 _positive(self, name)
@@ -214,10 +230,13 @@ class MpcConfig:
         """
         h = np.full(self.n_steps, float(self.step))
         h[0] = dt if self.first_step is None else self.first_step
+        early = len(self.early_steps)
+        h[1:1 + early] = self.early_steps
         if h.sum() < 1.0 - 1e-9:
             raise ConfigurationError(
-                f"MPC horizon {h[0]:g} + {self.n_steps - 1} x {self.step:g} s = {h.sum():g} s "
-                f"is shorter than 1 s")
+                f"MPC horizon {h[0]:g} + {sum(self.early_steps):g} + "
+                f"{self.n_steps - 1 - early} x {self.step:g} s = {h.sum():g} s is shorter "
+                f"than 1 s")
         return h
 
 
