@@ -11,6 +11,7 @@ from wbc import (
     TrajectoryError,
     WbcInputError,
 )
+from wbc.axes import axis_index
 
 
 @pytest.fixture(scope="module")
@@ -137,3 +138,11 @@ def test_contiguous_axes_index_as_a_slice(limits):
         np.testing.assert_array_equal(x[ref.index], x[np.asarray(axes)])
     assert isinstance(RuckigReference(limits, CRANE_AXES).index, slice)
     assert not isinstance(RuckigReference(limits, [0, 3, 4]).index, slice)
+
+
+def test_axis_index_is_a_slice_only_where_the_axes_are_contiguous():
+    x = np.arange(10.0, 19.0)
+    for axes in (np.array([2, 3, 4]), np.array([0]), np.array([4, 2, 3]), np.array([0, 2])):
+        index = axis_index(axes)
+        assert isinstance(index, slice) == (np.diff(axes) == 1).all()
+        np.testing.assert_array_equal(x[index], x[axes])

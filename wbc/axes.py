@@ -21,11 +21,22 @@ from models.description import Machine
 from models.numeric import clip
 from wbc.errors import ConfigurationError
 
-__all__ = ["CRANE_AXES", "N_AXES", "SUSPENSION_AXES", "AxisLimits"]
+__all__ = ["CRANE_AXES", "N_AXES", "SUSPENSION_AXES", "AxisLimits", "axis_index"]
 
 N_AXES = 9
 SUSPENSION_AXES = np.arange(SUSPENSION.start, SUSPENSION.stop)  # (0, 1)
 CRANE_AXES = np.arange(CRANE.start, CRANE.stop)  # (2, ..., 8)
+
+
+def axis_index(axes: np.ndarray) -> slice | np.ndarray:
+    """``axes`` (indices, (n,), n >= 1) as a slice where they are contiguous, else unchanged.
+
+    Basic indexing by the slice is cheaper than by the index array and reads the same entries.
+    """
+    first = int(axes[0])
+    if np.array_equal(axes, np.arange(first, first + axes.size)):
+        return slice(first, first + axes.size)
+    return axes
 
 
 def _frozen(name: str, x) -> np.ndarray:

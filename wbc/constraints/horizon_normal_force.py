@@ -7,8 +7,8 @@ from types import SimpleNamespace
 import numpy as np
 
 from estimators.linearization import ForceLinearization
-from models.coordinates import N_INDEPENDENT
-from wbc.axes import N_AXES, SUSPENSION_AXES
+from models.coordinates import N_INDEPENDENT, SUSPENSION
+from wbc.axes import N_AXES
 from wbc.constraints.force_rows import ForceRowsConstraint
 from wbc.drive_model import speed_scale_direction
 from wbc.errors import ConfigurationError
@@ -22,8 +22,7 @@ _AXES_IN_A = slice(6, 6 + N_AXES)
 _MIN_SCALE = 0.05  # below this the drift is not attributed to the driving speed
 
 
-_SUSPENSION = slice(int(SUSPENSION_AXES[0]), int(SUSPENSION_AXES[-1]) + 1)  # contiguous
-_SUSPENSION_IN_A = slice(6 + _SUSPENSION.start, 6 + _SUSPENSION.stop)
+_SUSPENSION_IN_A = slice(6 + SUSPENSION.start, 6 + SUSPENSION.stop)
 
 
 def _stacked(lins: list[ForceLinearization], warp: bool
@@ -40,8 +39,8 @@ def _stacked(lins: list[ForceLinearization], warp: bool
     dqd = np.stack([lin.d_qd for lin in lins])
     if warp:
         G[:, :, _SUSPENSION_IN_A] = 0.0
-        dq[:, :, _SUSPENSION] = 0.0
-        dqd[:, :, _SUSPENSION] = 0.0
+        dq[:, :, SUSPENSION] = 0.0
+        dqd[:, :, SUSPENSION] = 0.0
     return G, dq, dqd, np.stack([lin.g0 for lin in lins])
 
 

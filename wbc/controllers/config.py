@@ -208,8 +208,7 @@ class MpcConfig:
         if not isinstance(self.early_steps, (tuple, list)):
             raise ConfigurationError(f"early_steps must be a sequence of step lengths [s], "
                                      f"got {self.early_steps!r}")
-        early = (_numbers(self, "early_steps", self.early_steps, len(self.early_steps))
-                 if len(self.early_steps) else np.zeros(0))
+        early = _numbers(self, "early_steps", self.early_steps, len(self.early_steps))
         if np.any(early <= 0) or len(early) > self.n_steps - 1:
             raise ConfigurationError(f"early_steps must be at most n_steps - 1 = "
                                      f"{self.n_steps - 1} lengths > 0 [s], got "

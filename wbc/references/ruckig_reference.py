@@ -6,7 +6,7 @@ import numpy as np
 import ruckig
 
 from models.numeric import clip
-from wbc.axes import N_AXES, AxisLimits
+from wbc.axes import N_AXES, AxisLimits, axis_index
 from wbc.errors import ConfigurationError, TrajectoryError, WbcInputError
 
 __all__ = ["RuckigReference"]
@@ -45,9 +45,7 @@ class RuckigReference:
         self.axes = np.asarray(axes, dtype=int).reshape(-1)
         if self.axes.size == 0 or np.any((self.axes < 0) | (self.axes >= N_AXES)):
             raise ConfigurationError(f"axes must be indices in [0, {N_AXES}), got {axes}")
-        first = int(self.axes[0])
-        contiguous = np.array_equal(self.axes, np.arange(first, first + self.axes.size))
-        self.index = slice(first, first + self.axes.size) if contiguous else self.axes
+        self.index = axis_index(self.axes)
         if not (jerk_time > 0 and 0 < velocity_fraction <= 1 and 0 < acceleration_fraction <= 1):
             raise ConfigurationError(
                 f"need jerk_time > 0 and fractions in (0, 1]; got {jerk_time}, "

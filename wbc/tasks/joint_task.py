@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from wbc.axes import N_AXES
+from wbc.axes import N_AXES, axis_index
 from wbc.errors import ConfigurationError
 from wbc.tasks.task import ConstantJacobianTask
 
@@ -43,10 +43,7 @@ class JointTask(ConstantJacobianTask):
     def __init__(self, axes, kp, kd, weight=1.0):
         self.axes = _axes(axes)
         n = self.axes.size
-        first = int(self.axes[0])
-        contiguous = np.array_equal(self.axes, np.arange(first, first + n))
-        # basic indexing where the axes are contiguous: cheaper, the same entries
-        self._index = slice(first, first + n) if contiguous else self.axes
+        self._index = axis_index(self.axes)
         super().__init__(np.broadcast_to(np.asarray(weight, float), (n,)).copy())
         self.kp = _gain("kp", kp, n)
         self.kd = _gain("kd", kd, n)
