@@ -228,6 +228,7 @@ def run_closed_loop(scenario: ClosedLoopScenario | str, out_dir: Path | None = N
     fallbacks = 0
     payload_done = scenario.payload_event is None
     grapple_at = scenario.grapple_close_time()
+    grapple_closed = False
     reserve = (PickReserve(machine, thr) if pick_reserve and mpc and grapple_at is not None
                else None)
     interrupted = False
@@ -248,9 +249,12 @@ def run_closed_loop(scenario: ClosedLoopScenario | str, out_dir: Path | None = N
                 if not ready:
                     tau = -1.0  # the operator waits: no goal, no driving, no event yet
                 told = None
-                if reserve is not None and not reserve.active and tau >= grapple_at - 1e-9 \
-                        and not payload_done:
-                    reserve.close_grapple(t)  # the operator's grapple command
+                if not grapple_closed and grapple_at is not None and not payload_done \
+                        and tau >= grapple_at - 1e-9:  # the operator's grapple command
+                    grapple_closed = True
+                    sensing.expect_pick(t)
+                    if reserve is not None:
+                        reserve.close_grapple(t)
                 if not payload_done and tau >= scenario.payload_event[0] - 1e-9:
                     _set_payload(sim, scenario.payload_event[1])
                     if inform_payload and sensors == "oracle":

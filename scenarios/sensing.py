@@ -89,6 +89,14 @@ class Sensing:
         """The oracle is told a payload change (the observer finds it by itself)."""
         self._told_mass = float(mass)
 
+    def expect_pick(self, time: float) -> None:
+        """The operator's grapple command at ``time`` [s]: the observer expects a pick.
+
+        (`estimators.observer.payload_rls`; the oracle has nothing to expect.)
+        """
+        if self.observer is not None:
+            self.observer.expect_pick(time)
+
     def observe(self, tick: float) -> Observation:
         """The controller's view at the tick (the simulator's measured instant)."""
         if self.observer is None:

@@ -13,6 +13,7 @@ from estimators.observer import (
     CONTACT_TICKS,
     Observer,
 )
+from estimators.observer.payload_rls import EVENT_TICKS, EXPECTED_PICK_TICKS
 from estimators.payload import PayloadEstimator
 from models import build_reference_machine
 from models import terrain as T
@@ -31,22 +32,20 @@ def _observer(machine, suite="realistic", seed=2, prior=None):
     return Observer(machine, sensor_suite(suite, seed), closure, initial_payload=prior)
 
 
-@pytest.mark.parametrize("seed,mass,slope", [(2, 240.0, -5.0), (17, 300.0, -8.0)],
-                         ids=["240kg", "300kg-held-out"])
-def test_payload_within_5_percent_2_s_after_a_pick(seed, mass, slope):
-    """A sudden pick from an empty grapple, held still 0.2 s (the seals stick), then lifted.
-
-    Seed 2 is the one the regression filter and the event test were tuned on; seed 17 with
-    300 kg on a steeper slope was not.
-    """
+def _pick_run(seed, mass, slope, grapple_tick=None, pick=True):
+    """5 s standing at the pick pose: the grapple command at ``grapple_tick`` (None: none),
+    a sudden pick (10 kg -> mass) at 2 s, held still 0.2 s (the seals stick), then lifted.
+    Returns the events (tick, kind), the estimates at ticks 199 and 399, and the last one."""
     machine = build_reference_machine(payload_mass=10.0)
     sim = Simulator(machine, T.side_slope(slope))
     sim.reset(PICK_POSE.q(machine), (8.0, 0.0, 0.0))
     sensors = SensorSimulator(sim, sensor_suite("realistic", seed))
     obs = _observer(machine, prior=10.0)
-    events = []
-    for k in range(500):  # 5 s: pick (10 kg -> mass) at 2 s, then the operator lifts it
-        if k == 200:
+    events, at = [], {}
+    for k in range(500):
+        if k == grapple_tick:
+            obs.expect_pick(sim.time)
+        if k == 200 and pick:
             _set_payload(sim, mass)
         if k == 220:
             sim.set_command(cylinder_rates={"lift": 0.02, "tilt": 0.02})
@@ -54,15 +53,48 @@ def test_payload_within_5_percent_2_s_after_a_pick(seed, mass, slope):
         e = obs.update(sensors.readings(sim.time))
         if e.payload_event:
             events.append((k, e.payload_event))
-        if k == 199:
-            assert e.payload_mass == pytest.approx(10.0, abs=0.05 * mass)
-        if k == 399:
-            within_2s = e.payload_mass
-    assert within_2s == pytest.approx(mass, rel=0.05)
+        if k in (199, 399):
+            at[k] = e.payload_mass
+    return events, at, e
+
+
+PICKS = pytest.mark.parametrize("seed,mass,slope", [(2, 240.0, -5.0), (17, 300.0, -8.0)],
+                                ids=["240kg", "300kg-held-out"])
+
+
+@PICKS
+def test_payload_within_5_percent_2_s_after_a_pick(seed, mass, slope):
+    """A sudden pick from an empty grapple, held still 0.2 s (the seals stick), then lifted.
+
+    Seed 2 is the one the regression filter and the event test were tuned on; seed 17 with
+    300 kg on a steeper slope was not.
+    """
+    events, at, e = _pick_run(seed, mass, slope)
+    assert at[199] == pytest.approx(10.0, abs=0.05 * mass)
+    assert at[399] == pytest.approx(mass, rel=0.05)  # within 2 s
     assert e.payload_mass == pytest.approx(mass, rel=0.05)  # 3 s after the pick
     assert [kind for _, kind in events] == ["pick"]  # one event, no false release
     assert 200 <= events[0][0] <= 230
     assert 0.0 < e.payload_std < 0.05 * mass
+
+
+@PICKS
+def test_the_grapple_command_lets_a_pick_be_seen_sooner(seed, mass, slope):
+    """After the operator's grapple command (1 s before the pick) a growing mass is an event
+    after EXPECTED_PICK_TICKS instead of EVENT_TICKS; the lift after it raises no release."""
+    before, _, _ = _pick_run(seed, mass, slope)
+    events, at, e = _pick_run(seed, mass, slope, grapple_tick=100)
+    assert [kind for _, kind in events] == ["pick"]
+    assert events[0][0] <= before[0][0] - (EVENT_TICKS - EXPECTED_PICK_TICKS)
+    assert at[399] == pytest.approx(mass, rel=0.05)
+    assert e.payload_mass == pytest.approx(mass, rel=0.05)
+
+
+def test_a_grapple_command_without_a_pick_raises_no_event():
+    """An empty grab: the grapple command, no load, then the lift (the expectation lapses)."""
+    events, _, e = _pick_run(2, 0.0, -5.0, grapple_tick=100, pick=False)
+    assert events == []
+    assert e.payload_mass == pytest.approx(10.0, abs=15.0)
 
 
 def test_contact_flags_right_where_the_force_is_clear():
@@ -285,3 +317,29 @@ def test_payload_rls_covariance_stays_positive_at_a_huge_regressor():
     y = np.array([22420782063.968056, 64723457.24967057])
     info = 1 / 300.0**2 + np.sum(y**2 / rls.R)  # the scalar RLS's exact posterior
     assert rls.P == pytest.approx(1 / info, rel=1e-12)
+
+
+@pytest.mark.parametrize("command_at,ticks", [(None, EVENT_TICKS), (0.0, EXPECTED_PICK_TICKS),
+                                              (-7.0, EVENT_TICKS)],
+                         ids=["no-command", "expected", "lapsed"])
+def test_payload_rls_expectation_shortens_only_a_growing_mass(command_at, ticks):
+    """Synthetic regression: a step from 10 to 210 kg at t = 0.1 s is an event after
+    ``ticks`` ticks (the grapple command's expectation lapses after EXPECTED_PICK_SECONDS);
+    the step back (a release) always takes EVENT_TICKS."""
+    from estimators.observer.payload_rls import EXPECTED_PICK_SECONDS, PayloadRLS
+
+    assert EXPECTED_PICK_SECONDS < 7.0
+    for m0, m1, kind, n in ((10.0, 210.0, "pick", ticks), (210.0, 10.0, "release", EVENT_TICKS)):
+        rls = PayloadRLS(m0, 1.0, [100.0, 100.0], [0.0, 0.0])
+        if command_at is not None:
+            rls.expect_pick(command_at)
+        y = [90.0, 60.0]
+        events = []
+        for k in range(30):
+            t = 0.01 * k
+            m = m1 if t >= 0.1 else m0
+            rls.update(t, 0.01, [m * y[0], m * y[1]], [0.0, 0.0], y)
+            if rls.event:
+                events.append((k, rls.event))
+        assert events[0] == (10 + n - 1, kind)
+        assert rls.pick_expected == (command_at == 0.0 and kind == "release")

@@ -208,6 +208,10 @@ class Observer:
         return accel, qd
 
     # ------------------------------------------------------------------ update
+    def expect_pick(self, time: float) -> None:
+        """The operator's grapple command at ``time`` [s]: a pick may come (`PayloadRLS`)."""
+        self.payload.expect_pick(time)
+
     def update(self, readings: SensorReadings) -> ObserverEstimate:
         """One control tick (module docstring).
 
