@@ -81,3 +81,32 @@ def test_the_command_offers_the_benchmarks_the_package_has():
     from wbc_hdmm.cli import EXTRA_BENCHES
 
     assert CLI_BENCHES == BENCHES and EXTRA_BENCHES == EXTRA
+
+
+def test_touchdown_tick_windows_end_at_the_ticks_instant():
+    """The tick at t reports the step starting at t; its window is that step and the ones
+    before it (the pressures' tick mean)."""
+    import numpy as np
+
+    from benchmarks.touchdown import tick_windows
+
+    steps = np.arange(20) * 0.002
+    forces = np.repeat(np.arange(20.0)[:, None], 4, axis=1)
+    win = tick_windows([0.01, 0.02], steps, forces, 5)
+    assert win.shape == (2, 5, 4)
+    np.testing.assert_array_equal(win[0, :, 0], [1, 2, 3, 4, 5])
+    np.testing.assert_array_equal(win[1, :, 0], [6, 7, 8, 9, 10])
+
+
+def test_touchdown_scores_a_short_contact_loss_run(tmp_path):
+    import json
+
+    from benchmarks.touchdown import main
+
+    assert main(["--duration", "3", "--out", str(tmp_path)]) == 0
+    fig = json.loads((tmp_path / "touchdown.json").read_text())
+    assert fig["steps_per_tick"] == 5
+    assert fig["instant_matches_step"] < 126.0  # the recorder and the log agree (1 % of load)
+    for suite in ("ideal", "realistic"):
+        three = fig["closure_pct"][suite]["tick_mean"]["three_contact"]
+        assert three is None or 0.0 <= three < 50.0
