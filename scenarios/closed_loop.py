@@ -5,7 +5,9 @@ By default the controller sees only what the machine's sensors report, through t
 `Simulator.measure`'s exact state, optionally with `MeasurementNoise`), optionally delayed by
 whole control periods. The MPC keeps each wheel's force above the threshold plus ``z sigma``
 of its uncertainty (`uncertainty_margin`), with the payload the observer estimates (or,
-with the oracle, the one it is told at the payload event). The log's state columns and the
+with the oracle, the one it is told at the payload event); the operator's grapple command
+before a pick (`ClosedLoopScenario.grapple_close_time`) reaches the observer, which then
+takes a growing mass for a pick sooner (`Sensing.expect_pick`). The log's state columns and the
 metrics (`scenarios.metrics`) are MuJoCo's ground truth. The scenarios are in
 `scenarios.closed_loop_scenarios`, the comparison of the three controllers in
 `scenarios.comparison`.
