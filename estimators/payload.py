@@ -70,6 +70,44 @@ def anchor_machines(machine: Machine) -> tuple[Machine, Machine]:
     return at(ANCHOR_MASSES[0]), at(ANCHOR_MASSES[1])
 
 
+_RECENT = 4  # states whose anchor estimates a `PayloadEstimator` keeps
+
+
+class _Recent:
+    """An anchor estimator whose `estimate` keeps its last few states' results.
+
+    By identity: states are immutable, and so is an estimate of the common (four- or
+    three-wheel, regular) case; a tipping or singular one is not kept. A control tick asks
+    about the same observed state several times (the margin's payload and suspension
+    sensitivities, the MPC's feedback) between perturbed ones: about 4 of its 15 estimates.
+    Everything else is the wrapped estimator's.
+    """
+
+    def __init__(self, estimator: NormalForceEstimator):
+        self._estimator = estimator
+        self._items: tuple = ()
+
+    def estimate(self, state: MachineState) -> Estimate:
+        """`NormalForceEstimator.estimate`, or the kept result of this very state."""
+        for s, e in self._items:  # one read of the tuple: safe across threads
+            if s is state:
+                return e
+        e = self._estimator.estimate(state)
+        if "_row" in e.__dict__:
+            self._items = ((state, e),) + self._items[:_RECENT - 1]
+        return e
+
+    def __getattr__(self, name: str):
+        return getattr(self._estimator, name)
+
+    def __setattr__(self, name: str, value) -> None:
+        if name in ("_estimator", "_items"):
+            object.__setattr__(self, name, value)
+        else:  # an option of the estimator (D, beta, ...): the kept results are stale
+            setattr(self._estimator, name, value)
+            object.__setattr__(self, "_items", ())
+
+
 class PayloadEstimator:
     """A `NormalForceEstimator` whose payload mass is set at run time (module docstring).
 
@@ -88,8 +126,8 @@ class PayloadEstimator:
         self.machine = machine
         self._m_a = ANCHOR_MASSES[0]
         machine_a, machine_b = anchor_machines(machine)
-        self._a = NormalForceEstimator(machine_a, **options)
-        self._b = NormalForceEstimator(machine_b, **options)
+        self._a = _Recent(NormalForceEstimator(machine_a, **options))
+        self._b = _Recent(NormalForceEstimator(machine_b, **options))
         for est in (self._a, self._b):  # loaded now, not in a controller's first tick
             est.warm()
         self.method, self.fourth = self._a.method, self._a.fourth

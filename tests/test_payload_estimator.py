@@ -71,6 +71,32 @@ def test_a_repeated_linearization_is_kept_only_for_the_same_state_and_mass():
     assert est.linearize(equal) is not heavy
 
 
+def test_the_anchor_estimates_of_the_last_states_are_kept():
+    """A tick asks about the same state several times: each anchor's estimate is kept (the
+    same read-only object) for the last few states, by identity; another D drops them."""
+    from estimators.payload import _RECENT
+
+    est = PayloadEstimator(MACHINE, fourth="d-beta")
+    rng = np.random.default_rng(5)
+    s = random_state(MACHINE, rng, max_tilt=0.3, speed=0.5)
+    first = est._a.estimate(s)
+    assert est._a.estimate(s) is first and not first.normal_forces.flags.writeable
+    f = est.normal_forces(s)
+    np.testing.assert_array_equal(est.normal_forces(s), f)
+    np.testing.assert_array_equal(est.payload_sensitivity(s), est.payload_sensitivity(s))
+    again = est._a.estimate(replace(s))  # an equal state, another object: computed again
+    assert again is not first
+    np.testing.assert_array_equal(again.normal_forces, first.normal_forces)
+    for _ in range(_RECENT):
+        est._a.estimate(random_state(MACHINE, rng, max_tilt=0.3, speed=0.5))
+    assert est._a.estimate(s) is not first  # pushed out by newer states
+    kept = est._a.estimate(s)
+    est._a.D = 0.9  # another d-beta row: computed again, with it
+    other = est._a.estimate(s)
+    assert other is not kept and not np.allclose(other.normal_forces, kept.normal_forces)
+    assert est._a.D == 0.9 and est._a._estimator.D == 0.9
+
+
 def test_the_row_mix_has_the_bits_of_a_mix_of_each_field():
     """`linearize` mixes the two kernel rows at once: each field as if mixed on its own."""
     est = PayloadEstimator(MACHINE, fourth="cylinder-force", strokes="clip")
