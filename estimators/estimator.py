@@ -203,7 +203,6 @@ class NormalForceEstimator:
             inp = np.zeros(LAYOUT.size)
             sel, flags = self._pack(inp, state, self.D, self.beta)
             row = self._reference_row(inp, sel)
-        row.flags.writeable = False  # the fields are its views: an estimate is immutable
         if sel.tipping or not (math.isfinite(row[LAYOUT.out_sum])
                                and row[LAYOUT.out_cond] < SINGULAR_CONDITION):
             return self._estimate_special(state, row, sel, flags)

@@ -76,8 +76,9 @@ _RECENT = 4  # states whose anchor estimates a `PayloadEstimator` keeps
 class _Recent:
     """An anchor estimator whose `estimate` keeps its last few states' results.
 
-    By identity: states are immutable, and so is an estimate of the common (four- or
-    three-wheel, regular) case; a tipping or singular one is not kept. A control tick asks
+    By identity: states are immutable, and a kept estimate (the common, four- or three-wheel
+    regular case: its fields are views of one row) is made read-only; a tipping or singular
+    one is not kept. A control tick asks
     about the same observed state several times (the margin's payload and suspension
     sensitivities, the MPC's feedback) between perturbed ones: about 4 of its 15 estimates.
     Everything else is the wrapped estimator's.
@@ -93,7 +94,9 @@ class _Recent:
             if s is state:
                 return e
         e = self._estimator.estimate(state)
-        if "_row" in e.__dict__:
+        row = e.__dict__.get("_row")
+        if row is not None:  # read-only before any field is made: kept, it is shared
+            row.flags.writeable = False
             self._items = ((state, e),) + self._items[:_RECENT - 1]
         return e
 

@@ -201,15 +201,3 @@ def test_results_pickle_with_every_field():
         for field in dataclasses.fields(result):
             a, b = getattr(result, field.name), getattr(copy, field.name)
             assert np.array_equal(a, b) if isinstance(a, np.ndarray) else a == b, field.name
-
-
-
-def test_an_estimate_is_read_only(machine):
-    """Its arrays are views of one read-only row: a caller cannot change a result another
-    caller holds (`estimators.payload` keeps the last few states' estimates)."""
-    from testkit.plant import make_state
-
-    e = NormalForceEstimator(machine).estimate(make_state(machine))
-    for name in ("normal_forces", "contact_points", "wrench_xi", "system_matrix"):
-        with pytest.raises(ValueError):
-            getattr(e, name)[0] = 1.0
