@@ -2,8 +2,8 @@
 
 ``python -m benchmarks.touchdown [--duration 200] [--out out/bench]`` runs the open-loop
 ``contact-loss`` scenario (a rear wheel off the ground half of the time; its four-wheel
-samples are the landings) with MuJoCo's normal forces recorded at every physics step
-(`scenarios.physics_rate.NormalForceRecorder`), and scores the cylinder-force closure of each
+samples are the landings) with MuJoCo's normal forces logged at every physics step
+(``run_open_loop(..., physics_rate=True)``), and scores the cylinder-force closure of each
 observed sensor suite on the four- and three-wheel samples against
 
 * the truth at the tick's instant (``fz_in_fb``, what `wbc estimate` and the README's table
@@ -82,31 +82,19 @@ def main(argv=None) -> int:
     ap.add_argument("--duration", type=float, default=200.0)
     ap.add_argument("--out", type=Path, default=Path("out/bench"))
     a = ap.parse_args(argv)
-    import scenarios.openloop as ol
     from models import build_reference_machine
     from models.log import load_log
-    from scenarios.physics_rate import NormalForceRecorder
-
-    recorders = []
-
-    class _Recorded(ol.Simulator):
-        def __init__(self, *args, **kwargs):
-            super().__init__(*args, **kwargs)
-            recorders.append(NormalForceRecorder(self))
+    from scenarios.openloop import SCENARIOS, run_open_loop
 
     run_dir = a.out / "touchdown_run"
-    original, ol.Simulator = ol.Simulator, _Recorded
-    try:
-        ol.run_open_loop(ol.SCENARIOS["contact-loss"], run_dir, duration=a.duration,
-                         progress=False)
-    finally:
-        ol.Simulator = original
-    rec = recorders[0]
+    run_open_loop(SCENARIOS["contact-loss"], run_dir, duration=a.duration, progress=False,
+                  physics_rate=True)
     log = load_log(run_dir / "log.npz")
     steps = int(round(float(np.diff(np.asarray(log["time"], float)).mean())
                       / float(log["meta_timestep"])))
     figures = {"scenario": "contact-loss", "duration_s": a.duration, "steps_per_tick": steps,
-               **score(log, rec.time, rec.normal_force, steps, build_reference_machine())}
+               **score(log, log["physics_time"], log["physics_normal_force"], steps,
+                     build_reference_machine())}
     a.out.mkdir(parents=True, exist_ok=True)
     (a.out / "touchdown.json").write_text(json.dumps(figures, indent=1))
     print(json.dumps(figures, indent=1))

@@ -70,45 +70,7 @@ def anchor_machines(machine: Machine) -> tuple[Machine, Machine]:
     return at(ANCHOR_MASSES[0]), at(ANCHOR_MASSES[1])
 
 
-_RECENT = 4  # states whose anchor estimates a `PayloadEstimator` keeps
-
-
-class _Recent:
-    """An anchor estimator whose `estimate` keeps its last few states' results.
-
-    By identity: states are immutable, and a kept estimate (the common, four- or three-wheel
-    regular case: its fields are views of one row) is made read-only; a tipping or singular
-    one is not kept. A control tick asks
-    about the same observed state several times (the margin's payload and suspension
-    sensitivities, the MPC's feedback) between perturbed ones: about 4 of its 15 estimates.
-    Everything else is the wrapped estimator's.
-    """
-
-    def __init__(self, estimator: NormalForceEstimator):
-        self._estimator = estimator
-        self._items: tuple = ()
-
-    def estimate(self, state: MachineState) -> Estimate:
-        """`NormalForceEstimator.estimate`, or the kept result of this very state."""
-        for s, e in self._items:  # one read of the tuple: safe across threads
-            if s is state:
-                return e
-        e = self._estimator.estimate(state)
-        row = e.__dict__.get("_row")
-        if row is not None:  # read-only before any field is made: kept, it is shared
-            row.flags.writeable = False
-            self._items = ((state, e),) + self._items[:_RECENT - 1]
-        return e
-
-    def __getattr__(self, name: str):
-        return getattr(self._estimator, name)
-
-    def __setattr__(self, name: str, value) -> None:
-        if name in ("_estimator", "_items"):
-            object.__setattr__(self, name, value)
-        else:  # an option of the estimator (D, beta, ...): the kept results are stale
-            setattr(self._estimator, name, value)
-            object.__setattr__(self, "_items", ())
+_RECENT = 4  # states whose anchor estimates a `PayloadEstimator` keeps (`_anchor`)
 
 
 class PayloadEstimator:
@@ -129,8 +91,9 @@ class PayloadEstimator:
         self.machine = machine
         self._m_a = ANCHOR_MASSES[0]
         machine_a, machine_b = anchor_machines(machine)
-        self._a = _Recent(NormalForceEstimator(machine_a, **options))
-        self._b = _Recent(NormalForceEstimator(machine_b, **options))
+        self._a = NormalForceEstimator(machine_a, **options)
+        self._b = NormalForceEstimator(machine_b, **options)
+        self._kept: dict = {self._a: (), self._b: ()}  # `_anchor`
         for est in (self._a, self._b):  # loaded now, not in a controller's first tick
             est.warm()
         self.method, self.fourth = self._a.method, self._a.fourth
@@ -155,12 +118,33 @@ class PayloadEstimator:
     def _mix(self, x_a, x_b):
         return x_a + self._w * (np.asarray(x_b) - np.asarray(x_a))
 
+    def _anchor(self, est: NormalForceEstimator, state: MachineState) -> Estimate:
+        """``est.estimate(state)`` of an anchor, its last `_RECENT` states' results kept.
+
+        By identity (states are immutable) and for the anchor's D and beta then. A control
+        tick asks about the same observed state several times (the margin's payload and
+        suspension sensitivities, the MPC's feedback) between perturbed ones: about 4 of its
+        15 estimates. A kept estimate (the common, regular four- or three-wheel case: its
+        fields are views of one row) is made read-only, as it is shared; a tipping or
+        singular one is not kept.
+        """
+        kept = self._kept[est]
+        for s, d, beta, e in kept:  # one read of the tuple: safe across threads
+            if s is state and d == est.D and beta == est.beta:
+                return e
+        e = est.estimate(state)
+        row = e.__dict__.get("_row")
+        if row is not None:  # read-only before any field is made
+            row.flags.writeable = False
+            self._kept[est] = ((state, est.D, est.beta, e),) + kept[:_RECENT - 1]
+        return e
+
     def estimate(self, state: MachineState) -> Estimate:
         """`NormalForceEstimator.estimate` at the current payload mass."""
-        ea = self._a.estimate(state)
+        ea = self._anchor(self._a, state)
         if self._w == 0.0:
             return ea
-        eb = self._b.estimate(state)
+        eb = self._anchor(self._b, state)
         return dataclasses.replace(
             ea, normal_forces=self._mix(ea.normal_forces, eb.normal_forces),
             wrench_xi=self._mix(ea.wrench_xi, eb.wrench_xi),
@@ -173,17 +157,17 @@ class PayloadEstimator:
         The observer's per-tick call: the same two estimates and the same mix of the
         forces (~30 us less than making the whole mixed `Estimate`).
         """
-        ea = self._a.estimate(state)
+        ea = self._anchor(self._a, state)
         if self._w == 0.0:
             return ea.normal_forces
-        return self._mix(ea.normal_forces, self._b.estimate(state).normal_forces)
+        return self._mix(ea.normal_forces, self._anchor(self._b, state).normal_forces)
 
     def contact_points(self, state: MachineState) -> np.ndarray:
         """`Estimate.contact_points` of ``state`` (4, 3) [m].
 
         Geometry, whatever the payload: one estimate at the first mass gives them.
         """
-        return self._a.estimate(state).contact_points
+        return self._anchor(self._a, state).contact_points
 
     def constraint(self, state: MachineState) -> tuple[np.ndarray, np.ndarray]:
         """`NormalForceEstimator.constraint` at the current payload mass."""
@@ -233,8 +217,8 @@ class PayloadEstimator:
 
     def payload_sensitivity(self, state: MachineState) -> np.ndarray:
         """``df/dm`` of the normal forces [N/kg], shape (4,) (exact: affine in ``m``)."""
-        fa = self._a.estimate(state).normal_forces
-        fb = self._b.estimate(state).normal_forces
+        fa = self._anchor(self._a, state).normal_forces
+        fb = self._anchor(self._b, state).normal_forces
         return (np.asarray(fb) - np.asarray(fa)) / SPAN
 
     @property

@@ -27,6 +27,7 @@ from models.log import OBSERVED_SUITES, SETTLE_SECONDS, ScenarioLog
 from models.terrain import Terrain, flat, rough
 from scenarios.errors import RunInterrupted
 from scenarios.json_io import write_json
+from scenarios.physics_rate import NormalForceRecorder
 from scenarios.progress import Progress
 from scenarios.run_args import check_duration, check_seed
 from scenarios.sensing import Sensing
@@ -137,7 +138,7 @@ def _observed(sensing: dict, tick: float) -> dict:
 
 def run_open_loop(scenario: OpenLoopScenario, out_dir: Path, seed: int = 0,
                   duration: float | None = None, progress: bool = True,
-                  observe: bool = True, machine=None) -> dict:
+                  observe: bool = True, machine=None, physics_rate: bool = False) -> dict:
     """Run an open-loop scenario; write ``log.npz`` and ``metrics.json`` to ``out_dir``.
 
     Args:
@@ -150,6 +151,8 @@ def run_open_loop(scenario: OpenLoopScenario, out_dir: Path, seed: int = 0,
             their states (`models.log.OBSERVED_COLUMNS`).
         machine: The machine (a payload other than the description's); None: the reference
             machine.
+        physics_rate: Also log MuJoCo's normal forces at every physics step
+            (`models.log.PHYSICS_COLUMNS`, as the closed loop does; a Python call per step).
 
     Returns:
         The metrics written to ``metrics.json``, with ``"partial": False``.
@@ -166,6 +169,7 @@ def run_open_loop(scenario: OpenLoopScenario, out_dir: Path, seed: int = 0,
     sim = Simulator(machine, terrain)
     q0 = machine.coordinates.home()
     sim.reset(q0)
+    recorder = NormalForceRecorder(sim) if physics_rate else None
     # The machine's sensors and observer beside the truth, one per suite (payload not told:
     # the observers start from an empty grapple's 10 kg).
     sensing = {suite: Sensing(sim, machine, suite, seed, initial_payload=10.0)
@@ -199,6 +203,9 @@ def run_open_loop(scenario: OpenLoopScenario, out_dir: Path, seed: int = 0,
     n_done = len(log) if interrupted else n_samples
     if n_done == 0:  # nothing to save
         raise KeyboardInterrupt
+    if recorder is not None:
+        recorder.close()
+        log.set_physics(physics_time=recorder.time, physics_normal_force=recorder.normal_force)
     out_dir = Path(out_dir)
     log.save(out_dir / "log.npz")
     arrays = log.arrays()
