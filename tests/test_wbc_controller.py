@@ -272,3 +272,23 @@ def test_a_goal_in_the_position_margin_is_clamped_and_reported(tracking, machine
     assert "goal clamped" in cmd.info["goal_error"] and "'telescope'" in cmd.info["goal_error"]
     assert tracking.crane_reference.goal[3] == pytest.approx(0.011)
     assert np.all(np.isfinite(cmd.rates))
+
+
+def test_reference_ahead_equals_reference_at(machine):
+    """The whole-body QP's one-time reference is `reference_at` at that offset, bit for bit."""
+    ctrl = make_controller("tracking", machine)
+    st = make_state(machine)
+    goal = st.q[2:9].copy()
+    goal[3] += 0.3
+    ctrl.set_goal(JointGoal(crane=goal, suspension=st.q[:2] + 0.02))
+    plant = KinematicPlant(st, DT)
+    for k in range(40):
+        cmd = ctrl.step(plant.state)
+        if k % 7 == 0:
+            ctrl._clock["crane"][1] = 0.6  # a slowed reference clock
+        for offset in (0.0, 0.013):
+            one = ctrl.reference_ahead(offset)
+            many = ctrl.reference_at([offset])
+            for got, want in zip(dataclasses.astuple(one), dataclasses.astuple(many)):
+                np.testing.assert_array_equal(got, want[0])
+        plant.apply(cmd)

@@ -146,3 +146,24 @@ def test_axis_index_is_a_slice_only_where_the_axes_are_contiguous():
         index = axis_index(axes)
         assert isinstance(index, slice) == (np.diff(axes) == 1).all()
         np.testing.assert_array_equal(x[index], x[axes])
+
+
+@pytest.mark.parametrize("planned", [True, False])
+def test_position_and_sample_into_equal_sample(limits, planned):
+    """The per-tick paths read the same bits as `sample`, scaled as the governor does."""
+    ref = RuckigReference(limits, CRANE_AXES)
+    start = 0.5 * (limits.position_lower + limits.position_upper)[CRANE_AXES]
+    goal = start.copy()
+    goal[3] += 0.4
+    if planned:
+        ref.plan(1.0, start, np.full(7, 0.01), np.zeros(7), goal)
+    else:
+        ref.hold(start)
+    for t in (0.0, 1.0, 1.37, 2.9, 1.0 + ref.duration + 1.0):
+        p, v, a = ref.sample(t)
+        np.testing.assert_array_equal(ref.position(t), p)
+        for rate in (1.0, 0.37, 0.0):
+            out = np.full((3, 9), np.nan)
+            ref.sample_into(t, rate, out[0, 2:], out[1, 2:], out[2, 2:])  # views
+            np.testing.assert_array_equal(out[:, 2:], [p, rate * v, rate**2 * a])
+            assert np.isnan(out[:, :2]).all()

@@ -51,6 +51,7 @@ MAX_STATE_MAGNITUDE = 1e6  # [m, rad, m/s, rad/s, m/s^2, rad/s^2]
 MAX_STATE_TIME = 1e9  # [s], about 30 years
 _MAGNITUDE_FIELDS = ("base_twist", "base_acceleration", "q", "qd", "qdd")  # checked per tick
 _magnitudes = operator.attrgetter(*_MAGNITUDE_FIELDS)
+_max = np.maximum.reduce  # `np.max` of a 1-D array without its Python dispatch
 
 
 class Controller(abc.ABC):
@@ -222,8 +223,7 @@ class Controller(abc.ABC):
             if key in planned:
                 continue
             clock = self._clock[key]
-            p, _, _ = ref.sample(clock[0])
-            err = float(np.max(np.abs(p - state.q[ref.index])))
+            err = float(_max(np.abs(ref.position(clock[0]) - state.q[ref.index])))
             clock[1] = float(min(max(2.0 * (1.0 - err / e_g), 0.0), 1.0))  # a scalar clip
             clock[0] += clock[1] * elapsed
 
@@ -246,6 +246,19 @@ class Controller(abc.ABC):
             p[:, i], v[:, i], a[:, i] = rp, sigma * rv, sigma**2 * ra
         return ReferenceSample(p, v, a)
 
+    def reference_ahead(self, offset: float = 0.0) -> ReferenceSample:
+        """`reference_at` at one offset: arrays of shape (9,), the same numbers.
+
+        The whole-body QP's reference, every tick: written in place, without the
+        (1, 9) arrays and the per-time loop of `reference_at`.
+        """
+        p, v, a = np.zeros(N_AXES), np.zeros(N_AXES), np.zeros(N_AXES)
+        for key, ref in self._references():
+            tau, sigma = self._clock[key]
+            i = ref.index
+            ref.sample_into(tau + sigma * offset, sigma, p[i], v[i], a[i])
+        return ReferenceSample(p, v, a)
+
     # ------------------------------------------------------------------ loop
     def _check_state(self, state) -> None:
         """`WbcInputError` unless ``state`` is a `MachineState` of bounded magnitudes.
@@ -255,7 +268,7 @@ class Controller(abc.ABC):
         """
         if not isinstance(state, MachineState):
             raise WbcInputError(f"state must be a models.MachineState, got {type(state)!r}")
-        if np.abs(np.concatenate(_magnitudes(state))).max() > MAX_STATE_MAGNITUDE:
+        if _max(np.abs(np.concatenate(_magnitudes(state)))) > MAX_STATE_MAGNITUDE:
             for name in _MAGNITUDE_FIELDS:  # one pass above; here which field it was
                 big = float(np.abs(getattr(state, name)).max())
                 if big > MAX_STATE_MAGNITUDE:

@@ -15,7 +15,7 @@ from wbc.constraints import (
     SpeedScaleLimit,
     VelocityLimit,
 )
-from wbc.context import QPContext, ReferenceSample
+from wbc.context import QPContext
 from wbc.controllers.config import ControllerConfig
 from wbc.controllers.controller import Controller
 from wbc.force_models.protocol import NormalForceModel
@@ -83,9 +83,8 @@ class WholeBodyQPController(Controller):
 
     def context(self, state: MachineState) -> QPContext:
         """The QP context of ``state`` (references at the current reference time)."""
-        r = self.reference_at([0.0])
-        ref = ReferenceSample(r.position[0], r.velocity[0], r.acceleration[0])
-        return QPContext.from_state(state, self.dt, self.layout, self.limits, ref,
+        return QPContext.from_state(state, self.dt, self.layout, self.limits,
+                                    self.reference_ahead(0.0),
                                     self._speed_scale)
 
     def _build(self, ctx: QPContext) -> qpsolvers.Problem:

@@ -165,6 +165,31 @@ class RuckigReference:
         return (clip(p, self.position_lower, self.position_upper), np.asarray(v),
                 np.asarray(a))
 
+    def position(self, t: float) -> np.ndarray:
+        """``sample(t)[0]``: the position at time ``t`` [s], clipped into the limits, (n,)."""
+        if not self._planned:
+            return self.sample(t)[0]
+        return clip(self._traj.at_time(max(t - self.start_time, 0.0))[0],
+                    self.position_lower, self.position_upper)
+
+    def sample_into(self, t: float, rate: float, position: np.ndarray,
+                    velocity: np.ndarray, acceleration: np.ndarray) -> None:
+        """Write ``sample(t)``, velocity times ``rate`` and acceleration times ``rate**2``.
+
+        The sample of a reference whose clock runs at ``rate`` (the controller's reference
+        governor), written into the given arrays of shape (n,) (views are fine): the same
+        operations as scaling `sample`'s arrays, without the temporary arrays (the
+        whole-body QP asks every tick).
+        """
+        if self._planned:
+            p, v, a = self._traj.at_time(max(t - self.start_time, 0.0))[:3]
+            clip(p, self.position_lower, self.position_upper, out=position)
+        else:
+            p, v, a = self.sample(t)
+            position[...] = p
+        np.multiply(v, rate, out=velocity)
+        np.multiply(a, rate**2, out=acceleration)
+
     def sample_many(self, times) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Samples at several times [s]: three arrays of shape (len(times), n)."""
         if not self._planned:
