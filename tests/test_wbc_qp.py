@@ -205,3 +205,64 @@ def test_inequality_type_is_checked(machine, limits):
 
     with pytest.raises(WbcError, match="expected"):
         build_qp(_ctx(machine, limits), [], [Bad()])
+
+
+def _limit_boxes(ctx, limits, T, fraction):
+    """Both limits' boxes written out as the docstrings' formulas, both sides apart."""
+    q, qd, a = ctx.q, ctx.qd, limits.acceleration
+    brake = -np.clip(qd / DT, -a, a)
+    b = fraction * a
+
+    def bound(d, v):
+        rest = np.maximum(d - 0.5 * v * DT, 0.0)
+        viable = -(b * DT) + np.sqrt((b * DT) ** 2 + (2.0 * b) * rest)
+        return np.minimum(2.0 * (d - v * T) / T**2, (viable - v) / DT)
+
+    pos = (np.minimum(-bound(q - limits.position_lower, -qd), brake),
+           np.maximum(bound(limits.position_upper - q, qd), brake))
+    vel = (np.minimum((limits.velocity_lower - qd) / DT, brake),
+           np.maximum((limits.velocity_upper - qd) / DT, brake))
+    return pos, vel
+
+
+def test_limit_boxes_are_their_formulas_to_the_bit(machine, limits):
+    """The in-place arithmetic of the limits computes the formulas' very numbers."""
+    rng = np.random.default_rng(4)
+    layouts = (VariableLayout(), VariableLayout(9, 1, speed_scale=True, n_slack=4))
+    pos_limits = (PositionLimit(), PositionLimit(horizon=0.05, braking_fraction=0.7))
+    vel_limit = VelocityLimit()
+    kept = []
+    for k in range(300):
+        layout, con = layouts[k % 2], pos_limits[k // 2 % 2]
+        q = make_state(machine).q.copy()
+        q[:9] = rng.uniform(limits.position_lower - 0.03, limits.position_upper + 0.03)
+        qd = np.zeros(13)
+        qd[:9] = rng.uniform(-1.3, 1.3, 9) * limits.velocity_upper
+        qd[rng.integers(9)] = 0.0
+        ctx = _ctx(machine, limits, q=q, qd=qd, layout=layout)
+        T = DT if con.horizon is None else con.horizon
+        pos, vel = _limit_boxes(ctx, limits, T, con.braking_fraction)
+        for box, (lower, upper) in ((con.compute(ctx), pos), (vel_limit.compute(ctx), vel)):
+            np.testing.assert_array_equal(box.lower[:9], lower)
+            np.testing.assert_array_equal(box.upper[:9], upper)
+            assert np.isneginf(box.lower[9:]).all() and np.isposinf(box.upper[9:]).all()
+            kept.append((box, box.lower.copy(), box.upper.copy()))
+    for box, lower, upper in kept:  # a later call does not write into an earlier box
+        np.testing.assert_array_equal(box.lower, lower)
+        np.testing.assert_array_equal(box.upper, upper)
+
+
+def test_context_from_state_sets_every_field(machine, limits):
+    import dataclasses
+
+    st = make_state(machine, qd=np.linspace(-0.1, 0.1, 13))
+    ref = ReferenceSample(st.q[:9], np.zeros(9), np.zeros(9))
+    ctx = QPContext.from_state(st, DT, VariableLayout(), limits, ref, 0.7)
+    full = QPContext(st, st.q[:9], st.qd[:9], DT, VariableLayout(), limits, ref, 0.7)
+    for f in dataclasses.fields(QPContext):
+        np.testing.assert_array_equal(getattr(ctx, f.name), getattr(full, f.name))
+    assert not ctx.q.flags.writeable and not ctx.qd.flags.writeable
+    assert ctx.brake is ctx.brake and not ctx.brake.flags.writeable
+    np.testing.assert_array_equal(ctx.brake, limits.brake_acceleration(ctx.qd, DT))
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        ctx.dt = 0.02

@@ -6,7 +6,6 @@
 
 from __future__ import annotations
 
-import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -54,11 +53,18 @@ class ControlContext:
     layout: VariableLayout
     limits: AxisLimits
 
-    @functools.cached_property
+    @property
     def brake(self) -> np.ndarray:
-        """``limits.brake_acceleration(qd, dt)`` (9,), once per context (read-only)."""
-        a = self.limits.brake_acceleration(self.qd, self.dt)
-        a.setflags(write=False)
+        """``limits.brake_acceleration(qd, dt)`` (9,), once per context (read-only).
+
+        Kept in the instance's ``__dict__`` as `functools.cached_property` would, without
+        its lock (Python 3.11 takes one on every first access; a context is one tick's).
+        """
+        a = self.__dict__.get("_brake")
+        if a is None:
+            a = self.limits.brake_acceleration(self.qd, self.dt)
+            a.setflags(write=False)
+            self.__dict__["_brake"] = a
         return a
 
     @property
@@ -83,6 +89,21 @@ class QPContext(ControlContext):
     def from_state(cls, state: MachineState, dt: float, layout: VariableLayout,
                    limits: AxisLimits, reference: ReferenceSample | None = None,
                    speed_scale: float = 1.0) -> QPContext:
-        """Context whose axis positions and velocities are read off ``state``."""
-        return cls(state, state.q[:N_AXES].copy(), state.qd[:N_AXES].copy(), dt, layout,
-                   limits, reference, speed_scale)
+        """Context whose axis positions and velocities are read off ``state``.
+
+        ``q`` and ``qd`` are views of the state's read-only arrays (a `MachineState` is
+        immutable). The fields are set as the dataclass's ``__init__`` sets them, without
+        its per-field ``object.__setattr__`` (this runs every tick; `QPContext` has no
+        ``__post_init__`` to skip).
+        """
+        ctx = object.__new__(cls)
+        fields = ctx.__dict__
+        fields["state"] = state
+        fields["q"] = state.q[:N_AXES]
+        fields["qd"] = state.qd[:N_AXES]
+        fields["dt"] = dt
+        fields["layout"] = layout
+        fields["limits"] = limits
+        fields["reference"] = reference
+        fields["speed_scale"] = speed_scale
+        return ctx

@@ -3,11 +3,12 @@
 from __future__ import annotations
 
 import abc
+import functools
 from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["Box", "Constraint", "Inequality"]
+__all__ = ["Box", "Constraint", "Inequality", "unbounded"]
 
 
 @dataclass(frozen=True)
@@ -32,3 +33,20 @@ class Constraint(abc.ABC):
     @abc.abstractmethod
     def compute(self, ctx) -> Inequality | Box | None:
         """The constraint at this context; None when inactive."""
+
+
+@functools.lru_cache(maxsize=8)
+def _unbounded(n: int) -> tuple[np.ndarray, np.ndarray]:
+    lower, upper = np.full(n, -np.inf), np.full(n, np.inf)
+    lower.setflags(write=False)
+    upper.setflags(write=False)
+    return lower, upper
+
+
+def unbounded(n: int) -> tuple[np.ndarray, np.ndarray]:
+    """New arrays ``(-inf, +inf)`` of shape (n,): a box's start before it bounds anything.
+
+    Copies of kept read-only templates (a per-tick path: `np.full` costs four copies).
+    """
+    lower, upper = _unbounded(n)
+    return lower.copy(), upper.copy()

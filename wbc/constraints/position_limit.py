@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from wbc.constraints.constraint import Box, Constraint
+from wbc.axes import N_AXES
+from wbc.constraints.constraint import Box, Constraint, unbounded
 from wbc.errors import ConfigurationError
 
 __all__ = ["PositionLimit"]
@@ -45,31 +46,54 @@ class PositionLimit(Constraint):
         self._key: tuple | None = None
         self._const: tuple = ()
 
-    def _constants(self, lim, dt: float) -> tuple:
-        """``(b dt, (b dt)^2, 2 b)`` of both sides (18,), kept for the limits and period."""
-        if self._key is None or self._key[0] is not lim or self._key[1] != dt:
+    def _constants(self, ctx) -> tuple:
+        """What depends on the limits, the period and the layout only, kept while they do.
+
+        ``(-b dt, (b dt)^2, 2 b)`` of both sides (18,), ``T`` and ``T^2``, and the scratch
+        arrays (18,) of `compute` (this object's own, overwritten on every call).
+        """
+        lim, dt = ctx.limits, ctx.dt
+        key = self._key
+        if key is None or key[0] is not lim or key[1] != dt:
             b = self.braking_fraction * lim.acceleration
             bdt = np.concatenate((b, b)) * dt
+            T = dt if self.horizon is None else self.horizon
             self._key = (lim, dt)
-            self._const = (bdt, bdt**2, 2.0 * np.concatenate((b, b)))
+            self._const = (-bdt, bdt**2, 2.0 * np.concatenate((b, b)), T, T**2,
+                           np.empty(2 * N_AXES), np.empty(2 * N_AXES), np.empty(2 * N_AXES))
         return self._const
 
     def compute(self, ctx) -> Box:
         """Box on step 0's accelerations."""
         lim, dt, q, qd = ctx.limits, ctx.dt, ctx.q, ctx.qd
-        T = dt if self.horizon is None else self.horizon
-        bdt, bdt2, two_b = self._constants(lim, dt)
+        neg_bdt, bdt2, two_b, T, T2, d, v, x = self._constants(ctx)
         # Both sides in one pass: the upper side (distance d = q_hi - q, speed v = qd towards
         # it) and the lower side mirrored (d = q - q_lo, v = -qd), whose bound is the negated
-        # upper one: the same operations on each element as side by side.
-        d = np.concatenate((lim.position_upper - q, q - lim.position_lower))
-        v = np.concatenate((qd, -qd))
-        rest = np.maximum(d - 0.5 * v * dt, 0.0)
-        viable = -bdt + np.sqrt(bdt2 + two_b * rest)  # the largest speed that can still stop
-        bound = np.minimum(2.0 * (d - v * T) / T**2, (viable - v) / dt)
+        # upper one. Written into scratch arrays, in the order of the operations of
+        # rest = max(d - 0.5 v dt, 0), viable = -b dt + sqrt((b dt)^2 + 2 b rest) and
+        # bound = min(2 (d - v T) / T^2, (viable - v) / dt) on each element.
+        np.subtract(lim.position_upper, q, out=d[:N_AXES])
+        np.subtract(q, lim.position_lower, out=d[N_AXES:])
+        v[:N_AXES] = qd
+        np.negative(qd, out=v[N_AXES:])
+        np.multiply(v, 0.5, out=x)
+        x *= dt
+        np.subtract(d, x, out=x)
+        np.maximum(x, 0.0, out=x)  # the distance left after the period
+        np.multiply(two_b, x, out=x)
+        x += bdt2
+        np.sqrt(x, out=x)
+        x += neg_bdt  # the largest speed that can still stop
+        x -= v
+        x /= dt
+        np.multiply(v, T, out=v)
+        np.subtract(d, v, out=d)
+        d *= 2.0
+        d /= T2
+        bound = np.minimum(d, x, out=x)
         brake = ctx.brake
-        n, s = ctx.layout.n, ctx.layout.step(0)
-        lb, ub = np.full(n, -np.inf), np.full(n, np.inf)
-        m = s.stop - s.start
-        lb[s], ub[s] = np.minimum(-bound[m:], brake), np.maximum(bound[:m], brake)
+        lb, ub = unbounded(ctx.layout.n)
+        s = ctx.layout.step(0)
+        np.minimum(np.negative(bound[N_AXES:]), brake, out=lb[s])
+        np.maximum(bound[:N_AXES], brake, out=ub[s])
         return Box(lb, ub)

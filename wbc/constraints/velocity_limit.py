@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from wbc.constraints.constraint import Box, Constraint
+from wbc.constraints.constraint import Box, Constraint, unbounded
 
 __all__ = ["VelocityLimit"]
 
@@ -22,10 +22,13 @@ class VelocityLimit(Constraint):
         """Box on step 0's accelerations."""
         lim, dt, qd = ctx.limits, ctx.dt, ctx.qd
         brake = ctx.brake
-        lower = np.minimum((lim.velocity_lower - qd) / dt, brake)
-        upper = np.maximum((lim.velocity_upper - qd) / dt, brake)
-        n = ctx.layout.n
-        lb, ub = np.full(n, -np.inf), np.full(n, np.inf)
+        lb, ub = unbounded(ctx.layout.n)
         s = ctx.layout.step(0)
-        lb[s], ub[s] = lower, upper
+        # min((v_lo - qd) / dt, brake) and max((v_hi - qd) / dt, brake), in place
+        lower = np.subtract(lim.velocity_lower, qd, out=lb[s])
+        lower /= dt
+        np.minimum(lower, brake, out=lower)
+        upper = np.subtract(lim.velocity_upper, qd, out=ub[s])
+        upper /= dt
+        np.maximum(upper, brake, out=upper)
         return Box(lb, ub)
