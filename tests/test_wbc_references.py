@@ -167,3 +167,26 @@ def test_position_and_sample_into_equal_sample(limits, planned):
             ref.sample_into(t, rate, out[0, 2:], out[1, 2:], out[2, 2:])  # views
             np.testing.assert_array_equal(out[:, 2:], [p, rate * v, rate**2 * a])
             assert np.isnan(out[:, :2]).all()
+
+
+def test_kept_position_follows_the_trajectory(limits):
+    """`position` at the time `sample_into` wrote is `sample`'s, also across a new plan."""
+    ref = RuckigReference(limits, CRANE_AXES)
+    start = 0.5 * (limits.position_lower + limits.position_upper)[CRANE_AXES]
+    goal = start.copy()
+    goal[1] += 0.2
+    ref.plan(1.0, start, np.zeros(7), np.zeros(7), goal)
+    buf = np.empty((3, 7))
+    for t in (0.5, 1.0, 1.42, 1.42, 9.0):
+        ref.sample_into(t, 1.0, *buf)
+        got = ref.position(t)
+        np.testing.assert_array_equal(got, ref.sample(t)[0])
+        got[:] = 0.0  # a copy: the kept position is not the caller's
+        np.testing.assert_array_equal(ref.position(t), ref.sample(t)[0])
+    ref.plan(1.42, ref.position(1.42), np.zeros(7), np.zeros(7), start)  # from there back
+    np.testing.assert_array_equal(ref.position(9.0), ref.sample(9.0)[0])
+    np.testing.assert_allclose(ref.position(9.0), start, atol=1e-9)
+    ref.sample_into(9.0, 1.0, *buf)
+    ref.hold(goal)
+    np.testing.assert_array_equal(ref.position(9.0), np.clip(goal, ref.position_lower,
+                                                             ref.position_upper))

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from math import copysign
+
 import numpy as np
 import ruckig
 
@@ -72,6 +74,7 @@ class RuckigReference:
         self.goal: np.ndarray | None = None
         self._hold: np.ndarray | None = None
         self._planned = False
+        self._kept_position: tuple | None = None  # see `position`
 
     @property
     def n(self) -> int:
@@ -107,6 +110,7 @@ class RuckigReference:
                           self.position_upper)
         self.goal = self._hold.copy()
         self._planned = False
+        self._kept_position = None
 
     def plan(self, t0: float, position, velocity, acceleration, goal) -> float:
         """Plan from the measured state at time ``t0`` [s] to rest at ``goal``.
@@ -121,6 +125,7 @@ class RuckigReference:
             WbcInputError: Bad goal. TrajectoryError: Ruckig failed.
         """
         g = self.check_goal(goal)
+        self._kept_position = None  # the trajectory changes from here on
         inp = self._inp
         inp.current_position = np.asarray(position, float).tolist()
         inp.current_velocity = np.asarray(velocity, float).tolist()
@@ -166,11 +171,20 @@ class RuckigReference:
                 np.asarray(a))
 
     def position(self, t: float) -> np.ndarray:
-        """``sample(t)[0]``: the position at time ``t`` [s], clipped into the limits, (n,)."""
+        """``sample(t)[0]``: the position at time ``t`` [s], clipped into the limits, (n,).
+
+        The position `sample_into` wrote last is kept and returned (a copy) when ``t`` is
+        at the same trajectory time: the controller's governor asks, each tick, for the
+        position at the time the previous tick's reference was sampled. The kept
+        position is dropped by `plan` and `hold`, the only changes of the trajectory.
+        """
         if not self._planned:
             return self.sample(t)[0]
-        return clip(self._traj.at_time(max(t - self.start_time, 0.0))[0],
-                    self.position_lower, self.position_upper)
+        tr = max(t - self.start_time, 0.0)
+        kept = self._kept_position
+        if kept is not None and kept[0] == tr and copysign(1.0, tr) == kept[1]:
+            return kept[2].copy()
+        return clip(self._traj.at_time(tr)[0], self.position_lower, self.position_upper)
 
     def sample_into(self, t: float, rate: float, position: np.ndarray,
                     velocity: np.ndarray, acceleration: np.ndarray) -> None:
@@ -182,8 +196,11 @@ class RuckigReference:
         whole-body QP asks every tick).
         """
         if self._planned:
-            p, v, a = self._traj.at_time(max(t - self.start_time, 0.0))[:3]
+            tr = max(t - self.start_time, 0.0)
+            p, v, a = self._traj.at_time(tr)[:3]
             clip(p, self.position_lower, self.position_upper, out=position)
+            # (time, its sign: at_time(-0.0) need not be at_time(0.0), position)
+            self._kept_position = (tr, copysign(1.0, tr), position.copy())
         else:
             p, v, a = self.sample(t)
             position[...] = p
