@@ -292,3 +292,15 @@ def test_reference_ahead_equals_reference_at(machine):
             for got, want in zip(dataclasses.astuple(one), dataclasses.astuple(many)):
                 np.testing.assert_array_equal(got, want[0])
         plant.apply(cmd)
+
+
+def test_unit_interval_is_clip():
+    from models.numeric import clip
+    from wbc.controllers.controller import _unit_interval
+
+    for x in (-0.0, 0.0, 1.0, -1.0, 2.0, 0.5, 1e-320, -1e-320, np.inf, -np.inf,
+              np.float64(0.25), np.float64(-0.0), np.float64(3.0)):
+        got, want = _unit_interval(x), float(clip(x, 0.0, 1.0))
+        assert type(got) is float and got == want
+        assert np.signbit(got) == np.signbit(want)
+    assert np.isnan(_unit_interval(np.nan))

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import operator
 from collections.abc import Sequence
 
 import numpy as np
@@ -12,6 +13,8 @@ from wbc.errors import ConfigurationError, WbcError
 from wbc.tasks.task import Task
 
 __all__ = ["QP", "QPBuilder", "build_qp"]
+
+_any = np.logical_or.reduce  # `ndarray.any` of a 1-D array without its Python dispatch
 
 
 class QP(qpsolvers.Problem):
@@ -58,7 +61,7 @@ class QPBuilder:
     def _hessian(self, n: int, hessians: list) -> np.ndarray:
         """``regularization * I + sum(H)``, reused when every H is the last tick's array."""
         if (self._hessians is not None and len(hessians) == len(self._hessians)
-                and all(a is b for a, b in zip(hessians, self._hessians))):
+                and all(map(operator.is_, hessians, self._hessians))):
             return self._P
         P = self.regularization * np.eye(n)
         for H in hessians:
@@ -114,7 +117,7 @@ class QPBuilder:
             else:
                 raise WbcError(f"{type(con).__name__}.compute returned {type(r).__name__}, "
                                f"expected Inequality, Box or None")
-        if (lb > ub).any():
+        if _any(lb > ub):
             i = int(np.argmax(lb > ub))
             raise WbcError(f"empty bounds on x[{i}]: [{lb[i]}, {ub[i]}]")
         G = np.concatenate(Gs) if Gs else None

@@ -54,6 +54,11 @@ _magnitudes = operator.attrgetter(*_MAGNITUDE_FIELDS)
 _max = np.maximum.reduce  # `np.max` of a 1-D array without its Python dispatch
 
 
+def _unit_interval(x: float) -> float:
+    """``float(clip(x, 0.0, 1.0))`` without a ufunc call, NaN and -0.0 passed alike."""
+    return float(min(max(x, 0.0), 1.0))  # max and min keep their first argument on ties
+
+
 class Controller(abc.ABC):
     """Common part of the controllers: goals, Ruckig references, commands, fallback.
 
@@ -330,7 +335,7 @@ class Controller(abc.ABC):
         rates = clip(qd + qdd * self.dt, self.limits.velocity_lower,
                      self.limits.velocity_upper)
         self._commanded(rates)
-        scale = float(clip(scale, 0.0, 1.0))  # solver tolerance aside, s is in [0, 1]
+        scale = _unit_interval(scale)  # solver tolerance aside, s is in [0, 1]
         self._last_qdd = qdd.copy()
         self._speed_scale = scale
         if self._goal_error is not None:

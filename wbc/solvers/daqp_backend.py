@@ -40,6 +40,7 @@ from wbc.solvers.solution import QPSolution
 __all__ = ["DaqpBackend", "redundant_rows"]
 
 _BIG = 1e20  # stands in for an infinite bound in the screening sums
+_all = np.logical_and.reduce  # `np.all` of a 1-D array without its Python dispatch
 _EQUALITY = 5  # DAQP's sense flags: active (1) | immutable (4)
 # Below this many variables DAQP's own set-up costs less than the extra numpy calls of the
 # least-distance form (the whole-body QP, 9 variables: 41 us direct, 67 us with the form).
@@ -253,11 +254,12 @@ class DaqpBackend:
         if factor is not None:
             x = factor[0] @ x - shift
         elapsed = time.perf_counter() - t0
-        if not (flag > 0 and np.all(np.isfinite(x))):
+        if not (flag > 0 and _all(np.isfinite(x))):
             self._lam = None
             raise QPSolveError(f"daqp found no solution (exit flag {flag})", "not_found")
         lam = np.zeros(n_all)
         lam[:n] = info["lam"][:n]
-        lam[n + rows] = info["lam"][n:]
+        if rows.size:  # no rows (the whole-body QP): nothing to scatter
+            lam[n + rows] = info["lam"][n:]
         self._lam, self._n = lam, n
         return QPSolution(np.asarray(x, float), "solved", iterations, elapsed, warm, call)

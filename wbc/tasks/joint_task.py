@@ -60,8 +60,21 @@ class JointTask(ConstantJacobianTask):
                 + self.kd * (ref.velocity[i] - ctx.qd[i]))
 
     def compute_error(self, ctx) -> np.ndarray:
-        """``-qdd*`` of the task's axes."""
-        return -self.desired_acceleration(ctx)
+        """``-qdd*`` of the task's axes.
+
+        Computed as ``K_p (q - q_ref) - qdd_ref + K_d (qd - qd_ref)``, in place: each
+        difference, product and sum is the negated one of `desired_acceleration` (rounding
+        is symmetric in sign), so the very same numbers, with one operation and three
+        arrays less per tick.
+        """
+        ref, i = ctx.reference, self._index
+        err = np.subtract(ctx.q[i], ref.position[i])
+        err *= self.kp
+        err -= ref.acceleration[i]
+        damp = np.subtract(ctx.qd[i], ref.velocity[i])
+        damp *= self.kd
+        err += damp
+        return err
 
     def compute_jacobian(self, ctx) -> np.ndarray:
         """Selection of the task's axes in step 0."""
