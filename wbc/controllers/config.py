@@ -64,7 +64,13 @@ class ReferenceConfig:
     """Ruckig references.
 
     Attributes:
-        jerk_time: Time to build up full acceleration [s] (jerk = a / jerk_time).
+        jerk_time: Time to build up full acceleration [s] (jerk = a / jerk_time). Every
+            change of acceleration is a ramp of this length, whose spectrum is the step's
+            times ``sinc(pi f T)``: zero at ``f = 1 / T`` and small above it. 0.5 s keeps
+            the crane's starts and stops from exciting the machine's rocking (the chassis
+            on its tyres and the boom on its servos, 2-4 Hz in the simulated runs: ramps
+            of 0.25 s pass up to 64 % of a step's excitation there, 0.5 s at most 22 %), as
+            the ramp times of a crane's valve controller do (docs/sweeps.md).
         velocity_fraction: Fraction of the axis velocity limits the reference uses.
         acceleration_fraction: Fraction of the axis acceleration limits.
         governor_error: Tracking error [m or rad] at which the reference clock stops. The
@@ -73,7 +79,7 @@ class ReferenceConfig:
             lurch when the constraint releases.
     """
 
-    jerk_time: float = 0.25
+    jerk_time: float = 0.5
     velocity_fraction: float = 0.8
     acceleration_fraction: float = 0.8
     governor_error: float = 0.05
