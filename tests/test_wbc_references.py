@@ -111,11 +111,17 @@ def test_ruckig_boundary_case_is_planned(limits):
     assert ref.sample(10.0)[0][0] == pytest.approx(start + d, abs=1e-9)
 
 
-def test_sample_many_equals_one_sample_at_a_time(limits):
+def _crane_reference(limits, axis: int, step: float):
+    """A crane reference, the start mid-range and the goal ``step`` along one axis."""
     ref = RuckigReference(limits, CRANE_AXES)
     start = 0.5 * (limits.position_lower + limits.position_upper)[CRANE_AXES]
     goal = start.copy()
-    goal[1] += 0.2
+    goal[axis] += step
+    return ref, start, goal
+
+
+def test_sample_many_equals_one_sample_at_a_time(limits):
+    ref, start, goal = _crane_reference(limits, 1, 0.2)
     ref.plan(1.0, start, np.zeros(7), np.zeros(7), goal)
     times = np.array([0.0, 1.0, 1.3, 2.0, 1.0 + ref.duration + 1.0])  # before, in, after
     many = ref.sample_many(times)
@@ -151,10 +157,7 @@ def test_axis_index_is_a_slice_only_where_the_axes_are_contiguous():
 @pytest.mark.parametrize("planned", [True, False])
 def test_position_and_sample_into_equal_sample(limits, planned):
     """The per-tick paths read the same bits as `sample`, scaled as the governor does."""
-    ref = RuckigReference(limits, CRANE_AXES)
-    start = 0.5 * (limits.position_lower + limits.position_upper)[CRANE_AXES]
-    goal = start.copy()
-    goal[3] += 0.4
+    ref, start, goal = _crane_reference(limits, 3, 0.4)
     if planned:
         ref.plan(1.0, start, np.full(7, 0.01), np.zeros(7), goal)
     else:
@@ -171,10 +174,7 @@ def test_position_and_sample_into_equal_sample(limits, planned):
 
 def test_kept_position_follows_the_trajectory(limits):
     """`position` at the time `sample_into` wrote is `sample`'s, also across a new plan."""
-    ref = RuckigReference(limits, CRANE_AXES)
-    start = 0.5 * (limits.position_lower + limits.position_upper)[CRANE_AXES]
-    goal = start.copy()
-    goal[1] += 0.2
+    ref, start, goal = _crane_reference(limits, 1, 0.2)
     ref.plan(1.0, start, np.zeros(7), np.zeros(7), goal)
     buf = np.empty((3, 7))
     for t in (0.5, 1.0, 1.42, 1.42, 9.0):
