@@ -44,7 +44,7 @@ def tick_windows(tick_times, step_times, step_forces, steps_per_tick: int) -> np
 def score(log: dict, step_times, step_forces, steps_per_tick: int, machine,
           settle: float = 1.0) -> dict:
     """The figures of the module docstring from a log and its physics-rate forces."""
-    from estimators.evaluate_sensors import OBSERVED_SUITES, _forces, suite_batch
+    from estimators.evaluate_sensors import OBSERVED_SUITES, suite_batch, suite_forces
 
     t = np.asarray(log["time"], float)
     instant = np.asarray(log["normal_force"], float)
@@ -65,7 +65,7 @@ def score(log: dict, step_times, step_forces, steps_per_tick: int, machine,
             "range": float((w.max(1) - w.min(1)).mean() / static * 100)}
     for suite in OBSERVED_SUITES:
         sb, payload = suite_batch(log, suite)
-        f = _forces(machine, sb, payload, "full", "cylinder-force",
+        f = suite_forces(machine, sb, payload, "full", "cylinder-force",
                     log[f"obs_{suite}_servo_setpoint"])
         entry = {}
         for name, g in (("instant", truth), ("tick_mean", truth_mean)):

@@ -31,7 +31,7 @@ from models.log import OBSERVED_SUITES
 from models.mujoco import servo_specs
 from models.state_batch import StateBatch
 
-__all__ = ["check_suites", "suite_batch", "suites_present", "suites_report"]
+__all__ = ["check_suites", "suite_batch", "suite_forces", "suites_present", "suites_report"]
 
 METHODS = (("full", "d-beta"), ("full", "cylinder-force"), ("full", "compliance"),
            ("quasi-static", "d-beta"))
@@ -69,8 +69,8 @@ def _compliance_forces(machine: Machine, q, qd, setpoint) -> np.ndarray:
     return np.clip(f, lo, hi)
 
 
-def _forces(machine: Machine, sb: StateBatch, payload: np.ndarray, method: str,
-            fourth: str, setpoint: np.ndarray) -> np.ndarray:
+def suite_forces(machine: Machine, sb: StateBatch, payload: np.ndarray, method: str,
+                 fourth: str, setpoint: np.ndarray) -> np.ndarray:
     """The method's forces on every row, with each row's payload (affine: exact)."""
     import dataclasses
 
@@ -148,7 +148,7 @@ def suites_report(log: dict, machine: Machine, oracle: StateBatch, rows: np.ndar
                 continue
             if fourth == "compliance" and (setpoint is None or np.isnan(setpoint).any()):
                 continue
-            f = _forces(machine, sb, payload, method, fourth, setpoint)
+            f = suite_forces(machine, sb, payload, method, fourth, setpoint)
             methods[f"{method}/{fourth}"] = _errors(f, gt, rows, four, static_load)
         entry = {"methods": methods}
         if name != "oracle":

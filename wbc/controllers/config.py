@@ -66,11 +66,11 @@ class ReferenceConfig:
     Attributes:
         jerk_time: Time to build up full acceleration [s] (jerk = a / jerk_time). Every
             change of acceleration is a ramp of this length, whose spectrum is the step's
-            times ``sinc(pi f T)``: zero at ``f = 1 / T`` and small above it. 0.5 s keeps
-            the crane's starts and stops from exciting the machine's rocking (the chassis
-            on its tyres and the boom on its servos, 2-4 Hz in the simulated runs: ramps
-            of 0.25 s pass up to 64 % of a step's excitation there, 0.5 s at most 22 %), as
-            the ramp times of a crane's valve controller do (docs/sweeps.md).
+            times ``sinc(pi f T)``: zero at ``f = 1 / T`` and small above it. With 0.5 s
+            the crane's starts and stops excite the machine's rocking (the chassis on its
+            tyres and the boom on its servos, 2-4 Hz in the simulated runs) less: ramps of
+            0.25 s pass up to 64 % of a step's excitation there, 0.5 s at most 22 %
+            (docs/sweeps.md).
         velocity_fraction: Fraction of the axis velocity limits the reference uses.
         acceleration_fraction: Fraction of the axis acceleration limits.
         governor_error: Tracking error [m or rad] at which the reference clock stops. The
