@@ -159,3 +159,51 @@ def test_constant_row_blocks_reuse_their_product_bit_for_bit(corpus):
             products.append(marked._products[id(constant)][2])
     assert len(products) == len(block) - 1
     assert all(x is products[0] for x in products)  # computed once
+
+
+def test_kept_screening_sums_of_constant_blocks_keep_the_same_rows(corpus):
+    """A constant block's screening sums, kept while the bounds of its columns stay, select
+    the rows `redundant_rows` selects on the whole problem, also when those bounds move."""
+    from wbc.qp import QP
+
+    block = next(b for b in corpus.blocks() if len(b) >= 5)
+    n = corpus.problems[block[0]].q.size
+    rows = np.zeros((30, n))
+    rows[:, : n // 2] = np.random.default_rng(7).normal(size=(30, n // 2)) * 0.1
+    constant = np.vstack([rows, -rows])
+    constant.setflags(write=False)
+    h_const = np.full(60, 1e3)
+    h_const[::5] = 0.01
+    backend = DaqpBackend()
+    for k, i in enumerate(block):
+        p = corpus.problems[i]
+        lb, ub = p.lb.copy(), p.ub.copy()
+        if k % 2:  # the block's columns' bounds move: its sums are made again
+            lb[0] -= 0.5
+        qp = QP(p.P, p.q, np.vstack([constant, p.G]), np.concatenate([h_const, p.h]), None,
+                None, lb, ub, constant_rows=((0, constant),))
+        expected = np.flatnonzero(~redundant_rows(qp.G, qp.h, lb, ub, 1e-7))
+        np.testing.assert_array_equal(backend._screen(qp.G, qp.h, lb, ub, qp.constant_rows),
+                                      expected)
+        out = np.empty((expected.size, n))
+        inv_t = np.triu(np.random.default_rng(k).normal(size=(n, n)))
+        backend._times_factor(qp.G, expected, inv_t, qp.constant_rows, out)
+        # The block's rows from its own product, the others' from theirs: those bits.
+        inside = expected < 60
+        assert np.array_equal(out[inside], (constant @ inv_t)[expected[inside]])
+        assert np.array_equal(out[~inside], qp.G[expected[~inside]] @ inv_t)
+        np.testing.assert_allclose(out, qp.G[expected] @ inv_t, rtol=0, atol=1e-12)
+
+
+def test_daqp_leaves_the_kept_rows_buffer_as_it_was(corpus):
+    """The least-distance rows live in a buffer reused from solve to solve."""
+    mpc = [i for i, r in enumerate(corpus.records) if r["controller"] == "mpc-full"]
+    backend = DaqpBackend()
+    for i in mpc[:3]:
+        backend.solve(corpus.problems[i])
+    assert backend.form == "least-distance"
+    inv_t, buffer = backend._ldp_rows
+    kept = backend.rows_kept
+    before = buffer[: inv_t.shape[0] + kept].copy()
+    backend.solve(corpus.problems[mpc[2]])
+    assert np.array_equal(buffer[: inv_t.shape[0] + kept], before)

@@ -21,12 +21,17 @@ no products). The rows of a block that stays the same tick after tick (``constan
 ``L^-T`` once and then read from that product (each row's product is the same BLAS sum
 whichever rows it is computed with). The rows and hence the multipliers are the same as the
 QP's, so the warm start and the tolerance mean what they did. A Hessian that is not
-numerically positive definite goes to DAQP as it is (its own regularisation).
+numerically positive definite goes to DAQP as it is (its own regularisation). Such a block's
+screening sums are kept too, while the bounds of the columns it has entries in stay the
+same, and DAQP's rows are written into a buffer kept from solve to solve: about 0.08 ms of
+the MPC's 0.5 ms solve (`benchmarks.bench_wbc`).
 """
 
 from __future__ import annotations
 
+import operator
 import time
+from typing import NamedTuple
 
 import daqp
 import numpy as np
@@ -47,6 +52,47 @@ _EQUALITY = 5  # DAQP's sense flags: active (1) | immutable (4)
 _LEAST_DISTANCE_SIZE = 32
 
 
+class _BoxTerms(NamedTuple):
+    """What `_worst` needs of the box ``lb <= x <= ub`` widened by a tolerance.
+
+    ``mid`` and ``spread`` (half the width plus the tolerance) of the finite intervals, 0
+    where a bound is infinite; ``open`` the variables with an infinite bound, ``hi_open`` and
+    ``lo_open`` their bounds clipped to +-_BIG.
+    """
+
+    mid: np.ndarray
+    spread: np.ndarray
+    open: np.ndarray
+    hi_open: np.ndarray
+    lo_open: np.ndarray
+
+
+def _box_terms(lb: np.ndarray | None, ub: np.ndarray | None, n: int,
+               tolerance: float) -> _BoxTerms:
+    lo = np.full(n, -np.inf) if lb is None else np.asarray(lb, float)
+    hi = np.full(n, np.inf) if ub is None else np.asarray(ub, float)
+    box = np.isfinite(lo) & np.isfinite(hi)
+    # Over a finite interval the worst of g_i x_i is g_i mid_i + |g_i| half_i (one pass over G).
+    lo_box, hi_box = np.where(box, lo, 0.0), np.where(box, hi, 0.0)
+    mid, half = 0.5 * (lo_box + hi_box), 0.5 * (hi_box - lo_box)
+    open_ = np.flatnonzero(~box)  # the few variables with an infinite bound, exactly
+    return _BoxTerms(mid, half + tolerance, open_, np.minimum(hi[open_], _BIG),
+                     np.maximum(lo[open_], -_BIG))
+
+
+def _worst(G: np.ndarray, box: _BoxTerms) -> np.ndarray:
+    """``max g x`` of every row of ``G`` over the widened box, shape (rows,).
+
+    A column of ``G`` that is zero adds exact zeros, whatever the box says of its variable:
+    the sums of the rows that are zero there do not depend on those bounds.
+    """
+    worst = G @ box.mid + np.abs(G) @ box.spread
+    if box.open.size:
+        g = G[:, box.open]
+        worst += np.maximum(g, 0.0) @ box.hi_open + np.minimum(g, 0.0) @ box.lo_open
+    return worst
+
+
 def redundant_rows(G: np.ndarray, h: np.ndarray, lb: np.ndarray | None,
                    ub: np.ndarray | None, tolerance: float) -> np.ndarray:
     """Rows of ``G x <= h`` that every ``x`` in the box (widened by ``tolerance``) satisfies.
@@ -55,20 +101,7 @@ def redundant_rows(G: np.ndarray, h: np.ndarray, lb: np.ndarray | None,
         Boolean mask, shape (rows,). An infinite or missing bound keeps every row that
         depends on its variable.
     """
-    n = G.shape[1]
-    lo = np.full(n, -np.inf) if lb is None else np.asarray(lb, float)
-    hi = np.full(n, np.inf) if ub is None else np.asarray(ub, float)
-    box = np.isfinite(lo) & np.isfinite(hi)
-    # Over a finite interval the worst of g_i x_i is g_i mid_i + |g_i| half_i (one pass over G).
-    lo_box, hi_box = np.where(box, lo, 0.0), np.where(box, hi, 0.0)
-    mid, half = 0.5 * (lo_box + hi_box), 0.5 * (hi_box - lo_box)
-    worst = G @ mid + np.abs(G) @ (half + tolerance)
-    open_ = np.flatnonzero(~box)  # the few variables with an infinite bound, exactly
-    if open_.size:
-        g = G[:, open_]
-        worst += (np.maximum(g, 0.0) @ np.minimum(hi[open_], _BIG)
-                  + np.minimum(g, 0.0) @ np.maximum(lo[open_], -_BIG))
-    return worst <= h
+    return _worst(G, _box_terms(lb, ub, G.shape[1], tolerance)) <= h
 
 
 def _senses(size: int, first_equality: int) -> np.ndarray:
@@ -110,6 +143,11 @@ class DaqpBackend:
         self._lam: np.ndarray | None = None  # multipliers of every row, dropped ones 0
         self._n: int | None = None
         self._products: dict = {}  # id(block) -> (block, L^-T, block @ L^-T)
+        self._box: tuple | None = None  # (the bounds' bytes, their `_BoxTerms`)
+        self._screens: dict = {}  # id(block) -> (block, columns, their bounds, sums)
+        self._rows_structure: tuple | None = None  # (key, (constant mask, gaps))
+        self._rows_t: tuple | None = None  # (key, G's rows times L^-T, block products)
+        self._ldp_rows: tuple | None = None  # (L^-T, buffer of DAQP's rows)
 
     def reset(self) -> None:
         """Forget the previous multipliers (the next solve is cold)."""
@@ -150,30 +188,110 @@ class DaqpBackend:
                 self._inv_factor = (np.ascontiguousarray(inv_low.T), np.eye(H.shape[0]))
         return self._inv_factor
 
+    def _structure(self, m_in: int, blocks: tuple) -> tuple[np.ndarray, tuple]:
+        """``(constant, gaps)`` of a problem's rows, kept while the blocks sit where they did.
+
+        ``constant``: bool (m_in,), the rows of the constant blocks; ``gaps``: the
+        ``(first, stop)`` row ranges between them.
+        """
+        key = (m_in, tuple((first, block.shape[0]) for first, block in blocks))
+        if self._rows_structure is None or self._rows_structure[0] != key:
+            constant = np.zeros(m_in, dtype=bool)
+            for first, block in blocks:
+                constant[first:first + block.shape[0]] = True
+            edges = np.flatnonzero(np.diff(np.r_[True, constant, True]))
+            gaps = tuple((int(a), int(b)) for a, b in zip(edges[::2], edges[1::2]))
+            self._rows_structure = (key, (constant, gaps))
+        return self._rows_structure[1]
+
+    def _screen(self, G: np.ndarray, h: np.ndarray, lb, ub, blocks: tuple) -> np.ndarray:
+        """The rows `redundant_rows` keeps, as indices; a constant block's screening sums kept.
+
+        A block's sums depend only on the bounds of the columns where it has entries
+        (`_worst`): they are kept while those bounds stay the same (the MPC's stroke and
+        speed limits depend on the acceleration limits only).
+        """
+        m_in, n = G.shape
+        if not blocks:
+            box = _box_terms(lb, ub, n, self.tolerances["primal_tol"])
+            return np.flatnonzero(~(_worst(G, box) <= h))
+        lo = np.full(n, -np.inf) if lb is None else np.asarray(lb, float)
+        hi = np.full(n, np.inf) if ub is None else np.asarray(ub, float)
+        bounds = lo.tobytes() + hi.tobytes()
+        if self._box is None or self._box[0] != bounds:
+            self._box = (bounds, _box_terms(lo, hi, n, self.tolerances["primal_tol"]))
+        box = self._box[1]
+        worst = np.empty(m_in)
+        screens = {}
+        for first, block in blocks:
+            entry = self._screens.get(id(block))
+            if entry is None or entry[0] is not block:
+                nonzero = np.flatnonzero(np.abs(block).sum(axis=0))
+                cols = (slice(int(nonzero[0]), int(nonzero[-1]) + 1) if nonzero.size
+                        else slice(0, 0))
+                entry = (block, cols, None, None)
+            cols = entry[1]
+            key = lo[cols].tobytes() + hi[cols].tobytes()
+            if entry[2] != key:
+                entry = (block, cols, key, _worst(block, box))
+            screens[id(block)] = entry
+            worst[first:first + block.shape[0]] = entry[3]
+        self._screens = screens  # the blocks of this problem only
+        for a, b in self._structure(m_in, blocks)[1]:
+            worst[a:b] = _worst(G[a:b], box)
+        return np.flatnonzero(~(worst <= h))
+
     def _times_factor(self, G: np.ndarray, kept: np.ndarray, inv_t: np.ndarray,
-                      blocks: tuple) -> np.ndarray:
-        """``G[kept] @ inv_t``, the rows of constant blocks from their kept products.
+                      blocks: tuple, out: np.ndarray) -> None:
+        """``out = G[kept] @ inv_t``, the rows of constant blocks from their kept products.
 
         ``blocks``: ``(first row, read-only block)`` pairs (`wbc.qp.QP.constant_rows`). A
-        block's product is kept while the same block object comes with the same factor.
+        block's product is kept while the same block object comes with the same factor; the
+        products sit in a buffer of all rows, from which the kept rows are read at once.
         """
-        if not blocks:
-            return G[kept] @ inv_t
-        out = np.empty((kept.size, G.shape[1]))
-        known = np.zeros(kept.size, dtype=bool)
+        constant, _ = self._structure(G.shape[0], blocks)
         products = {}
         for first, block in blocks:
             entry = self._products.get(id(block))
             if entry is None or entry[0] is not block or entry[1] is not inv_t:
                 entry = (block, inv_t, block @ inv_t)
             products[id(block)] = entry
-            inside = (kept >= first) & (kept < first + block.shape[0])
-            out[inside] = entry[2][kept[inside] - first]
-            known |= inside
         self._products = products  # the blocks of this problem only
-        rest = ~known
-        if rest.any():
-            out[rest] = G[kept[rest]] @ inv_t
+        filled = tuple(products[id(block)][2] for _, block in blocks)
+        key = self._rows_structure[0]
+        last = self._rows_t
+        if (last is None or last[0] != key or last[1].shape != G.shape
+                or not all(map(operator.is_, last[2], filled))):
+            buffer = np.empty(G.shape) if last is None or last[1].shape != G.shape else last[1]
+            for (first, block), product in zip(blocks, filled):
+                buffer[first:first + block.shape[0]] = product
+            self._rows_t = (key, buffer, filled)
+        buffer = self._rows_t[1]
+        rest = kept[~constant[kept]]
+        if rest.size:
+            buffer[rest] = G[rest] @ inv_t
+        np.take(buffer, kept, axis=0, out=out, mode="clip")  # 'raise' buffers `out`
+
+    def _least_distance_rows(self, G: np.ndarray, kept: np.ndarray, inv_t: np.ndarray,
+                             blocks: tuple, rows: np.ndarray | None) -> np.ndarray:
+        """DAQP's rows of the least-distance form, ``[L^-T; rows L^-T]``.
+
+        ``rows`` None: ``G[kept]`` (`_times_factor`). Written into a buffer kept from solve
+        to solve (a fresh array of this size costs its page faults every tick; DAQP leaves
+        its arguments as they are); its first rows are rewritten when the factor changes.
+        """
+        m = kept.size if rows is None else rows.shape[0]
+        n = inv_t.shape[0]
+        buf = self._ldp_rows
+        if buf is None or buf[0] is not inv_t or buf[1].shape[0] < n + m:
+            buf = (inv_t, np.empty((n + max(m, 0 if G is None else G.shape[0]), n)))
+            buf[1][:n] = inv_t
+            self._ldp_rows = buf
+        out = buf[1][:n + m]
+        if rows is None:
+            self._times_factor(G, kept, inv_t, blocks, out[n:])
+        else:
+            np.matmul(rows, inv_t, out=out[n:])
         return out
 
     def solve(self, problem: qpsolvers.Problem) -> QPSolution:
@@ -185,9 +303,9 @@ class DaqpBackend:
         G, h, A, b = problem.G, problem.h, problem.A, problem.b
         m_in = 0 if G is None else G.shape[0]
         m_eq = 0 if A is None else A.shape[0]
+        blocks = getattr(problem, "constant_rows", ())
         if self.screen and m_in:
-            kept = np.flatnonzero(~redundant_rows(G, h, lb, ub,
-                                                  self.tolerances["primal_tol"]))
+            kept = self._screen(G, h, lb, ub, blocks)
         else:
             kept = np.arange(m_in)
         self.rows_kept = m_k = kept.size
@@ -195,7 +313,6 @@ class DaqpBackend:
         # on x and then on every row (an inequality's lower bound -_BIG).
         factor = (self._factor(H) if self.least_distance and n >= _LEAST_DISTANCE_SIZE
                   else None)
-        blocks = getattr(problem, "constant_rows", ())
         if m_in == 0:
             a_all = np.zeros((0, n)) if m_eq == 0 else A
         elif factor is not None and blocks and m_eq == 0:  # G[kept] @ L^-T, below
@@ -223,9 +340,7 @@ class DaqpBackend:
             shift = inv_t @ v  # x = L^-T u - shift
             upper[:n] += shift
             lower[:n] += shift
-            rows_t = (self._times_factor(G, kept, inv_t, blocks) if a_all is None
-                      else a_all @ inv_t)
-            a_all = np.concatenate([inv_t, rows_t])
+            a_all = self._least_distance_rows(G, kept, inv_t, blocks, a_all)
             row_shift = a_all[n:] @ v
             upper[n:] += row_shift
             lower[n:] += row_shift
