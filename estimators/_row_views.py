@@ -9,6 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 from estimators._symbolic import LAYOUT
+from estimators.results import RowViews
 
 __all__ = ["ESTIMATE_VIEWS", "LINEARIZATION_VIEWS", "OUT_VIEWS", "ROW_CHECKS"]
 
@@ -26,13 +27,15 @@ ESTIMATE_VIEWS = {
     "normals": lambda d: np.repeat(d["_rotation"][2:3], 4, axis=0),
 }
 # The `ForceLinearization` arrays of an ``nf_derivatives`` output row.
-LINEARIZATION_VIEWS = {
+# Their places in the row, for `RowFields.stacked` (one stack of rows, not one per field).
+LINEARIZATION_VIEWS = RowViews({
     "normal_forces": lambda d: d["_row"][_L.der_x],
     "G": lambda d: d["_row"][_L.der_a].reshape(4, 19),
     "g0": lambda d: d["_row"][_L.der_g0],
     "d_q": lambda d: d["_row"][_L.der_q].reshape(4, 13),
     "d_qd": lambda d: d["_row"][_L.der_qd].reshape(4, 13),
-}
+}, slices={"normal_forces": (_L.der_x, (4,)), "G": (_L.der_a, (4, 19)),
+           "g0": (_L.der_g0, (4,)), "d_q": (_L.der_q, (4, 13)), "d_qd": (_L.der_qd, (4, 13))})
 # Views of a kernel's output buffer that `constraint` copies out: (G, g0).
 OUT_VIEWS = {"nf_constraint": lambda out: (out[_L.con_g].reshape(4, 19), out[_L.con_g0])}
 # (condition, checksum) positions in each kernel's output row.

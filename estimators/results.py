@@ -8,7 +8,20 @@ import numpy as np
 
 from estimators.errors import EstimatorInputError
 
-__all__ = ["BatchEstimate", "Estimate"]
+__all__ = ["BatchEstimate", "Estimate", "RowFields", "RowViews"]
+
+
+class RowViews(dict):
+    """A `RowFields` views table that also says where its array fields lie in the row.
+
+    Args:
+        views: Field name -> function of the instance ``__dict__`` (the table itself).
+        slices: Field name -> ``(slice of the row, shape)`` of the array fields.
+    """
+
+    def __init__(self, views: dict, slices: dict):
+        super().__init__(views)
+        self.slices = slices
 
 
 class RowFields:
@@ -32,6 +45,22 @@ class RowFields:
         obj = object.__new__(cls)
         object.__setattr__(obj, "__dict__", fields)  # also for frozen dataclasses
         return obj
+
+    @staticmethod
+    def stacked(objs, index: np.ndarray, names: tuple[str, ...]) -> tuple[np.ndarray, ...]:
+        """Array fields ``names`` of ``objs[i] for i in index``, stacked: shapes (len(index), ...).
+
+        Fresh arrays, or views of one fresh array, whose fields do not overlap: the caller
+        may write them. When every object was made from a row with the same `RowViews`, the
+        rows are stacked once and the fields sliced from the stack; the values are the same.
+        """
+        views = getattr(objs[0], "__dict__", {}).get("_views")
+        slices = getattr(views, "slices", None)
+        if slices is None or any(o.__dict__.get("_views") is not views for o in objs):
+            return tuple(np.stack([getattr(o, name) for o in objs])[index] for name in names)
+        rows = np.stack([o.__dict__["_row"] for o in objs])[index]
+        k = rows.shape[0]
+        return tuple(rows[:, slices[name][0]].reshape(k, *slices[name][1]) for name in names)
 
     def interpolated(self, other, w: float):
         """``self + w (other - self)`` of every field made from the row; the rest self's.

@@ -147,3 +147,30 @@ def test_the_kernels_are_loaded_when_it_is_built(monkeypatch):
     est = PayloadEstimator(build_reference_machine(42.0), strokes="clip")
     for e in (est._a, est._b):
         assert set(e._kernels._kernels) == set(e._kernels.functions)
+
+
+def test_stacked_rows_give_the_fields_of_each_linearization():
+    """`RowFields.stacked` slices one stack of kernel rows: each node's fields are its
+    linearization's, bit for bit, and the same as stacking the fields one by one."""
+    from testkit.plant import make_state
+
+    machine = build_reference_machine()
+    est = PayloadEstimator(machine)
+    home = machine.coordinates.home()
+    lins = [est.linearize(make_state(machine, q=home + dq)) for dq in (0.0, 0.01, -0.02)]
+    which = np.array([0, 0, 1, 2, 2, 1])
+    names = ("G", "d_q", "d_qd", "g0", "normal_forces")
+    fast = ForceLinearization.stacked(lins, which, names)
+    plain = ForceLinearization.stacked([*lins[:2], _copied(lins[2])], which, names)
+    for name, a, b in zip(names, fast, plain):
+        assert np.array_equal(a, b), name
+        for k, i in enumerate(which):
+            assert np.array_equal(a[k], getattr(lins[i], name)), name
+    fast[0][:] = 0.0  # writable, and apart from the other fields
+    assert np.array_equal(fast[1][0], lins[0].d_q)
+
+
+def _copied(lin):
+    """The same linearization made by the public constructor (no kernel row)."""
+    return ForceLinearization(lin.normal_forces, lin.G, lin.g0, lin.d_q, lin.d_qd,
+                              lin.in_contact, lin.mode, lin.clipped, lin.time)

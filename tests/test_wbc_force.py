@@ -225,3 +225,25 @@ def test_real_estimator_affine_form_is_exact(machine, limits, estimator_full):
     st2 = make_state(machine, qdd=np.concatenate([x, np.zeros(4)]))
     np.testing.assert_allclose(A @ x + b, estimator_full.estimate(st2).normal_forces,
                                rtol=1e-9, atol=1e-6)
+
+
+def test_kept_rows_follow_the_contact_flags_and_thresholds(machine, limits):
+    """One constraint object across flag and threshold changes: the rows it keeps for a
+    pattern are those a fresh constraint makes."""
+    st = make_state(machine)
+    model = _model(st.q, g_tel=-4000.0)
+    layout = VariableLayout(n_slack=4)
+    ref = ReferenceSample(st.q[:9].copy(), np.zeros(9), np.zeros(9))
+    kept = NormalForceConstraint(model, 1000.0, force_scale=1e4)
+    patterns = [[True] * 4, [True, False, True, True], [True] * 4, [False, True, True, False]]
+    for k, flags in enumerate(patterns):
+        if k == 2:
+            kept.thresholds = np.array([900.0, 1000.0, 1100.0, 1200.0])
+        contacts = models.WheelContacts(np.array(flags), np.zeros((4, 3)), np.zeros((4, 3)),
+                                        np.tile([0.0, 0.0, 1.0], (4, 1)))
+        ctx = QPContext.from_state(make_state(machine, contacts=contacts), DT, layout,
+                                   limits, ref)
+        fresh = NormalForceConstraint(model, kept.thresholds, force_scale=1e4)
+        a, b = kept.compute(ctx), fresh.compute(ctx)
+        assert np.array_equal(a.G, b.G) and np.array_equal(a.h, b.h)
+        assert a.G.shape[0] == sum(flags)

@@ -70,6 +70,7 @@ class ForceRowsConstraint(Constraint):
         self.drive_time_constant = float(drive_time_constant)
         self.last_forces_map: tuple[np.ndarray, np.ndarray] | None = None
         self.last_in_contact: np.ndarray | None = None
+        self._rows_cache: tuple | None = None  # (key, `_rows`)
 
     @abc.abstractmethod
     def forces_map(self, ctx, in_contact=None) -> tuple[np.ndarray, np.ndarray]:
@@ -88,17 +89,39 @@ class ForceRowsConstraint(Constraint):
         flags = contact_flags(self.model, ctx.state)
         A, b = self.forces_map(ctx, flags)
         self.last_forces_map, self.last_in_contact = (A, b), flags
-        wheels = np.flatnonzero(flags)
-        if wheels.size == 0:
+        rows, thresholds, slack = self._rows(ctx, flags, A.shape[0] // 4)
+        if rows is None:
             return None
-        thresholds = lifted_wheel_thresholds(self.thresholds, flags)
-        nodes, later = self._constrained_nodes(ctx, A.shape[0] // 4)
-        rows = (4 * nodes[:, None] + wheels[None, :]).ravel()
-        G = -A[rows] / self.force_scale
-        h = (b[rows] - np.tile(thresholds[wheels], nodes.size)) / self.force_scale
-        if ctx.layout.slack is not None:
-            col = ctx.layout.slack.start + np.tile(wheels, nodes.size)
-            if ctx.layout.n_slack == 8:  # the later nodes' own slacks
-                col = col + 4 * np.repeat(later, wheels.size)
-            G[np.arange(rows.size), col] = -1.0
+        G = np.take(A, rows, axis=0)
+        np.negative(G, out=G)
+        G /= self.force_scale
+        h = (b[rows] - thresholds) / self.force_scale
+        if slack is not None:
+            G[slack] = -1.0
         return Inequality(G, h)
+
+    def _rows(self, ctx, flags: np.ndarray, n_nodes: int) -> tuple:
+        """``(rows of A, their thresholds [N], slack entries of G)`` for these contact flags.
+
+        None rows without a wheel in contact. Kept while the flags, the thresholds, the
+        constrained nodes and the slacks stay the same (they change when a wheel lifts).
+        """
+        nodes, later = self._constrained_nodes(ctx, n_nodes)
+        lay = ctx.layout
+        key = (flags.tobytes(), self.thresholds.tobytes(), nodes.tobytes(), later.tobytes(),
+               None if lay.slack is None else lay.slack.start, lay.n_slack)
+        if self._rows_cache is None or self._rows_cache[0] != key:
+            wheels = np.flatnonzero(flags)
+            if wheels.size == 0:
+                self._rows_cache = (key, (None, None, None))
+                return self._rows_cache[1]
+            thresholds = lifted_wheel_thresholds(self.thresholds, flags)
+            rows = (4 * nodes[:, None] + wheels[None, :]).ravel()
+            slack = None
+            if lay.slack is not None:
+                col = lay.slack.start + np.tile(wheels, nodes.size)
+                if lay.n_slack == 8:  # the later nodes' own slacks
+                    col = col + 4 * np.repeat(later, wheels.size)
+                slack = (np.arange(rows.size), col)
+            self._rows_cache = (key, (rows, np.tile(thresholds[wheels], nodes.size), slack))
+        return self._rows_cache[1]

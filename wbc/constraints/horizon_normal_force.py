@@ -25,23 +25,21 @@ _MIN_SCALE = 0.05  # below this the drift is not attributed to the driving speed
 _SUSPENSION_IN_A = slice(6 + SUSPENSION.start, 6 + SUSPENSION.stop)
 
 
-def _stacked(lins: list[ForceLinearization], warp: bool
+def _stacked(lins: list[ForceLinearization], which: np.ndarray, warp: bool
              ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """``(G, d_q, d_qd, g0)`` of the linearizations, stacked (n_lin, 4, .).
+    """``(G, d_q, d_qd, g0)`` of linearization ``which[k]`` for every node k: (n_eval, 4, .).
 
     With ``warp`` the suspension axes' columns are zeroed: the model holds the base
     acceleration and the contact points fixed, so its columns for the bogie strokes describe
     wheels pushed into the ground, not the machine: there the chassis moves instead (common
     mode) or warps (difference, `ctx.warp`).
     """
-    G = np.stack([lin.G for lin in lins])
-    dq = np.stack([lin.d_q for lin in lins])
-    dqd = np.stack([lin.d_qd for lin in lins])
+    G, dq, dqd, g0 = ForceLinearization.stacked(lins, which, ("G", "d_q", "d_qd", "g0"))
     if warp:
         G[:, :, _SUSPENSION_IN_A] = 0.0
         dq[:, :, SUSPENSION] = 0.0
         dqd[:, :, SUSPENSION] = 0.0
-    return G, dq, dqd, np.stack([lin.g0 for lin in lins])
+    return G, dq, dqd, g0
 
 
 class HorizonNormalForceConstraint(ForceRowsConstraint):
@@ -200,7 +198,7 @@ class HorizonNormalForceConstraint(ForceRowsConstraint):
         warp = ctx.warp if np.asarray(in_contact, dtype=bool).all() else None
         # Every step at once: (n_eval, 4, .) stacks of the linearization each step uses
         # (the suspension acts through the warp model only when there is one).
-        G, d_q, d_qd, g0 = (m[which] for m in _stacked(lins, ctx.warp is not None))
+        G, d_q, d_qd, g0 = _stacked(lins, which, ctx.warp is not None)
         dq, dqd = d_q[:, :, :N_AXES], d_qd[:, :, :N_AXES]
         G_axes = G[:, :, _AXES_IN_A]
         A = np.zeros((n_eval, 4, lay.n))
