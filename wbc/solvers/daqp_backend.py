@@ -351,14 +351,18 @@ class DaqpBackend:
         rows = kept if m_eq == 0 else np.concatenate([kept, m_in + np.arange(m_eq)])
         n_all = n + m_in + m_eq
         warm = (self.warm_start and self._lam is not None and self._lam.size == n_all)
-        dual = np.concatenate([self._lam[:n], self._lam[n + rows]]) if warm else None
+        dual = None
+        if warm:  # no rows (the whole-body QP): the bounds' multipliers alone
+            dual = (np.concatenate([self._lam[:n], self._lam[n + rows]]) if rows.size
+                    else self._lam[:n].copy())
         t_call = time.perf_counter()
         x, _, flag, info = daqp.solve(hessian, cost, a_all, upper, lower,
                                       _senses(upper.size, n + m_k), dual_start=dual,
                                       **self.tolerances)
         call = time.perf_counter() - t_call
         iterations = int(info["iterations"])
-        if warm and not (flag > 0 and np.all(np.isfinite(x))):
+        ok = flag > 0 and _all(np.isfinite(x))
+        if warm and not ok:
             warm = False
             t_call = time.perf_counter()
             x, _, flag, info = daqp.solve(hessian, cost, a_all, upper, lower,
@@ -366,10 +370,12 @@ class DaqpBackend:
                                           **self.tolerances)
             call += time.perf_counter() - t_call
             iterations += int(info["iterations"])
+            ok = flag > 0 and _all(np.isfinite(x))
         if factor is not None:
             x = factor[0] @ x - shift
+            ok = flag > 0 and _all(np.isfinite(x))
         elapsed = time.perf_counter() - t0
-        if not (flag > 0 and _all(np.isfinite(x))):
+        if not ok:
             self._lam = None
             raise QPSolveError(f"daqp found no solution (exit flag {flag})", "not_found")
         lam = np.zeros(n_all)
