@@ -7,6 +7,10 @@ solve of the unscreened problem, and the corpus's stored reference, for the solu
 from __future__ import annotations
 
 import itertools
+import os
+import subprocess
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -207,3 +211,81 @@ def test_daqp_leaves_the_kept_rows_buffer_as_it_was(corpus):
     before = buffer[: inv_t.shape[0] + kept].copy()
     backend.solve(corpus.problems[mpc[2]])
     assert np.array_equal(buffer[: inv_t.shape[0] + kept], before)
+
+
+def _in_one_blas_thread(check: str) -> None:
+    """Run this module's function ``check`` in a fresh interpreter with one BLAS thread.
+
+    The application runs so (`wbc_hdmm`); a threaded BLAS splits a product by its size, and
+    the bits of a row then depend on how many rows it comes with.
+    """
+    root = str(Path(__file__).resolve().parents[1])
+    env = dict(os.environ, OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1",
+               PYTHONPATH=os.pathsep.join([root, os.environ.get("PYTHONPATH", "")]))
+    code = f"from tests.test_daqp_backend import {check}; {check}()"
+    run = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True,
+                         text=True, timeout=600)
+    assert run.returncode == 0, run.stderr
+
+
+def _diagonal_blocks_bits() -> None:
+    from wbc.constraints import DiagonalBlocks
+
+    rng = np.random.default_rng(11)
+    n, steps, width = 117, 12, 9
+    for trial in range(60):
+        inv_t = np.triu(rng.normal(size=(n, n)))
+        rows = 2 * int(rng.integers(1, 5))
+        dense = rng.normal(size=(int(rng.integers(1, 60)), n))
+        blocks = np.zeros((steps, rows, n))
+        for k in range(steps):
+            blocks[k, :, k * width:(k + 1) * width] = (rng.normal(size=(rows, width))
+                                                       * 10.0 ** rng.integers(-6, 6))
+        G = np.vstack([dense, blocks.reshape(-1, n)])
+        kept = np.flatnonzero(rng.random(G.shape[0]) < 0.7)
+        out = np.empty((kept.size, n))
+        DaqpBackend()._times_factor(G, kept, inv_t, (), out,
+                                    ((dense.shape[0], DiagonalBlocks(rows, 0, width, steps)),))
+        assert np.array_equal(out, G[kept] @ inv_t), trial
+
+
+def test_diagonal_blocks_multiply_as_the_dense_rows_do_bit_for_bit():
+    """`DiagonalBlocks` rows times the factor block by block: the dense product's bits
+    (random rows, scales and screened subsets, among dense rows), with one BLAS thread."""
+    _in_one_blas_thread("_diagonal_blocks_bits")
+
+
+def _mpc_effort_rows_bits() -> None:
+    from benchmarks.bench_wbc import DT
+    from models import build_reference_machine
+    from testkit.plant import KinematicPlant, make_state
+    from wbc import JointGoal, load_estimator, make_controller
+    from wbc.qp import QP
+
+    machine = build_reference_machine()
+    c = make_controller("mpc-full", machine, force_model=load_estimator(machine, "full"))
+    st = make_state(machine)
+    goal = st.q[2:9].copy()
+    goal[3] += 0.3
+    c.set_goal(JointGoal(crane=goal))
+    plant = KinematicPlant(st, DT)
+    with_blocks, without = DaqpBackend(), DaqpBackend()
+    for _ in range(5):
+        p = c.prepare(plant.state)
+        ((first, d),) = p.diagonal_rows
+        G = p.G[first:first + d.rows * d.n_blocks].reshape(d.n_blocks, d.rows, -1).copy()
+        for k in range(d.n_blocks):
+            G[k, :, d.first + k * d.width:d.first + (k + 1) * d.width] = 0.0
+        assert not G.any()
+        a = with_blocks.solve(p)
+        b = without.solve(QP(p.P, p.q, p.G, p.h, None, None, p.lb, p.ub,
+                             constant_rows=p.constant_rows))
+        assert np.array_equal(a.x, b.x)
+        plant.apply(c.step(plant.state))
+    assert with_blocks.form == "least-distance"
+
+
+def test_the_mpc_effort_rows_are_zero_outside_their_diagonal_blocks():
+    """What `HorizonEffortLimit` says of its rows holds, and the MPC's QP solves to the same
+    bits with and without the blocks (one BLAS thread)."""
+    _in_one_blas_thread("_mpc_effort_rows_bits")

@@ -207,6 +207,26 @@ def test_inequality_type_is_checked(machine, limits):
         build_qp(_ctx(machine, limits), [], [Bad()])
 
 
+def test_diagonal_blocks_are_passed_on_and_checked(machine, limits):
+    from wbc import Constraint, WbcError
+    from wbc.constraints import DiagonalBlocks
+
+    class Rows(Constraint):
+        def __init__(self, blocks):
+            self.blocks = blocks
+
+        def compute(self, ctx):
+            return Inequality(np.zeros((4, ctx.layout.n)), np.zeros(4), self.blocks)
+
+    ctx = _ctx(machine, limits)
+    good = DiagonalBlocks(2, 0, 4, 2)
+    qp = build_qp(ctx, [], [Rows(None), Rows(good)])
+    assert qp.diagonal_rows == ((4, good),)
+    for bad in (DiagonalBlocks(3, 0, 4, 2), DiagonalBlocks(2, 3, 4, 2)):
+        with pytest.raises(WbcError, match="DiagonalBlocks"):
+            build_qp(ctx, [], [Rows(bad)])
+
+
 def _limit_boxes(ctx, limits, T, fraction):
     """Both limits' boxes written out as the docstrings' formulas, both sides apart."""
     q, qd, a = ctx.q, ctx.qd, limits.acceleration

@@ -25,11 +25,16 @@ class QP(qpsolvers.Problem):
             read-only array ``block``, the very object a constraint returned at earlier ticks
             too. `wbc.solvers.DaqpBackend` keeps what it derives from such a block (its rows
             times the Hessian's inverse factor) while the block and the factor stay the same.
+        diagonal_rows: ``(first row, DiagonalBlocks)`` pairs: the rows from ``first`` on
+            are zero outside those blocks (`wbc.constraints.DiagonalBlocks`), and not
+            constant. `wbc.solvers.DaqpBackend` multiplies each block's columns alone.
     """
 
-    def __init__(self, *args, constant_rows: tuple = (), **kwargs):
+    def __init__(self, *args, constant_rows: tuple = (), diagonal_rows: tuple = (),
+                 **kwargs):
         super().__init__(*args, **kwargs)
         self.constant_rows = constant_rows
+        self.diagonal_rows = diagonal_rows
 
 
 class QPBuilder:
@@ -96,7 +101,7 @@ class QPBuilder:
             q += c
         P = self._hessian(n, hessians)
         lb, ub = self._default_bounds(ctx.layout)
-        Gs, hs, constant = [], [], []
+        Gs, hs, constant, diagonal = [], [], [], []
         rows = 0
         for con in self.constraints:
             r = con.compute(ctx)
@@ -111,6 +116,14 @@ class QPBuilder:
                                    f"{r.h.shape}; expected (m, {n}), (m,)")
                 if not r.G.flags.writeable:
                     constant.append((rows, r.G))
+                elif r.diagonal is not None:
+                    d = r.diagonal
+                    if (d.rows * d.n_blocks != r.G.shape[0] or d.rows < 1 or d.first < 0
+                            or d.width < 1 or d.first + d.n_blocks * d.width > n):
+                        raise WbcError(f"{type(con).__name__} returned {d} for G "
+                                       f"{r.G.shape}: need rows * n_blocks = "
+                                       f"{r.G.shape[0]} and the blocks within {n} columns")
+                    diagonal.append((rows, d))
                 rows += r.G.shape[0]
                 Gs.append(r.G)
                 hs.append(r.h)
@@ -122,7 +135,8 @@ class QPBuilder:
             raise WbcError(f"empty bounds on x[{i}]: [{lb[i]}, {ub[i]}]")
         G = np.concatenate(Gs) if Gs else None
         h = np.concatenate(hs) if hs else None
-        return QP(P, q, G, h, None, None, lb, ub, constant_rows=tuple(constant))
+        return QP(P, q, G, h, None, None, lb, ub, constant_rows=tuple(constant),
+                  diagonal_rows=tuple(diagonal))
 
 
 def build_qp(ctx, tasks: Sequence[Task], constraints: Sequence[Constraint],

@@ -1,7 +1,7 @@
 """Constraints: ``G x <= h`` or bounds, for the whole-body QP and the MPC."""
 
 from wbc.constraints.acceleration_limit import AccelerationLimit
-from wbc.constraints.constraint import Box, Constraint, Inequality
+from wbc.constraints.constraint import Box, Constraint, DiagonalBlocks, Inequality
 from wbc.constraints.horizon_effort_limit import HorizonEffortLimit
 from wbc.constraints.horizon_limits import (
     HorizonLimit,
@@ -15,7 +15,8 @@ from wbc.constraints.speed_scale_limit import SpeedScaleLimit
 from wbc.constraints.velocity_limit import VelocityLimit
 
 __all__ = [
-    "AccelerationLimit", "Box", "Constraint", "HorizonEffortLimit", "HorizonLimit",
+    "AccelerationLimit", "Box", "Constraint", "DiagonalBlocks", "HorizonEffortLimit",
+    "HorizonLimit",
     "HorizonNormalForceConstraint",
     "HorizonPositionLimit", "HorizonVelocityLimit", "Inequality", "NormalForceConstraint",
     "PositionLimit", "SpeedScaleLimit", "VelocityLimit",

@@ -8,15 +8,36 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["Box", "Constraint", "Inequality", "unbounded"]
+__all__ = ["Box", "Constraint", "DiagonalBlocks", "Inequality", "unbounded"]
+
+
+@dataclass(frozen=True)
+class DiagonalBlocks:
+    """Where the rows of a ``G`` can be nonzero: blocks along a diagonal of columns.
+
+    The ``n_blocks * rows`` rows come in ``n_blocks`` consecutive blocks of ``rows`` rows;
+    block k is zero outside the ``width`` columns from ``first + k * width`` on (the MPC's
+    per-step rows: step k's inputs only). A solver may then multiply each block's columns
+    alone (`wbc.solvers.DaqpBackend`).
+    """
+
+    rows: int
+    first: int
+    width: int
+    n_blocks: int
 
 
 @dataclass(frozen=True)
 class Inequality:
-    """``G x <= h``: G shape (m, n), h shape (m,)."""
+    """``G x <= h``: G shape (m, n), h shape (m,).
+
+    ``diagonal``: the rows' `DiagonalBlocks`, if the constraint knows its ``G`` is zero
+    outside them (None: any entry may be nonzero).
+    """
 
     G: np.ndarray
     h: np.ndarray
+    diagonal: DiagonalBlocks | None = None
 
 
 @dataclass(frozen=True)

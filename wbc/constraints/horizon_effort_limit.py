@@ -22,7 +22,7 @@ import numpy as np
 
 from estimators.efforts import ActuatorEfforts, effort_ranges
 from wbc.axes import CRANE_AXES, N_AXES
-from wbc.constraints.constraint import Constraint, Inequality
+from wbc.constraints.constraint import Constraint, DiagonalBlocks, Inequality
 from wbc.errors import ConfigurationError
 from wbc.mpc.prediction import nominal_state
 
@@ -62,7 +62,7 @@ class HorizonEffortLimit(Constraint):
         """What the layout and step lengths fix, built once for them.
 
         ``(steps j, which j each step uses, flat indices of the upper and the lower rows'
-        entries in G)``.
+        entries in G, G's `DiagonalBlocks`)``.
         """
         key = (ctx.structure_key, self.n_linearizations, self.axes.tobytes())
         if self._structure_cache is None or self._structure_cache[0] != key:
@@ -79,14 +79,15 @@ class HorizonEffortLimit(Constraint):
             col = lay.step(0).start + np.arange(N * na).reshape(N, 1, na)
             flat = [np.ravel_multi_index(np.broadcast_arrays(k, side, row, col), shape).ravel()
                     for side in (0, 1)]
-            self._structure_cache = (key, steps, which, flat)
+            diagonal = DiagonalBlocks(2 * self.axes.size, lay.step(0).start, na, N)
+            self._structure_cache = (key, steps, which, flat, diagonal)
         return self._structure_cache[1:]
 
     def compute(self, ctx) -> Inequality:
         """Two rows per crane axis and step: ``+-E u_k <= bound - e_0``."""
         lay, pred = ctx.layout, ctx.prediction
         N = lay.n_steps
-        steps, which, (upper_idx, lower_idx) = self._structure(ctx)
+        steps, which, (upper_idx, lower_idx), diagonal = self._structure(ctx)
         if steps.size > 1:  # the nominal trajectory is needed beyond the measured state
             qn, vn = pred.trajectory(ctx.q, ctx.qd, ctx.nominal_inputs)
             qn = np.vstack([ctx.state.q[:N_AXES], qn])
@@ -115,4 +116,4 @@ class HorizonEffortLimit(Constraint):
         h = h.reshape(2 * N * na_b)
         E0, e00 = maps[0]
         self.last_efforts = E0 @ ctx.nominal_inputs[0] + e00 if N else None
-        return Inequality(G, h)
+        return Inequality(G, h, diagonal)

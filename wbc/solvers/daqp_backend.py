@@ -24,7 +24,9 @@ QP's, so the warm start and the tolerance mean what they did. A Hessian that is 
 numerically positive definite goes to DAQP as it is (its own regularisation). Such a block's
 screening sums are kept too, while the bounds of the columns it has entries in stay the
 same, and DAQP's rows are written into a buffer kept from solve to solve: about 0.08 ms of
-the MPC's 0.5 ms solve (`benchmarks.bench_wbc`).
+the MPC's 0.5 ms solve (`benchmarks.bench_wbc`). Rows that are zero outside blocks along a
+diagonal (``diagonal_rows``, `wbc.constraints.DiagonalBlocks`: the MPC's effort rows, each
+step's on that step's inputs) are multiplied block by block, a ninth of the dense work.
 """
 
 from __future__ import annotations
@@ -102,6 +104,26 @@ def redundant_rows(G: np.ndarray, h: np.ndarray, lb: np.ndarray | None,
         depends on its variable.
     """
     return _worst(G, _box_terms(lb, ub, G.shape[1], tolerance)) <= h
+
+
+def _diagonal_product(G: np.ndarray, first: int, d, inv_t: np.ndarray,
+                      out: np.ndarray) -> None:
+    """``out[rows] = G[rows] @ inv_t`` for the rows of `DiagonalBlocks` ``d`` from ``first``.
+
+    Each block's ``width`` columns times the factor's matching rows, every block in one
+    stacked product: ``width / n`` of the dense product's work. The same bits as the dense
+    product when the BLAS sums each entry over the inner dimension in order, the columns
+    left out adding exact zeros (OpenBLAS's gemm does, `tests/test_daqp_backend.py` checks);
+    ``d.rows >= 2`` keeps every block a matrix product (numpy turns a single row into a
+    matrix-vector product, which sums in another order).
+    """
+    n = inv_t.shape[0]
+    G = np.ascontiguousarray(G, dtype=float)  # G itself, as the QP builds it
+    row = G.strides[0]
+    g = np.ndarray((d.n_blocks, d.rows, d.width), float, G, first * row + 8 * d.first,
+                   (d.rows * row + 8 * d.width, row, 8))  # the blocks: a view (as_strided)
+    u = inv_t[d.first:d.first + d.n_blocks * d.width].reshape(d.n_blocks, d.width, n)
+    np.matmul(g, u, out=out[first:first + d.rows * d.n_blocks].reshape(d.n_blocks, d.rows, n))
 
 
 def _senses(size: int, first_equality: int) -> np.ndarray:
@@ -188,23 +210,30 @@ class DaqpBackend:
                 self._inv_factor = (np.ascontiguousarray(inv_low.T), np.eye(H.shape[0]))
         return self._inv_factor
 
-    def _structure(self, m_in: int, blocks: tuple) -> tuple[np.ndarray, tuple]:
-        """``(constant, gaps)`` of a problem's rows, kept while the blocks sit where they did.
+    def _structure(self, m_in: int, blocks: tuple, diagonal: tuple = ()
+                   ) -> tuple[np.ndarray, tuple, np.ndarray]:
+        """``(constant, gaps, done)`` of a problem's rows, kept while the blocks sit where they did.
 
         ``constant``: bool (m_in,), the rows of the constant blocks; ``gaps``: the
-        ``(first, stop)`` row ranges between them.
+        ``(first, stop)`` row ranges between them; ``done``: the constant rows and those of
+        the `DiagonalBlocks` of two rows or more (`_diagonal_product`).
         """
-        key = (m_in, tuple((first, block.shape[0]) for first, block in blocks))
+        key = (m_in, tuple((first, block.shape[0]) for first, block in blocks), diagonal)
         if self._rows_structure is None or self._rows_structure[0] != key:
             constant = np.zeros(m_in, dtype=bool)
             for first, block in blocks:
                 constant[first:first + block.shape[0]] = True
             edges = np.flatnonzero(np.diff(np.r_[True, constant, True]))
             gaps = tuple((int(a), int(b)) for a, b in zip(edges[::2], edges[1::2]))
-            self._rows_structure = (key, (constant, gaps))
+            done = constant.copy()
+            for first, d in diagonal:
+                if d.rows >= 2:
+                    done[first:first + d.rows * d.n_blocks] = True
+            self._rows_structure = (key, (constant, gaps, done))
         return self._rows_structure[1]
 
-    def _screen(self, G: np.ndarray, h: np.ndarray, lb, ub, blocks: tuple) -> np.ndarray:
+    def _screen(self, G: np.ndarray, h: np.ndarray, lb, ub, blocks: tuple,
+                diagonal: tuple = ()) -> np.ndarray:
         """The rows `redundant_rows` keeps, as indices; a constant block's screening sums kept.
 
         A block's sums depend only on the bounds of the columns where it has entries
@@ -237,19 +266,21 @@ class DaqpBackend:
             screens[id(block)] = entry
             worst[first:first + block.shape[0]] = entry[3]
         self._screens = screens  # the blocks of this problem only
-        for a, b in self._structure(m_in, blocks)[1]:
+        for a, b in self._structure(m_in, blocks, diagonal)[1]:
             worst[a:b] = _worst(G[a:b], box)
         return np.flatnonzero(~(worst <= h))
 
     def _times_factor(self, G: np.ndarray, kept: np.ndarray, inv_t: np.ndarray,
-                      blocks: tuple, out: np.ndarray) -> None:
+                      blocks: tuple, out: np.ndarray, diagonal: tuple = ()) -> None:
         """``out = G[kept] @ inv_t``, the rows of constant blocks from their kept products.
 
         ``blocks``: ``(first row, read-only block)`` pairs (`wbc.qp.QP.constant_rows`). A
         block's product is kept while the same block object comes with the same factor; the
         products sit in a buffer of all rows, from which the kept rows are read at once.
+        ``diagonal``: ``(first row, DiagonalBlocks)`` pairs (`wbc.qp.QP.diagonal_rows`),
+        whose rows are multiplied block by block (`_diagonal_product`).
         """
-        constant, _ = self._structure(G.shape[0], blocks)
+        constant, _, done = self._structure(G.shape[0], blocks, diagonal)
         products = {}
         for first, block in blocks:
             entry = self._products.get(id(block))
@@ -267,13 +298,19 @@ class DaqpBackend:
                 buffer[first:first + block.shape[0]] = product
             self._rows_t = (key, buffer, filled)
         buffer = self._rows_t[1]
-        rest = kept[~constant[kept]]
+        for first, d in diagonal:
+            if d.rows >= 2:
+                _diagonal_product(G, first, d, inv_t, buffer)
+        rest = kept[~done[kept]]
+        if rest.size == 1:  # as two rows: numpy makes one row a matrix-vector product,
+            rest = np.repeat(rest, 2)  # which sums in another order than the matrix product
         if rest.size:
             buffer[rest] = G[rest] @ inv_t
         np.take(buffer, kept, axis=0, out=out, mode="clip")  # 'raise' buffers `out`
 
     def _least_distance_rows(self, G: np.ndarray, kept: np.ndarray, inv_t: np.ndarray,
-                             blocks: tuple, rows: np.ndarray | None) -> np.ndarray:
+                             blocks: tuple, rows: np.ndarray | None, diagonal: tuple = ()
+                             ) -> np.ndarray:
         """DAQP's rows of the least-distance form, ``[L^-T; rows L^-T]``.
 
         ``rows`` None: ``G[kept]`` (`_times_factor`). Written into a buffer kept from solve
@@ -289,7 +326,7 @@ class DaqpBackend:
             self._ldp_rows = buf
         out = buf[1][:n + m]
         if rows is None:
-            self._times_factor(G, kept, inv_t, blocks, out[n:])
+            self._times_factor(G, kept, inv_t, blocks, out[n:], diagonal)
         else:
             np.matmul(rows, inv_t, out=out[n:])
         return out
@@ -304,8 +341,9 @@ class DaqpBackend:
         m_in = 0 if G is None else G.shape[0]
         m_eq = 0 if A is None else A.shape[0]
         blocks = getattr(problem, "constant_rows", ())
+        diagonal = getattr(problem, "diagonal_rows", ())
         if self.screen and m_in:
-            kept = self._screen(G, h, lb, ub, blocks)
+            kept = self._screen(G, h, lb, ub, blocks, diagonal)
         else:
             kept = np.arange(m_in)
         self.rows_kept = m_k = kept.size
@@ -315,7 +353,7 @@ class DaqpBackend:
                   else None)
         if m_in == 0:
             a_all = np.zeros((0, n)) if m_eq == 0 else A
-        elif factor is not None and blocks and m_eq == 0:  # G[kept] @ L^-T, below
+        elif factor is not None and (blocks or diagonal) and m_eq == 0:  # G[kept] L^-T, below
             a_all = None
         elif m_k == m_in:  # nothing screened out: DAQP reads G as it is
             a_all = G if m_eq == 0 else np.concatenate([G, A])
@@ -340,7 +378,7 @@ class DaqpBackend:
             shift = inv_t @ v  # x = L^-T u - shift
             upper[:n] += shift
             lower[:n] += shift
-            a_all = self._least_distance_rows(G, kept, inv_t, blocks, a_all)
+            a_all = self._least_distance_rows(G, kept, inv_t, blocks, a_all, diagonal)
             row_shift = a_all[n:] @ v
             upper[n:] += row_shift
             lower[n:] += row_shift
