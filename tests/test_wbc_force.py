@@ -28,7 +28,12 @@ from wbc import (
     load_estimator,
 )
 from wbc.constraints.force_rows import lifted_wheel_thresholds
-from wbc.force_models import ForceLinearization, linearize_forces
+from wbc.force_models import (
+    ForceLinearization,
+    contact_flags,
+    linearize_forces,
+    linearized_contact_flags,
+)
 
 DT = 0.01
 TEL = 5  # telescope axis (and index in q)
@@ -247,3 +252,26 @@ def test_kept_rows_follow_the_contact_flags_and_thresholds(machine, limits):
         a, b = kept.compute(ctx), fresh.compute(ctx)
         assert np.array_equal(a.G, b.G) and np.array_equal(a.h, b.h)
         assert a.G.shape[0] == sum(flags)
+
+
+@pytest.mark.parametrize("method", ["full", "quasi-static"])
+def test_flags_read_from_the_linearization_are_contact_flags(machine, limits, method):
+    """The estimator linearizes with its estimate's flags: the force rows take the flags now
+    from their linearization at the state, with measured contacts or without."""
+    from testkit.estimator_states import random_state
+
+    model = load_estimator(machine, method)
+    rng = np.random.default_rng(4)
+    ref = ReferenceSample(np.zeros(9), np.zeros(9), np.zeros(9))
+    for k in range(6):
+        st = random_state(machine, rng, max_tilt=0.2)
+        if k % 2:
+            flags = np.array([True, True, k != 3, True])
+            st = st.replace(contacts=models.WheelContacts(
+                flags, np.zeros((4, 3)), model.contact_points(st), np.tile([0, 0, 1.0], (4, 1))))
+        expected = contact_flags(model, st)
+        lin = linearize_forces(model, st)
+        assert np.array_equal(linearized_contact_flags(st, lin), expected)
+        con = NormalForceConstraint(model, 1000.0)
+        con.compute(QPContext.from_state(st, DT, VariableLayout(), limits, ref))
+        assert np.array_equal(con.last_in_contact, expected)

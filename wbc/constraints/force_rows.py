@@ -84,10 +84,19 @@ class ForceRowsConstraint(Constraint):
         """``(nodes, later)``: the nodes that get rows and whether each lies after now."""
         return np.zeros(1, dtype=int), np.zeros(1, dtype=bool)
 
-    def compute(self, ctx) -> Inequality | None:
-        """Rows ``-(A x + b) / f_s - eps <= -f_min / f_s`` of the wheels in contact now."""
+    def _forces_and_flags(self, ctx) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(A, b, contact flags now)``: `forces_map` with the flags of `contact_flags`.
+
+        A subclass that linearizes the model at ``ctx.state`` anyway reads the flags from
+        that linearization instead (`linearized_contact_flags`: one model evaluation less).
+        """
         flags = contact_flags(self.model, ctx.state)
         A, b = self.forces_map(ctx, flags)
+        return A, b, flags
+
+    def compute(self, ctx) -> Inequality | None:
+        """Rows ``-(A x + b) / f_s - eps <= -f_min / f_s`` of the wheels in contact now."""
+        A, b, flags = self._forces_and_flags(ctx)
         self.last_forces_map, self.last_in_contact = (A, b), flags
         rows, thresholds, slack = self._rows(ctx, flags, A.shape[0] // 4)
         if rows is None:

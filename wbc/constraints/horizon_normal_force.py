@@ -13,7 +13,11 @@ from wbc.constraints.force_rows import ForceRowsConstraint
 from wbc.drive_model import speed_scale_direction
 from wbc.errors import ConfigurationError
 from wbc.force_models.feedback import DIAGONAL
-from wbc.force_models.protocol import NormalForceModel, contact_flags, linearize_forces
+from wbc.force_models.protocol import (
+    NormalForceModel,
+    linearize_forces,
+    linearized_contact_flags,
+)
 from wbc.mpc.prediction import nominal_state
 
 __all__ = ["HorizonNormalForceConstraint"]
@@ -180,11 +184,22 @@ class HorizonNormalForceConstraint(ForceRowsConstraint):
         the plan must end in a state the machine can stop from, so it cannot borrow load
         from an acceleration it would have to undo just past the horizon. Shapes: A
         (4 (N + t), n), b (4 (N + t),), t = 1 with the terminal rows, else 0.
+        ``in_contact`` None: the flags of the linearization at ``ctx.state`` (node 0).
         """
+        return self._forces_map(ctx, self.linearize(ctx), in_contact)
+
+    def _forces_and_flags(self, ctx) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """`forces_map`, the flags from its linearization at node 0, ``ctx.state``."""
+        linearized = self.linearize(ctx)
+        flags = linearized_contact_flags(ctx.state, linearized[1][0])
+        return (*self._forces_map(ctx, linearized, flags), flags)
+
+    def _forces_map(self, ctx, linearized: tuple, in_contact) -> tuple[np.ndarray, np.ndarray]:
+        """`forces_map` from `linearize`'s result."""
         lay, pred = ctx.layout, ctx.prediction
         N, na = lay.n_steps, lay.n_axes
         struct = self._structure(ctx)
-        steps, lins, qn, vn = self.linearize(ctx)
+        steps, lins, qn, vn = linearized
         self.linearization_steps = steps
         n_eval, which, j = struct.n_eval, struct.which, struct.j
         st = ctx.state
@@ -194,7 +209,7 @@ class HorizonNormalForceConstraint(ForceRowsConstraint):
         # On three wheels the warp is free: the suspension sets the lifted wheel down
         # without moving load (`lifted_wheel_thresholds` keeps the load it will need).
         if in_contact is None:
-            in_contact = contact_flags(self.model, st)
+            in_contact = linearized_contact_flags(st, lins[0])
         warp = ctx.warp if np.asarray(in_contact, dtype=bool).all() else None
         # Every step at once: (n_eval, 4, .) stacks of the linearization each step uses
         # (the suspension acts through the warp model only when there is one).

@@ -9,7 +9,11 @@ from wbc.axes import N_AXES
 from wbc.constraints.force_rows import ForceRowsConstraint
 from wbc.drive_model import speed_scale_direction
 from wbc.errors import ConfigurationError
-from wbc.force_models.protocol import NormalForceModel, linearize_forces
+from wbc.force_models.protocol import (
+    NormalForceModel,
+    linearize_forces,
+    linearized_contact_flags,
+)
 
 __all__ = ["NormalForceConstraint"]
 
@@ -57,9 +61,16 @@ class NormalForceConstraint(ForceRowsConstraint):
 
     def forces_map(self, ctx, in_contact=None) -> tuple[np.ndarray, np.ndarray]:
         """``(A, b)``: predicted forces ``A x + b`` [N], A shape (4, n), b (4,)."""
+        return self._forces_map(ctx, linearize_forces(self.model, ctx.state))
+
+    def _forces_and_flags(self, ctx) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """`forces_map`, the flags from its linearization at ``ctx.state``."""
+        lin = linearize_forces(self.model, ctx.state)
+        return (*self._forces_map(ctx, lin), linearized_contact_flags(ctx.state, lin))
+
+    def _forces_map(self, ctx, lin) -> tuple[np.ndarray, np.ndarray]:
         st, lay = ctx.state, ctx.layout
         T = self.lookahead
-        lin = linearize_forces(self.model, st)
         A = np.zeros((4, lay.n))
         b = lin.g0.copy()
         A[:, lay.step(0)] = lin.G[:, _AXES_IN_A]

@@ -8,10 +8,11 @@ from wbc.force_models.protocol import (
     NormalForceModel,
     contact_flags,
     linearize_forces,
+    linearized_contact_flags,
 )
 
 __all__ = [
     "ESTIMATOR_METHODS", "MODEL_ERRORS", "N_GENERALIZED", "ForceLinearization",
     "NormalForceEstimate", "NormalForceModel", "contact_flags", "linearize_forces",
-    "load_closure", "load_estimator",
+    "linearized_contact_flags", "load_closure", "load_estimator",
 ]

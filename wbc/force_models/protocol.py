@@ -26,7 +26,7 @@ from models.state import MachineState
 from wbc.errors import ForceModelError
 
 __all__ = ["MODEL_ERRORS", "NormalForceEstimate", "NormalForceModel", "contact_flags",
-           "linearize_forces"]
+           "linearize_forces", "linearized_contact_flags"]
 
 # What a force model may raise at a state it cannot evaluate (singular system, stroke out
 # of range under the "raise" policy, a non-finite linearization): the loop falls back.
@@ -50,7 +50,10 @@ class NormalForceModel(Protocol):
         ...
 
     def linearize(self, state: MachineState) -> ForceLinearization:
-        """The forces, ``G`` (4, 19), ``g0`` (4,), ``d_q`` and ``d_qd`` (4, 13) at ``state``."""
+        """The forces, ``G`` (4, 19), ``g0`` (4,), ``d_q`` and ``d_qd`` (4, 13) at ``state``.
+
+        Its ``in_contact`` are ``estimate(state).in_contact`` (`linearized_contact_flags`).
+        """
         ...
 
 
@@ -96,3 +99,15 @@ def contact_flags(model: NormalForceModel, state: MachineState) -> np.ndarray:
         raise ForceModelError(f"force model returned in_contact of shape {flags.shape}, "
                               f"expected (4,)")
     return flags.astype(bool)
+
+
+def linearized_contact_flags(state: MachineState, lin: ForceLinearization) -> np.ndarray:
+    """`contact_flags` of ``state`` read from the model's linearization ``lin`` at ``state``.
+
+    The state's measured flags if it has them, else ``lin.in_contact``: a model linearizes
+    with the flags its `estimate` gives at the same state (`NormalForceModel.linearize`), so
+    a caller that linearizes at ``state`` anyway needs no estimate for them.
+    """
+    if state.contacts is not None:
+        return np.asarray(state.contacts.in_contact, dtype=bool).reshape(4)
+    return lin.in_contact
