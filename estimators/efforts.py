@@ -152,11 +152,11 @@ class ActuatorEfforts:
         q_ind, qd_ind = state.q.tolist(), state.qd.tolist()
         for i, chain, d, br, pi in self._chains:
             x, xd = q_ind[i], qd_ind[i]
-            c = chain.float_state(x, check=False)
-            q_tree[d], q_tree[br], q_tree[pi] = c.theta, c.theta_barrel, x
-            jac[d, i], jac[br, i] = c.k[0], c.k[1]
-            jdot_qd[d] = c.dk_dx[0] * xd * xd
-            jdot_qd[br] = c.dk_dx[1] * xd * xd
+            theta, theta_barrel, k1, k2, dk1, dk2 = chain.driven_terms(x)
+            q_tree[d], q_tree[br], q_tree[pi] = theta, theta_barrel, x
+            jac[d, i], jac[br, i] = k1, k2
+            jdot_qd[d] = dk1 * xd * xd
+            jdot_qd[br] = dk2 * xd * xd
         q = np.zeros(pm.model.nq)
         v = np.zeros(pm.model.nv)
         a = np.zeros(pm.model.nv)

@@ -151,21 +151,26 @@ class CylinderChain:
               (lb * lb - la * la) / (lb * lx ** 3))
         return (c, c1, c2), d, dd
 
-    def state(self, x: float, check: bool = True) -> ChainState:
-        """Chain configuration and k-coefficients at stroke ``x`` [m]."""
-        if check:
-            self.check_stroke(x)
-        k = self._consts
-        lx = k["lx0"] + x
+    def _angles(self, lx: float, n: int) -> tuple[list, list, list]:
+        """(q's, dq/dx's, d2q/dx2's) of the first ``n`` exterior angles q, q1, q2 at ``lx``."""
         cs, dcs, ddcs = self._cosines(lx)
         qs, dqs, ddqs = [], [], []
-        for c, dc, ddc in zip(cs, dcs, ddcs):
+        for c, dc, ddc in zip(cs[:n], dcs[:n], ddcs[:n]):
             q = -math.acos(min(max(c, -1.0), 1.0))  # eqs. (2)-(4): q = -interior angle
             s = math.sin(q)
             dq = -dc / s
             qs.append(q)
             dqs.append(dq)
             ddqs.append(-(ddc + math.cos(q) * dq * dq) / s)
+        return qs, dqs, ddqs
+
+    def state(self, x: float, check: bool = True) -> ChainState:
+        """Chain configuration and k-coefficients at stroke ``x`` [m]."""
+        if check:
+            self.check_stroke(x)
+        k = self._consts
+        lx = k["lx0"] + x
+        qs, dqs, ddqs = self._angles(lx, 3)
         q, q1, q2 = qs
         sigma = self.sigma
         # Eq. (5): theta = psi + sigma q, barrel = psi_b - sigma q1, and the rod-eye angle
@@ -188,6 +193,25 @@ class CylinderChain:
             return self.state(float(x), check)
         except ZeroDivisionError:
             return self.state(np.float64(x), check)
+
+    def driven_terms(self, x: float) -> tuple[float, float, float, float, float, float]:
+        """``(theta, theta_barrel, k1, k2, dk1/dx, dk2/dx)`` at stroke ``x``, unchecked.
+
+        `float_state`'s numbers (the same operations) without the rod eye's and the
+        `ChainState`: what a tree's configuration and Jacobian need of the chain (a hot
+        path: `estimators.efforts`).
+        """
+        try:
+            return self._driven_terms(float(x))
+        except ZeroDivisionError:
+            return self._driven_terms(np.float64(x))
+
+    def _driven_terms(self, x: float) -> tuple[float, float, float, float, float, float]:
+        k = self._consts
+        (q, q1), (dq, dq1), (ddq, ddq1) = self._angles(k["lx0"] + x, 2)
+        sigma = self.sigma
+        return (k["psi"] + sigma * q, k["psi_b"] - sigma * q1, sigma * dq, -sigma * dq1,
+                sigma * ddq, -sigma * ddq1)
 
     def angles(self, x: float, check: bool = True) -> tuple[float, float]:
         """(theta, theta_barrel) at stroke ``x`` [rad]: `state`'s two angles alone.

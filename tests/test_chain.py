@@ -158,3 +158,13 @@ def test_float_state_is_state(machine):
                                           [want.theta, want.theta_barrel, *want.k, *want.dk_dx])
         with pytest.raises(StrokeOutOfRangeError):
             chain.float_state(hi + 1e-3)
+
+
+def test_driven_terms_are_the_states_numbers_to_the_bit(machine):
+    """`CylinderChain.driven_terms` (the effort model's hot path) against `float_state`."""
+    for chain in _chains(machine):
+        lo, hi = chain.stroke_range
+        for x in np.r_[np.linspace(lo, hi, 9), lo - 1e-3, hi + 1e-3]:
+            s = chain.float_state(x, check=False)
+            expected = (s.theta, s.theta_barrel, s.k[0], s.k[1], s.dk_dx[0], s.dk_dx[1])
+            assert chain.driven_terms(np.float64(x)) == expected
