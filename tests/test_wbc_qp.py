@@ -227,6 +227,42 @@ def test_diagonal_blocks_are_passed_on_and_checked(machine, limits):
             build_qp(ctx, [], [Rows(bad)])
 
 
+def test_rows_of_g_are_reused_only_when_nobody_holds_them(machine, limits):
+    """`QPBuilder` writes the last tick's G again when only it holds that array: the values
+    are the concatenation's, and a problem kept by its caller is never written."""
+    from wbc import Constraint
+    from wbc.qp import QPBuilder
+
+    ctx = _ctx(machine, limits)
+    n = ctx.layout.n
+    block = np.arange(3.0 * n).reshape(3, n)
+    block.setflags(write=False)
+    rng = np.random.default_rng(2)
+
+    class Rows(Constraint):
+        def __init__(self, G):
+            self.G = G
+
+        def compute(self, ctx):
+            self.last = rng.normal(size=(2, n)) if self.G is None else self.G
+            return Inequality(self.last, np.zeros(self.last.shape[0]))
+
+    rows = [Rows(None), Rows(block), Rows(None)]
+    builder = QPBuilder([], rows)
+    first = builder.build(ctx)
+    kept, kept_G, kept_id = first.G.copy(), first.G, id(first.G)
+    del first
+    for _ in range(3):
+        qp = builder.build(ctx)
+        assert id(qp.G) != kept_id  # the caller still holds the first array
+        assert np.array_equal(qp.G, np.concatenate([r.last for r in rows]))
+        assert qp.constant_rows == ((2, block),)
+        last_id = id(qp.G)
+        del qp
+    assert np.array_equal(kept_G, kept)
+    assert id(builder.build(ctx).G) == last_id  # nobody held it: written again
+
+
 def _limit_boxes(ctx, limits, T, fraction):
     """Both limits' boxes written out as the docstrings' formulas, both sides apart."""
     q, qd, a = ctx.q, ctx.qd, limits.acceleration
