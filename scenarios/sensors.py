@@ -65,6 +65,8 @@ class _Stream:
         self.every = max(1, int(round(1.0 / (spec.rate * dt))))
         self.latency = spec.latency
         self.scale = 1.0 + spec.scale * rng.standard_normal(n)
+        # Without scale errors the factor is exactly 1.0, whose product changes no bit.
+        self._scaled = bool(np.any(self.scale != 1.0))
         self.bias = spec.bias * rng.standard_normal(n)
         self.walk = spec.bias_drift * np.sqrt(self.every * dt)
         self.rng = rng
@@ -85,25 +87,27 @@ class _Stream:
 
     def _errors(self, truth: np.ndarray) -> np.ndarray:
         sp, k = self.spec, truth.shape[0]
-        y = self.transform(truth) if self.transform is not None else truth.copy()
+        y = self.transform(truth) if self.transform is not None else truth
         if self.walk:
             steps = self.walk * self.rng.standard_normal((k, self.n))
             bias = self.bias + np.cumsum(steps, axis=0) - steps  # the bias at each sample
             self.bias = bias[-1] + steps[-1] if k else self.bias
         else:
             bias = self.bias
-        y = self.scale * y + bias
+        y = self.scale * y + bias if self._scaled else y + bias  # a new array: truths kept
         if sp.noise:
             y += sp.noise * self.rng.standard_normal((k, self.n))
         if sp.resolution:
-            y = np.round(y / sp.resolution) * sp.resolution
+            np.divide(y, sp.resolution, out=y)
+            np.round(y, out=y)
+            y *= sp.resolution
         return y
 
     def deliver(self, tick: float) -> Samples:
         """The readings whose latency has passed by ``tick`` (removed from the queue)."""
         c = self.count
         k = int(np.searchsorted(self.times[:c], tick - self.latency + 1e-9, side="right"))
-        out = Samples(self.times[:k].copy(), self._errors(self.truths[:k]))
+        out = Samples.trusted(self.times[:k].copy(), self._errors(self.truths[:k]))
         rest = c - k
         self.times[:rest] = self.times[k:c]
         self.truths[:rest] = self.truths[k:c]
@@ -216,17 +220,21 @@ class SensorSimulator:
         """``p_A, p_B`` [Pa] for cylinder forces [N] (module docstring): (..., 5) -> (..., 10)."""
         f = np.asarray(forces, float)
         a_a, a_b = self._areas[:, 0], self._areas[:, 1]
-        p0 = BACK_PRESSURE
-        p_a = np.where(f >= 0, (f + p0 * a_b) / a_a, p0)
-        p_b = np.where(f >= 0, p0, (p0 * a_a - f) / a_b)
-        return np.stack([p_a, p_b], axis=-1).reshape(f.shape[:-1] + (2 * N_PRESSURE,))
+        out = np.empty(f.shape + (2,))  # (..., cylinder, chamber): the layout of the readings
+        p_a, p_b = out[..., 0], out[..., 1]
+        np.divide(f + BACK_PRESSURE * a_b, a_a, out=p_a)
+        np.divide(BACK_PRESSURE * a_a - f, a_b, out=p_b)
+        pushing = f >= 0
+        p_a[~pushing] = BACK_PRESSURE
+        p_b[pushing] = BACK_PRESSURE
+        return out.reshape(f.shape[:-1] + (2 * N_PRESSURE,))
 
     def readings(self, tick: float) -> SensorReadings:
         """What the sensors delivered by ``tick`` [s] since the previous call."""
         lin = self._pos_lin.deliver(tick)
         ang = self._pos_ang.deliver(tick)
         n = min(len(lin), len(ang))
-        positions = Samples(lin.time[:n], np.hstack([lin.value[:n], ang.value[:n]]))
+        positions = Samples.trusted(lin.time[:n], np.hstack([lin.value[:n], ang.value[:n]]))
         return SensorReadings(
             time=float(tick), specific_force=self._acc.deliver(tick),
             angular_rate=self._gyro.deliver(tick), positions=positions,

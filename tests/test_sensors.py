@@ -69,6 +69,31 @@ class _Areas:
     _areas = _ca(MACHINE)
 
 
+def test_chamber_pressures_are_the_two_branch_formula_to_the_bit():
+    """The in-place split gives the bits of ``np.where`` over both branches, any shape."""
+    from scenarios.sensors import BACK_PRESSURE
+
+    rng = np.random.default_rng(3)
+    forces = rng.normal(0.0, 5e4, (7, 5))
+    forces[0, :2] = 0.0, -0.0
+    a_a, a_b = _Areas._areas[:, 0], _Areas._areas[:, 1]
+    p_a = np.where(forces >= 0, (forces + BACK_PRESSURE * a_b) / a_a, BACK_PRESSURE)
+    p_b = np.where(forces >= 0, BACK_PRESSURE, (BACK_PRESSURE * a_a - forces) / a_b)
+    expected = np.stack([p_a, p_b], axis=-1).reshape(7, 10)
+    got = SensorSimulator.chamber_pressures(_Areas(), forces)
+    assert got.tobytes() == expected.tobytes()
+    assert SensorSimulator.chamber_pressures(_Areas(), forces[3]).tobytes() == \
+        expected[3].tobytes()
+
+
+def test_delivered_readings_are_read_only(sim):
+    r, _ = _rest_run(sim, sensor_suite("realistic", 2), seconds=0.1)
+    for samples in (r.specific_force, r.angular_rate, r.positions, r.pressures,
+                    r.wheel_speeds, r.drive_torques):
+        assert len(samples) > 0
+        assert not samples.time.flags.writeable and not samples.value.flags.writeable
+
+
 def test_imu_at_rest_reads_gravity_in_its_own_frame(sim):
     r, state = _rest_run(sim, sensor_suite("ideal"), seconds=1.0)
     f = r.specific_force.value.mean(axis=0)
