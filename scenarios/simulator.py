@@ -423,7 +423,9 @@ class Simulator:
                 truth.in_contact.copy(),
                 truth.force_in_fb + rng.normal(0.0, nz.contact_force, (4, 3)),
                 truth.point_in_fb.copy(), truth.normal_in_fb.copy())
-        state = MachineState(
+        # Every array here is this call's own (the setpoint snapshot is replaced, never
+        # written): checked, not copied again.
+        state = MachineState.from_owned(
             base_position=position, base_rotation=rotation, base_twist=twist,
             base_acceleration=accel, q=q, qd=qd, qdd=qdd, time=t, contacts=measured,
             suspension_force=suspension, servo_setpoint=self._snapshot_setpoint)
