@@ -42,6 +42,7 @@ from scenarios.closed_loop_scenarios import (
     scenario_terrain,
     threshold,
 )
+from scenarios.commands import ActuatorCommand
 from scenarios.errors import RunInputError, RunInterrupted
 from scenarios.json_io import write_json
 from scenarios.kernels import warm_estimator_kernels
@@ -69,6 +70,8 @@ __all__ = ["DEFAULT_SCENARIO", "FORCE_CONFIDENCE", "SCENARIOS", "run_closed_loop
            "uncertainty_margin"]
 
 FORCE_CONFIDENCE = 0.99  # one-sided: z = 2.33 standard deviations of each wheel's force
+_NO_FORCES = np.full(4, np.nan)  # the log's measured forces of a controller without them
+_NO_FORCES.flags.writeable = False
 
 
 def _set_payload(sim: Simulator, mass: float) -> None:
@@ -293,7 +296,7 @@ def run_closed_loop(scenario: ClosedLoopScenario | str, out_dir: Path | None = N
                 w = scenario.wheel_speed(t - readiness.time, machine.wheel_radius) if ready \
                     else 0.0
                 wheels = cmd.wheel_speeds(w, w)
-                sim.set_command(cmd.cylinder_rates, cmd.wrist_rates, wheels)
+                sim.apply(ActuatorCommand(cmd.cylinder_rates, cmd.wrist_rates, wheels))
                 info = cmd.info
                 qpos, qvel, _ = sim.measured_instant
                 log.append(truth_state, truth, np.concatenate([cmd.rates, wheels]),
@@ -303,7 +306,7 @@ def run_closed_loop(scenario: ClosedLoopScenario | str, out_dir: Path | None = N
                            distance=float((truth_state.base_position - x0) @ heading),
                            speed_scale=cmd.wheel_speed_scale, fallback=cmd.fallback,
                            step_ms=1e3 * step_s[k],
-                           measured_forces=info.get("measured_forces", np.full(4, np.nan)),
+                           measured_forces=info.get("measured_forces", _NO_FORCES),
                            com_world=sim.data.subtree_com[sim.index.base_body],
                            payload_now=(scenario.payload_event[1] if scenario.payload_event
                                         and payload_done else scenario.payload_mass),
