@@ -100,18 +100,23 @@ class _Stream:
             y += sp.noise * self.rng.standard_normal((k, self.n))
         if sp.resolution:
             np.divide(y, sp.resolution, out=y)
-            np.round(y, out=y)
+            y.round(out=y)  # np.round's own call, without its Python wrapper
             y *= sp.resolution
         return y
 
     def deliver(self, tick: float) -> Samples:
         """The readings whose latency has passed by ``tick`` (removed from the queue)."""
         c = self.count
-        k = int(np.searchsorted(self.times[:c], tick - self.latency + 1e-9, side="right"))
-        out = Samples.trusted(self.times[:k].copy(), self._errors(self.truths[:k]))
+        # The count of times <= the limit (they increase): from the end, where the few still
+        # in flight are, rather than a search over all.
+        limit, times, k = tick - self.latency + 1e-9, self.times, c
+        while k and times[k - 1] > limit:
+            k -= 1
+        out = Samples.trusted(times[:k].copy(), self._errors(self.truths[:k]))
         rest = c - k
-        self.times[:rest] = self.times[k:c]
-        self.truths[:rest] = self.truths[k:c]
+        if rest:
+            times[:rest] = times[k:c]
+            self.truths[:rest] = self.truths[k:c]
         self.count = rest
         return out
 
@@ -232,7 +237,8 @@ class SensorSimulator:
         lin = self._pos_lin.deliver(tick)
         ang = self._pos_ang.deliver(tick)
         n = min(len(lin), len(ang))
-        positions = Samples.trusted(lin.time[:n], np.hstack([lin.value[:n], ang.value[:n]]))
+        positions = Samples.trusted(lin.time[:n], np.concatenate((lin.value[:n], ang.value[:n]),
+                                                                 axis=1))
         return SensorReadings(
             time=float(tick), specific_force=self._acc.deliver(tick),
             angular_rate=self._gyro.deliver(tick), positions=positions,
