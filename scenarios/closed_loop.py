@@ -382,7 +382,7 @@ def uncertainty_margin(ctrl: MpcController, seen, confidence: float) -> np.ndarr
     sensitivities (`estimators.uncertainty.normal_force_std`).
     """
     unc = seen.uncertainty
-    if not (np.any(unc.acceleration) or np.any(unc.qd) or np.any(unc.suspension_force)
+    if not (unc.acceleration.any() or unc.qd.any() or unc.suspension_force.any()
             or unc.payload_mass):
         return np.zeros(4)
     closure = _closure(ctrl)
