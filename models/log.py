@@ -163,6 +163,7 @@ def _provenance() -> tuple[str, str]:
 
 SETTLE_SECONDS = 1.0  # [s] metrics and scores skip a log's first second (the machine settles)
 
+_SCALARS = frozenset((float, int, bool, np.float64, np.int64, np.bool_))
 _STATE_KEYS = ("base_position", "base_rotation", "base_twist", "base_acceleration", "q", "qd",
                "qdd")
 
@@ -198,8 +199,8 @@ class ScenarioLog:
         Raises:
             LogError: A column `COLUMNS` does not know.
         """
-        unknown = sorted(set(columns) - set(COLUMNS))
-        if unknown:
+        if not columns.keys() <= COLUMNS.keys():
+            unknown = sorted(set(columns) - set(COLUMNS))
             raise LogError(f"unknown log column(s) {unknown}; the schema (models.log.COLUMNS) "
                            f"has {sorted(COLUMNS)}")
         row = {k: getattr(state, k) for k in _STATE_KEYS}
@@ -219,8 +220,15 @@ class ScenarioLog:
             closure_violation=closure_violation,
             **columns,
         )
+        rows = self._rows
         for k, v in row.items():
-            self._rows.setdefault(k, []).append(np.array(v, copy=True))
+            # Scalars are immutable: kept as they are, `arrays` makes them the same 0-d arrays.
+            v = v if type(v) in _SCALARS else np.array(v, copy=True)
+            column = rows.get(k)
+            if column is None:
+                rows[k] = [v]
+            else:
+                column.append(v)
 
     def set_physics(self, **columns) -> None:
         """Attach the physics-rate arrays (names from `PHYSICS_COLUMNS`).

@@ -185,6 +185,20 @@ class Samples:
         v.flags.writeable = False
         object.__setattr__(self, "value", v)
 
+    @classmethod
+    def trusted(cls, time: np.ndarray, value: np.ndarray) -> Samples:
+        """Wrap arrays a sensor simulator made, without the checks of the constructor.
+
+        For the per-tick path of `scenarios.sensors` (seven streams a tick): the caller
+        guarantees float arrays of shapes (n,) and (n, k), finite increasing times, and
+        arrays nobody else writes; they are made read-only here (not copied).
+        """
+        time.flags.writeable = False
+        value.flags.writeable = False
+        obj = object.__new__(cls)
+        object.__setattr__(obj, "__dict__", {"time": time, "value": value})
+        return obj
+
     def __len__(self) -> int:
         return int(self.time.shape[0])
 

@@ -138,6 +138,14 @@ def _freeze_fields(obj, fields) -> None:
                 frozen_array(name, getattr(obj, name), shape)
 
 
+def _owned(arrays, fields) -> bool:
+    """Whether each array is a float array of its field's shape, all entries finite."""
+    for a, (_, shape) in zip(arrays, fields):
+        if not (type(a) is np.ndarray and a.dtype == _F64 and a.shape == shape):
+            return False
+    return _all_finite(np.concatenate([a.reshape(-1) for a in arrays]))
+
+
 _CONTACT_FIELDS = (("force_in_fb", (4, 3)), ("point_in_fb", (4, 3)), ("normal_in_fb", (4, 3)))
 _STATE_FIELDS = (("base_position", (3,)), ("base_rotation", (3, 3)), ("base_twist", (6,)),
                  ("base_acceleration", (6,)), ("q", (N_INDEPENDENT,)),
@@ -164,6 +172,25 @@ class WheelContacts:
     def __post_init__(self):
         _set(self, "in_contact", contact_flags("in_contact", self.in_contact, (4,)))
         _freeze_fields(self, _CONTACT_FIELDS)
+
+    @classmethod
+    def from_owned(cls, in_contact, force_in_fb, point_in_fb, normal_in_fb) -> WheelContacts:
+        """The constructor for arrays made for this object alone: checked, not copied.
+
+        For the simulator's ground truth at every control tick: a bool array (4,) and float
+        arrays (4, 3) with finite entries are made read-only in place and kept; anything
+        else goes through the constructor (which copies, converts or names what is wrong).
+        """
+        arrays = (force_in_fb, point_in_fb, normal_in_fb)
+        if not (type(in_contact) is np.ndarray and in_contact.dtype == bool
+                and in_contact.shape == (4,) and _owned(arrays, _CONTACT_FIELDS)):
+            return cls(in_contact, force_in_fb, point_in_fb, normal_in_fb)
+        for a in (in_contact,) + arrays:
+            a.flags.writeable = False
+        new = object.__new__(cls)
+        new.__dict__.update(in_contact=in_contact, force_in_fb=force_in_fb,
+                            point_in_fb=point_in_fb, normal_in_fb=normal_in_fb)
+        return new
 
     @property
     def normal_force(self) -> np.ndarray:
@@ -264,6 +291,32 @@ class MachineState:
         new = object.__new__(cls)
         new.__dict__.update(zip(_STATE_NAMES, values))  # what a frozen dataclass holds
         return new
+
+    @classmethod
+    def from_owned(cls, base_position, base_rotation, base_twist, base_acceleration, q, qd,
+                   qdd, time: float, contacts: WheelContacts | None = None,
+                   suspension_force=None, servo_setpoint=None) -> MachineState:
+        """The constructor for arrays made for this state alone: checked, not copied.
+
+        For the simulator's measured state at every control tick: float arrays of the
+        documented shapes with finite entries, a proper rotation and a finite time are made
+        read-only in place and kept (the constructor's checks, one finiteness test for all,
+        without its copies); anything else goes through the constructor, which converts or
+        names what is wrong. The caller must not write the arrays afterwards.
+        """
+        arrays = (base_position, base_rotation, base_twist, base_acceleration, q, qd, qdd)
+        fields = _STATE_FIELDS
+        if suspension_force is not None:
+            arrays, fields = arrays + (suspension_force,), fields + (("", (2,)),)
+        if servo_setpoint is not None:
+            arrays, fields = arrays + (servo_setpoint,), fields + (("", (N_SERVO_AXES,)),)
+        if not (_owned(arrays, fields) and type(time) is float and np.isfinite(time)
+                and (contacts is None or isinstance(contacts, WheelContacts))):
+            return cls(base_position, base_rotation, base_twist, base_acceleration, q, qd,
+                       qdd, time, contacts, suspension_force, servo_setpoint)
+        check_rotation("base_rotation", base_rotation)
+        return cls._trusted(base_position, base_rotation, base_twist, base_acceleration, q,
+                            qd, qdd, time, contacts, suspension_force, servo_setpoint)
 
     def replace(self, **changes) -> MachineState:
         """A copy with ``changes``, as `dataclasses.replace`, checking only what changed.

@@ -18,6 +18,7 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import gc
+import math
 import sys
 import time
 from collections import deque
@@ -26,6 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
+from estimators.linearization import ForceLinearization
 from estimators.uncertainty import force_margin, normal_force_std, suspension_sensitivity
 from models import build_reference_machine
 from models.log import ScenarioLog
@@ -40,6 +42,7 @@ from scenarios.closed_loop_scenarios import (
     scenario_terrain,
     threshold,
 )
+from scenarios.commands import ActuatorCommand
 from scenarios.errors import RunInputError, RunInterrupted
 from scenarios.json_io import write_json
 from scenarios.kernels import warm_estimator_kernels
@@ -67,6 +70,8 @@ __all__ = ["DEFAULT_SCENARIO", "FORCE_CONFIDENCE", "SCENARIOS", "run_closed_loop
            "uncertainty_margin"]
 
 FORCE_CONFIDENCE = 0.99  # one-sided: z = 2.33 standard deviations of each wheel's force
+_NO_FORCES = np.full(4, np.nan)  # the log's measured forces of a controller without them
+_NO_FORCES.flags.writeable = False
 
 
 def _set_payload(sim: Simulator, mass: float) -> None:
@@ -234,9 +239,11 @@ def run_closed_loop(scenario: ClosedLoopScenario | str, out_dir: Path | None = N
     reserve = (PickReserve(machine, thr) if pick_reserve and mpc and grapple_at is not None
                else None)
     interrupted = False
-    wall0 = time.perf_counter()
     with Progress(duration, f"{scenario.name}/{controller}",
                   enabled=None if progress else False) as bar, frozen_heap():
+        # The loop's clock starts after the heap's freeze (a full collection, 50-60 ms once
+        # per run): set-up, like building the simulator and the controller.
+        wall0 = time.perf_counter()
         try:
             for k in range(n_max):
                 truth_state, truth = sim.measure()
@@ -291,7 +298,7 @@ def run_closed_loop(scenario: ClosedLoopScenario | str, out_dir: Path | None = N
                 w = scenario.wheel_speed(t - readiness.time, machine.wheel_radius) if ready \
                     else 0.0
                 wheels = cmd.wheel_speeds(w, w)
-                sim.set_command(cmd.cylinder_rates, cmd.wrist_rates, wheels)
+                sim.apply(ActuatorCommand(cmd.cylinder_rates, cmd.wrist_rates, wheels))
                 info = cmd.info
                 qpos, qvel, _ = sim.measured_instant
                 log.append(truth_state, truth, np.concatenate([cmd.rates, wheels]),
@@ -301,7 +308,7 @@ def run_closed_loop(scenario: ClosedLoopScenario | str, out_dir: Path | None = N
                            distance=float((truth_state.base_position - x0) @ heading),
                            speed_scale=cmd.wheel_speed_scale, fallback=cmd.fallback,
                            step_ms=1e3 * step_s[k],
-                           measured_forces=info.get("measured_forces", np.full(4, np.nan)),
+                           measured_forces=info.get("measured_forces", _NO_FORCES),
                            com_world=sim.data.subtree_com[sim.index.base_body],
                            payload_now=(scenario.payload_event[1] if scenario.payload_event
                                         and payload_done else scenario.payload_mass),
@@ -377,18 +384,31 @@ def uncertainty_margin(ctrl: MpcController, seen, confidence: float) -> np.ndarr
     sensitivities (`estimators.uncertainty.normal_force_std`).
     """
     unc = seen.uncertainty
-    if not (np.any(unc.acceleration) or np.any(unc.qd) or np.any(unc.suspension_force)
+    if not (unc.acceleration.any() or unc.qd.any() or unc.suspension_force.any()
             or unc.payload_mass):
         return np.zeros(4)
     closure = _closure(ctrl)
     state = seen.state
     lin = closure.linearize(state)
     if closure is not ctrl.force_model:
-        lin = dataclasses.replace(lin, G=lin.G - ctrl.force_model.linearize(state).G)
+        lin = _with_load_split(lin, lin.G - ctrl.force_model.linearize(state).G)
     d_susp = suspension_sensitivity(closure, state)
     d_m = (closure.payload_sensitivity(state) if hasattr(closure, "payload_sensitivity")
            else None)
     return force_margin(normal_force_std(lin, unc, d_susp, d_m), confidence)
+
+
+def _with_load_split(lin: ForceLinearization, g: np.ndarray) -> ForceLinearization:
+    """``lin`` with ``G = g`` (4, 19), the other fields shared, not copied and checked again.
+
+    Both linearizations were checked when made; a finite difference of them is valid (what
+    `dataclasses.replace` would check, at a tenth of its cost every tick). A non-finite one
+    goes through the constructor, which names it.
+    """
+    if not math.isfinite(g.sum()):
+        return dataclasses.replace(lin, G=g)
+    return ForceLinearization.trusted(lin.normal_forces, g, lin.g0, lin.d_q, lin.d_qd,
+                                      lin.in_contact, lin.mode, lin.clipped, lin.time)
 
 
 def _closure(ctrl: MpcController):

@@ -117,6 +117,6 @@ class GroundTruthContacts:
                     normal[k] = (0.0, 0.0, 1.0)
                 point[k] = c - radius * normal[k]
         rotation = np.asarray(base_rotation)  # rows of (f @ R) are R^T f
-        return WheelContacts(in_contact=in_contact, force_in_fb=force @ rotation,
-                             point_in_fb=(point - base_position) @ rotation,
-                             normal_in_fb=normal @ rotation)
+        return WheelContacts.from_owned(in_contact=in_contact, force_in_fb=force @ rotation,
+                                        point_in_fb=(point - base_position) @ rotation,
+                                        normal_in_fb=normal @ rotation)

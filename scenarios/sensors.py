@@ -65,6 +65,8 @@ class _Stream:
         self.every = max(1, int(round(1.0 / (spec.rate * dt))))
         self.latency = spec.latency
         self.scale = 1.0 + spec.scale * rng.standard_normal(n)
+        # Without scale errors the factor is exactly 1.0, whose product changes no bit.
+        self._scaled = bool(np.any(self.scale != 1.0))
         self.bias = spec.bias * rng.standard_normal(n)
         self.walk = spec.bias_drift * np.sqrt(self.every * dt)
         self.rng = rng
@@ -76,37 +78,45 @@ class _Stream:
 
     def record(self, t: float, truth) -> None:
         """Record the true value measured at ``t``."""
-        if self.count == self.times.shape[0]:
+        c = self.count
+        if c == self.times.shape[0]:
             self.times = np.concatenate([self.times, np.zeros_like(self.times)])
             self.truths = np.concatenate([self.truths, np.zeros_like(self.truths)])
-        self.times[self.count] = t
-        self.truths[self.count] = truth
-        self.count += 1
+        self.times[c] = t
+        self.truths[c] = truth
+        self.count = c + 1
 
     def _errors(self, truth: np.ndarray) -> np.ndarray:
         sp, k = self.spec, truth.shape[0]
-        y = self.transform(truth) if self.transform is not None else truth.copy()
+        y = self.transform(truth) if self.transform is not None else truth
         if self.walk:
             steps = self.walk * self.rng.standard_normal((k, self.n))
             bias = self.bias + np.cumsum(steps, axis=0) - steps  # the bias at each sample
             self.bias = bias[-1] + steps[-1] if k else self.bias
         else:
             bias = self.bias
-        y = self.scale * y + bias
+        y = self.scale * y + bias if self._scaled else y + bias  # a new array: truths kept
         if sp.noise:
             y += sp.noise * self.rng.standard_normal((k, self.n))
         if sp.resolution:
-            y = np.round(y / sp.resolution) * sp.resolution
+            np.divide(y, sp.resolution, out=y)
+            y.round(out=y)  # np.round's own call, without its Python wrapper
+            y *= sp.resolution
         return y
 
     def deliver(self, tick: float) -> Samples:
         """The readings whose latency has passed by ``tick`` (removed from the queue)."""
         c = self.count
-        k = int(np.searchsorted(self.times[:c], tick - self.latency + 1e-9, side="right"))
-        out = Samples(self.times[:k].copy(), self._errors(self.truths[:k]))
+        # The count of times <= the limit (they increase): from the end, where the few still
+        # in flight are, rather than a search over all.
+        limit, times, k = tick - self.latency + 1e-9, self.times, c
+        while k and times[k - 1] > limit:
+            k -= 1
+        out = Samples.trusted(times[:k].copy(), self._errors(self.truths[:k]))
         rest = c - k
-        self.times[:rest] = self.times[k:c]
-        self.truths[:rest] = self.truths[k:c]
+        if rest:
+            times[:rest] = times[k:c]
+            self.truths[:rest] = self.truths[k:c]
         self.count = rest
         return out
 
@@ -140,20 +150,17 @@ class SensorSimulator:
         self._streams = (self._acc, self._gyro, self._pos_lin, self._pos_ang, self._press,
                          self._wheels, self._drive)
         ix = sim.index
-        self._p = np.asarray(spec.imu.position, float)
+        self._p_floats = tuple(np.asarray(spec.imu.position, float).tolist())
         self._g = sim.machine.gravity
         self._base = ix.base_body
         self._base_dof = ix.base_dof
         self._axes_qpos = ix.independent_qpos[:9]
         self._wheel_dof = ix.independent_dof[9:13]
         self._wheel_act = ix.wheel_actuators
-        self._torque = np.zeros(2)
         names = sim.coordinates.independent_names
         self._press_act = ix.actuators[[names.index(c) for c in PRESSURE_CYLINDERS]]
         self._areas = cylinder_areas(sim.machine)
         self._step = 0
-        self._f = np.zeros(3)
-        self._wheel_speed = np.zeros(2)
         self._prime()
         sim.add_step_listener(self)
 
@@ -174,59 +181,64 @@ class SensorSimulator:
         self._step += 1
         d = sim.data
         acc, gyro = self._acc, self._gyro
-        if n % acc.every == 0 or n % gyro.every == 0:
-            rot = d.xmat[self._base]  # row-major world <- fb
-            v6, a6 = qvel[self._base_dof], d.qacc[self._base_dof]
+        acc_due, gyro_due = n % acc.every == 0, n % gyro.every == 0
+        if acc_due or gyro_due:
+            # Python floats: the IEEE operations of numpy's scalars, at a fraction of the cost
+            rot = d.xmat[self._base].tolist()  # row-major world <- fb
+            v6 = qvel[self._base_dof].tolist()
             w0, w1, w2 = v6[3], v6[4], v6[5]
-            if n % acc.every == 0:
+            if acc_due:
+                a6 = d.qacc[self._base_dof].tolist()
                 al0, al1, al2 = a6[3], a6[4], a6[5]
-                p0, p1, p2 = self._p
+                p0, p1, p2 = self._p_floats
                 # a_p = R^T a_o + alpha x p + w x (w x p), plus R^T g e_z
                 c0, c1, c2 = w1 * p2 - w2 * p1, w2 * p0 - w0 * p2, w0 * p1 - w1 * p0
                 ax, ay, az = a6[0], a6[1], a6[2] + self._g
-                self._f[0] = (rot[0] * ax + rot[3] * ay + rot[6] * az + al1 * p2 - al2 * p1
-                              + w1 * c2 - w2 * c1)
-                self._f[1] = (rot[1] * ax + rot[4] * ay + rot[7] * az + al2 * p0 - al0 * p2
-                              + w2 * c0 - w0 * c2)
-                self._f[2] = (rot[2] * ax + rot[5] * ay + rot[8] * az + al0 * p1 - al1 * p0
-                              + w0 * c1 - w1 * c0)
-                acc.record(t, self._f)
-            if n % gyro.every == 0:
-                gyro.record(t, v6[3:6])
-        if n % self._pos_lin.every == 0 or n % self._pos_ang.every == 0:
+                acc.record(t, (rot[0] * ax + rot[3] * ay + rot[6] * az + al1 * p2 - al2 * p1
+                               + w1 * c2 - w2 * c1,
+                               rot[1] * ax + rot[4] * ay + rot[7] * az + al2 * p0 - al0 * p2
+                               + w2 * c0 - w0 * c2,
+                               rot[2] * ax + rot[5] * ay + rot[8] * az + al0 * p1 - al1 * p0
+                               + w0 * c1 - w1 * c0))
+            if gyro_due:
+                gyro.record(t, (w0, w1, w2))
+        lin, ang = self._pos_lin, self._pos_ang
+        lin_due, ang_due = n % lin.every == 0, n % ang.every == 0
+        if lin_due or ang_due:
             q = qpos[self._axes_qpos]
-            if n % self._pos_lin.every == 0:
-                self._pos_lin.record(t, q[:6])
-            if n % self._pos_ang.every == 0:
-                self._pos_ang.record(t, q[6:])
+            if lin_due:
+                lin.record(t, q[:6])
+            if ang_due:
+                ang.record(t, q[6:])
         if n % self._press.every == 0:
             self._press.record(t, d.actuator_force[self._press_act])
         if n % self._wheels.every == 0:
-            wd = qvel[self._wheel_dof]  # FL, RL, FR, RR
-            self._wheel_speed[0] = 0.5 * (wd[0] + wd[1])
-            self._wheel_speed[1] = 0.5 * (wd[2] + wd[3])
-            self._wheels.record(t, self._wheel_speed)
+            wd = qvel[self._wheel_dof].tolist()  # FL, RL, FR, RR
+            self._wheels.record(t, (0.5 * (wd[0] + wd[1]), 0.5 * (wd[2] + wd[3])))
         if n % self._drive.every == 0:
-            tau = d.actuator_force[self._wheel_act]  # FL, RL, FR, RR
-            self._torque[0] = tau[0] + tau[1]
-            self._torque[1] = tau[2] + tau[3]
-            self._drive.record(t, self._torque)
+            tau = d.actuator_force[self._wheel_act].tolist()  # FL, RL, FR, RR
+            self._drive.record(t, (tau[0] + tau[1], tau[2] + tau[3]))
 
     def chamber_pressures(self, forces) -> np.ndarray:
         """``p_A, p_B`` [Pa] for cylinder forces [N] (module docstring): (..., 5) -> (..., 10)."""
         f = np.asarray(forces, float)
         a_a, a_b = self._areas[:, 0], self._areas[:, 1]
-        p0 = BACK_PRESSURE
-        p_a = np.where(f >= 0, (f + p0 * a_b) / a_a, p0)
-        p_b = np.where(f >= 0, p0, (p0 * a_a - f) / a_b)
-        return np.stack([p_a, p_b], axis=-1).reshape(f.shape[:-1] + (2 * N_PRESSURE,))
+        out = np.empty(f.shape + (2,))  # (..., cylinder, chamber): the layout of the readings
+        p_a, p_b = out[..., 0], out[..., 1]
+        np.divide(f + BACK_PRESSURE * a_b, a_a, out=p_a)
+        np.divide(BACK_PRESSURE * a_a - f, a_b, out=p_b)
+        pushing = f >= 0
+        p_a[~pushing] = BACK_PRESSURE
+        p_b[pushing] = BACK_PRESSURE
+        return out.reshape(f.shape[:-1] + (2 * N_PRESSURE,))
 
     def readings(self, tick: float) -> SensorReadings:
         """What the sensors delivered by ``tick`` [s] since the previous call."""
         lin = self._pos_lin.deliver(tick)
         ang = self._pos_ang.deliver(tick)
         n = min(len(lin), len(ang))
-        positions = Samples(lin.time[:n], np.hstack([lin.value[:n], ang.value[:n]]))
+        positions = Samples.trusted(lin.time[:n], np.concatenate((lin.value[:n], ang.value[:n]),
+                                                                 axis=1))
         return SensorReadings(
             time=float(tick), specific_force=self._acc.deliver(tick),
             angular_rate=self._gyro.deliver(tick), positions=positions,

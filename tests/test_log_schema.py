@@ -120,3 +120,27 @@ def test_unknown_column_is_refused_by_append(flat_log):
         rec.append(state, state.contacts, np.zeros(11), 0.0, colour=1.0)
     arrays = rec.arrays()
     assert check_log(arrays) == 1 and arrays["qpos"].shape == (1, log["qpos"].shape[1])
+
+
+def test_scalar_columns_stack_as_their_zero_d_arrays(flat_log):
+    """Scalars are kept as given and stacked at the end: the dtypes and bits of the 0-d
+    arrays they were once copied into; a buffer the caller reuses is copied."""
+    from models.log import state_at
+
+    log = load_log(flat_log)
+    state = state_at(log, 0)
+    scalars = [dict(tcp_error=0.25, goal_index=-1, last_goal_given=False,
+                    step_ms=np.float64(1.5), fallback=np.bool_(True)),
+               dict(tcp_error=np.float64(0.125), goal_index=2, last_goal_given=True,
+                    step_ms=2.0, fallback=False)]
+    kept, copied = ScenarioLog(scenario="flat"), ScenarioLog(scenario="flat")
+    buffer = np.zeros(4)
+    for row in scalars:
+        kept.append(state, state.contacts, np.zeros(11), 1e-4, force_margin=buffer, **row)
+        copied.append(state, state.contacts, np.zeros(11), 1e-4, force_margin=buffer.copy(),
+                      **{k: np.array(v) for k, v in row.items()})
+        buffer += 1.0
+    a, b = kept.arrays(), copied.arrays()
+    for key in ("time", "closure_violation", "force_margin", *scalars[0]):
+        assert a[key].dtype == b[key].dtype and a[key].tobytes() == b[key].tobytes(), key
+    assert a["force_margin"][:, 0].tolist() == [0.0, 1.0]

@@ -34,6 +34,36 @@ def test_recorder_matches_the_ground_truth_contacts_at_every_step(sim):
     assert len(rec) == 25  # closed: no longer called
 
 
+def test_recorder_sums_are_np_add_at_to_the_bit():
+    """On rough ground (merged contacts without rows, several per wheel) each step's sums are
+    those of `np.add.at` over the wheels' contacts in MuJoCo's order."""
+    from scenarios.closed_loop_scenarios import scenario_terrain
+
+    sc = SCENARIOS["swing-out"]
+    machine = build_reference_machine(payload_mass=sc.payload_mass)
+    rough = Simulator(machine, scenario_terrain(sc, 0))
+    rough.reset(sc.start_pose.q(machine), sc.start, settle_time=0.2)
+    rec = NormalForceRecorder(rough)
+    wheel_of_geom = np.full(rough.model.ngeom, -1)
+    wheel_of_geom[rough.index.wheel_geoms] = np.arange(4)
+    expected, merged = [], []
+
+    def reference(sim, qpos, qvel, t):
+        c, f = sim.data.contact, np.zeros(4)
+        wheel = np.maximum(wheel_of_geom[c.geom[:, 0]], wheel_of_geom[c.geom[:, 1]])
+        keep = (wheel >= 0) & (c.efc_address >= 0)
+        np.add.at(f, wheel[keep], sim.data.efc_force[c.efc_address[keep]])
+        expected.append(f)
+        merged.append(int((c.efc_address < 0).sum()))
+
+    rough.add_step_listener(reference)
+    rough.set_command(cylinder_rates={"slew": 0.2}, wheel_speeds=(1.5, 1.5))
+    rough.step(150)
+    rec.close()
+    assert rec.normal_force.tobytes() == np.array(expected).tobytes()
+    assert max(merged) > 0 and np.all(rec.normal_force > 0)
+
+
 def _log(n_ctrl: int = 300, per_tick: int = 5) -> dict:
     """A synthetic closed-loop log: all wheels at 10 kN, at the control and physics rates."""
     t = np.arange(n_ctrl) * 0.01

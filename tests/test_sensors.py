@@ -69,6 +69,68 @@ class _Areas:
     _areas = _ca(MACHINE)
 
 
+def test_chamber_pressures_are_the_two_branch_formula_to_the_bit():
+    """The in-place split gives the bits of ``np.where`` over both branches, any shape."""
+    from scenarios.sensors import BACK_PRESSURE
+
+    rng = np.random.default_rng(3)
+    forces = rng.normal(0.0, 5e4, (7, 5))
+    forces[0, :2] = 0.0, -0.0
+    a_a, a_b = _Areas._areas[:, 0], _Areas._areas[:, 1]
+    p_a = np.where(forces >= 0, (forces + BACK_PRESSURE * a_b) / a_a, BACK_PRESSURE)
+    p_b = np.where(forces >= 0, BACK_PRESSURE, (BACK_PRESSURE * a_a - forces) / a_b)
+    expected = np.stack([p_a, p_b], axis=-1).reshape(7, 10)
+    got = SensorSimulator.chamber_pressures(_Areas(), forces)
+    assert got.tobytes() == expected.tobytes()
+    assert SensorSimulator.chamber_pressures(_Areas(), forces[3]).tobytes() == \
+        expected[3].tobytes()
+
+
+def test_recorded_truths_are_the_numpy_formulas_to_the_bit(sim):
+    """The listener's Python-float arithmetic gives the bits of the formulas on numpy's
+    scalars: the IMU's specific force (module docstring), gyro, wheel speeds and torques."""
+    sim.reset()
+    sensors = SensorSimulator(sim, sensor_suite("realistic", 4))
+    ix, p, g = sim.index, np.asarray(REALISTIC.imu.position, float), MACHINE.gravity
+    expected = {"acc": [], "gyro": [], "wheels": [], "drive": []}
+
+    def reference(s, qpos, qvel, t):
+        d = s.data
+        rot, v6, a6 = d.xmat[ix.base_body], qvel[ix.base_dof], d.qacc[ix.base_dof]
+        w, al, p0, p1, p2 = v6[3:6], a6[3:6], p[0], p[1], p[2]
+        c = (w[1] * p2 - w[2] * p1, w[2] * p0 - w[0] * p2, w[0] * p1 - w[1] * p0)
+        a = (a6[0], a6[1], a6[2] + g)
+        expected["acc"].append([
+            rot[i] * a[0] + rot[i + 3] * a[1] + rot[i + 6] * a[2] + al[(i + 1) % 3]
+            * p[(i + 2) % 3] - al[(i + 2) % 3] * p[(i + 1) % 3] + w[(i + 1) % 3]
+            * c[(i + 2) % 3] - w[(i + 2) % 3] * c[(i + 1) % 3] for i in range(3)])
+        expected["gyro"].append(v6[3:6].copy())
+        wd, tau = qvel[ix.independent_dof[9:13]], d.actuator_force[ix.wheel_actuators]
+        expected["wheels"].append([0.5 * (wd[0] + wd[1]), 0.5 * (wd[2] + wd[3])])
+        expected["drive"].append([tau[0] + tau[1], tau[2] + tau[3]])
+
+    sim.add_step_listener(reference)
+    try:
+        sim.set_command(cylinder_rates={"slew": 0.2, "lift": 0.05}, wheel_speeds=(1.0, 0.5))
+        sim.step(20)
+    finally:
+        sim.remove_step_listener(reference)
+        sensors.close()
+    for name, every in (("acc", 1), ("gyro", 1), ("wheels", 5), ("drive", 1)):
+        stream = getattr(sensors, "_" + name)
+        got = stream.truths[1:stream.count]  # after the primed reading
+        want = np.array(expected[name][::every])[:got.shape[0]]
+        assert got.shape[0] >= 4 and got.tobytes() == want.tobytes(), name
+
+
+def test_delivered_readings_are_read_only(sim):
+    r, _ = _rest_run(sim, sensor_suite("realistic", 2), seconds=0.1)
+    for samples in (r.specific_force, r.angular_rate, r.positions, r.pressures,
+                    r.wheel_speeds, r.drive_torques):
+        assert len(samples) > 0
+        assert not samples.time.flags.writeable and not samples.value.flags.writeable
+
+
 def test_imu_at_rest_reads_gravity_in_its_own_frame(sim):
     r, state = _rest_run(sim, sensor_suite("ideal"), seconds=1.0)
     f = r.specific_force.value.mean(axis=0)

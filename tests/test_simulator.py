@@ -201,6 +201,24 @@ def test_joint_rates_follow_k1_k2_during_slow_motion(flat_sim, name, rate):
         assert qvel[dof[binding.barrel]] / x_dot == pytest.approx(k2, abs=2e-3)
 
 
+def test_stroke_rates_are_the_numpy_formula_to_the_bit(flat_sim):
+    """`measure`'s stroke rates through the driven joints (eq. 6) in Python floats give the
+    bits of the same formula on numpy's scalars."""
+    flat_sim.reset()
+    flat_sim.set_command(cylinder_rates={"lift": 0.05, "tilt": -0.04, "bogie_L": 0.02})
+    flat_sim.step(60)
+    state, _ = flat_sim.measure()
+    qpos, qvel, _ = flat_sim.measured_instant
+    q, qacc = qpos[flat_sim.index.independent_qpos], flat_sim.data.qacc
+    for i in COORDS.chain_indices:
+        b = COORDS.binding(i)
+        dof = flat_sim.index.dof_adr[b.driven_joint]
+        k1, dk1 = b.chain.driven_rate_coefficients(q[i])
+        qd = qvel[dof] / k1
+        assert state.qd[i].tobytes() == np.float64(qd).tobytes()
+        assert state.qdd[i].tobytes() == np.float64((qacc[dof] - dk1 * qd * qd) / k1).tobytes()
+
+
 def _rough_drive_closure(sim: Simulator, seconds: float) -> float:
     """Worst loop gap [m] driving over rough ground with every cylinder moving."""
     worst = 0.0
