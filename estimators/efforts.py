@@ -32,6 +32,7 @@ from models.coordinates import N_INDEPENDENT
 from models.description import Machine
 from models.load_chart import effort_ranges as machine_effort_ranges
 from models.pinocchio_model import PAYLOAD_PAIR_MASSES, payload_pair
+from models.rotations import cross3, skew
 from models.state import N_SERVO_AXES, MachineState
 
 __all__ = ["ActuatorEfforts", "effort_ranges"]
@@ -96,7 +97,8 @@ class ActuatorEfforts:
         self._pair = payload_pair(machine)
         self._mass_entries = [_upper_entries(pm._tree_v_idx, pm.model.nv) for pm in self._pair]
         self._tree_map()
-        self._motion_of: MachineState | None = None  # `_tree_motion`'s last state and result
+        self._frames: dict[str, int] = {}  # `_body_frame`
+        self._motion_of: bytes | None = None  # `_tree_motion`'s last state's key and result
         self._motion: tuple | None = None
         self._shared = _shared_last(machine.fingerprint)
         body = next(b for b in machine.bodies if b.name == machine.payload)
@@ -135,11 +137,13 @@ class ActuatorEfforts:
         """(q, v, a, J_axes): Pinocchio's configuration with the axes' accelerations zero.
 
         Every chain's state is evaluated once (the chains' kinematics are the costly part),
-        and the last state's result is kept: the observer asks `payload_regressor` and
-        `affine` about the same state each tick (states are immutable; callers must not
-        write into the arrays).
+        and the last motion's result is kept, by what it reads (`_motion_key`: the axes'
+        accelerations do not enter): the observer asks `point_specific_forces`,
+        `payload_regressor` and `affine` about states that differ only there each tick
+        (callers must not write into the arrays).
         """
-        if self._motion_of is state:
+        key = _motion_key(state)
+        if self._motion_of == key:
             return self._motion
         pm = self._pair[0]
         jac = self._jac_constant.copy()
@@ -169,7 +173,7 @@ class ActuatorEfforts:
         qdd_rest = np.array(state.qdd, float)
         qdd_rest[:N_SERVO_AXES] = 0.0
         a[pm._tree_v_idx] = jac @ qdd_rest + jdot_qd
-        self._motion_of, self._motion = state, (q, v, a, jac[:, :N_SERVO_AXES])
+        self._motion_of, self._motion = key, (q, v, a, jac[:, :N_SERVO_AXES])
         return self._motion
 
     @staticmethod
@@ -220,6 +224,53 @@ class ActuatorEfforts:
         m1, m2 = PAYLOAD_PAIR_MASSES
         y = (e2 - e1) / (m2 - m1)
         return e1 - m1 * y, y
+
+    def point_specific_forces(self, state: MachineState,
+                              mounts) -> tuple[np.ndarray, np.ndarray]:
+        """``(A (3 k, 9), b (3 k,))``: the specific forces at k points are ``A u + b``.
+
+        Each point's in its body's axes [m/s^2]: ``R_b^T (a_p - g)`` with ``a_p`` the
+        classical acceleration of the point, affine in the nine axes' accelerations ``u``
+        (``state.qdd[:9]`` is ignored; the base's and the wheels' accelerations are used), as
+        an accelerometer fixed there reads it.
+
+        Args:
+            state: The machine state.
+            mounts: ``(body, point)`` pairs: a body of the description and a point in its
+                frame [m], shape (3,).
+
+        Raises:
+            EstimatorError: A body that is not one of the description's.
+        """
+        pm = self._pair[0]
+        model, data = pm.model, pm.data
+        fids = [self._body_frame(body) for body, _ in mounts]
+        q, v, a, ja = self._tree_motion(state)
+        pin.computeJointJacobians(model, data, q)
+        pin.forwardKinematics(model, data, q, v, a)
+        rows, bias = [], []
+        for fid, (_, point) in zip(fids, mounts):
+            pin.updateFramePlacement(model, data, fid)
+            p = [float(x) for x in point]
+            jac = pin.getFrameJacobian(model, data, fid, pin.LOCAL)[:, pm._tree_v_idx] @ ja
+            rows.append(jac[:3] - skew(p) @ jac[3:])  # v_p = v_o + w x p
+            vf = pin.getFrameVelocity(model, data, fid, pin.LOCAL)
+            af = pin.getFrameAcceleration(model, data, fid, pin.LOCAL)
+            w = vf.angular.tolist()
+            v_p = np.add(vf.linear, cross3(w, p))
+            a_p = af.linear + cross3(af.angular.tolist(), p) + cross3(w, v_p.tolist())
+            bias.append(a_p - data.oMf[fid].rotation.T @ model.gravity.linear)
+        return np.vstack(rows), np.concatenate(bias)
+
+    def _body_frame(self, body: str) -> int:
+        """Pinocchio's frame id of the description's body ``body`` (kept)."""
+        fid = self._frames.get(body)
+        if fid is None:
+            model = self._pair[0].model
+            if not model.existFrame(body, pin.FrameType.BODY):
+                raise EstimatorError(f"no body {body!r} in the machine description")
+            fid = self._frames[body] = model.getFrameId(body, pin.FrameType.BODY)
+        return fid
 
     def efforts(self, state: MachineState) -> np.ndarray:
         """The nine efforts at the state's own accelerations [N or N m], shape (9,)."""

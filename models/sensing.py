@@ -17,7 +17,11 @@ The sensor set of the machine (what a forwarder or harvester carries):
   [Pa]; the cylinder force is ``p_A A_A - p_B A_B`` (`cylinder_force`);
 * one wheel-motor speed per side [rad/s] (left drives FL and RL, right FR and RR);
 * one drive torque per side [N m]: the hydrostatic drive motors' pressure difference times
-  their displacement and gear ratio, read by pressure transducers on the motor lines.
+  their displacement and gear ratio, read by pressure transducers on the motor lines;
+* accelerometers on the crane's links (`LinkAccelerometer`: on the boom and at the
+  telescope's tip, as the link-mounted MEMS units of crane automation and payload weighing
+  systems): specific force ``R_b^T (a_p - g)`` [m/s^2] at a point of a body, in the body's
+  axes.
 
 No contact force, contact flag, contact point, friction force, payload mass or acceleration
 is measured. Every stream is sampled at its own rate and delivered after its latency
@@ -37,7 +41,7 @@ from models.errors import ModelError, StateError
 from models.state import N_SERVO_AXES, frozen_array, shaped_array
 
 __all__ = [
-    "ChannelSpec", "ImuSpec", "N_LINEAR_AXES", "N_PRESSURE", "POSITION_AXES",
+    "ChannelSpec", "ImuSpec", "LinkAccelerometer", "N_LINEAR_AXES", "N_PRESSURE", "POSITION_AXES",
     "PRESSURE_CYLINDERS", "Samples", "SensorReadings", "SensorSpec", "cylinder_areas",
     "cylinder_force",
 ]
@@ -127,6 +131,32 @@ class ImuSpec:
 
 
 @dataclass(frozen=True)
+class LinkAccelerometer:
+    """An accelerometer fixed to one of the crane's bodies.
+
+    Attributes:
+        body: The body it is mounted on (a name of the machine description).
+        position: Mounting point in the body's frame [m], shape (3,); its axes are the
+            body's.
+        accelerometer: Its specific-force channels [m/s^2].
+    """
+
+    body: str
+    position: tuple[float, float, float]
+    accelerometer: ChannelSpec
+
+    def __post_init__(self):
+        if not isinstance(self.body, str) or not self.body:
+            raise ModelError(f"a link accelerometer needs a body name, got {self.body!r}")
+        p = np.asarray(self.position, float)
+        if p.shape != (3,) or not np.isfinite(p).all():
+            raise ModelError(f"link accelerometer position must be 3 finite numbers [m], got "
+                             f"{self.position!r}")
+        if not isinstance(self.accelerometer, ChannelSpec):
+            raise ModelError("a link accelerometer's channels must be a ChannelSpec")
+
+
+@dataclass(frozen=True)
 class SensorSpec:
     """A machine's sensor set and its error models (a *suite*).
 
@@ -138,6 +168,7 @@ class SensorSpec:
         pressure: Pressure transducers, each chamber [Pa].
         wheel_speed: Wheel-motor speed sensors, per side [rad/s].
         drive_torque: Drive torque per side [N m] (motor line pressures).
+        link_accelerometers: The crane's link accelerometers (may be empty).
         oracle: True: no sensors at all; the controller reads the simulator's exact state
             (the reference the other suites are compared with).
         seed: Seed of every random draw of the suite's errors.
@@ -150,11 +181,14 @@ class SensorSpec:
     pressure: ChannelSpec
     wheel_speed: ChannelSpec
     drive_torque: ChannelSpec
+    link_accelerometers: tuple[LinkAccelerometer, ...] = ()
     oracle: bool = False
     seed: int = 0
     notes: tuple[str, ...] = field(default=())
 
     def __post_init__(self):
+        if not all(isinstance(a, LinkAccelerometer) for a in self.link_accelerometers):
+            raise ModelError("link_accelerometers must be LinkAccelerometer entries")
         if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
             raise ModelError(f"sensor seed must be a non-negative integer, got {self.seed!r}")
 
@@ -224,6 +258,9 @@ class SensorReadings:
         wheel_speeds: Wheel-motor speeds (n, 2) [rad/s]: left, right.
         drive_torques: Drive torques (n, 2) [N m]: left, right (both wheels of a side).
         servo_setpoint: The axis controllers' setpoints at the tick, (9,) [m, rad].
+        link_specific_force: The link accelerometers' specific forces, (n, 3 k) [m/s^2]
+            (k accelerometers, each in its body's axes, order of
+            `SensorSpec.link_accelerometers`); None without link accelerometers.
     """
 
     time: float
@@ -234,6 +271,7 @@ class SensorReadings:
     wheel_speeds: Samples
     drive_torques: Samples
     servo_setpoint: np.ndarray
+    link_specific_force: Samples | None = None
 
     def __post_init__(self):
         if not (isinstance(self.time, (int, float)) and math.isfinite(self.time)):
@@ -246,6 +284,10 @@ class SensorReadings:
                 raise StateError(f"'{name}' must be Samples, got {type(s).__name__}")
             if s.value.shape[1] != k:
                 raise StateError(f"'{name}' must have {k} channels, got {s.value.shape[1]}")
+        link = self.link_specific_force
+        if link is not None and (not isinstance(link, Samples) or link.value.shape[1] % 3):
+            raise StateError("'link_specific_force' must be Samples with 3 channels per "
+                             "accelerometer")
         object.__setattr__(self, "servo_setpoint", frozen_array(
             "servo_setpoint", self.servo_setpoint, (N_SERVO_AXES,)))
 

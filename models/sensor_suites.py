@@ -14,6 +14,8 @@ IMU accelerometer      Xsens MTi-630 (MTi 600-series)        noise density 60 ug
 IMU gyroscope          Xsens MTi-630                        noise density 0.007 deg/s/
                                                             sqrt(Hz), in-run bias
                                                             stability 8 deg/h
+link accelerometers    Xsens MTi-630R (the IP68 version of  as the IMU's accelerometer
+(boom, telescope tip)  the same unit), accelerometer only
 stroke sensors         MTS Temposonics R-series (SSI),      resolution 1 um, repeatability
                        in-cylinder magnetostrictive         +-0.001 % FS (min 2.5 um),
                                                             linearity < +-0.01 % FS
@@ -41,10 +43,15 @@ What the model makes of them, and what it simplifies:
 * bias drift: the in-run stability as a random walk over one minute;
 * latency: one sample period of each bus (CAN at 500 Hz and 100 Hz, the IMU at 400 Hz), as
   multiples of the 2 ms physics step;
-* no temperature effects, no misalignment of the IMU, no cross-axis sensitivity.
+* no temperature effects, no misalignment of the IMU, no cross-axis sensitivity;
+* the link accelerometers sit on rigid links: a real boom bends, and its accelerometers
+  also read the bending modes (10-20 Hz on booms of this size), which the simulated links
+  do not have.
 
 ``ideal`` is the same set of sensors and rates without any error; ``oracle`` hands the
 controller MuJoCo's exact state (contacts, accelerations, cylinder forces) instead.
+`chassis_only` takes the link accelerometers away from a suite (the sensor set before them,
+for comparison).
 """
 
 from __future__ import annotations
@@ -53,9 +60,9 @@ import dataclasses
 import math
 
 from models.errors import ModelError
-from models.sensing import ChannelSpec, ImuSpec, SensorSpec
+from models.sensing import ChannelSpec, ImuSpec, LinkAccelerometer, SensorSpec
 
-__all__ = ["IDEAL", "ORACLE", "REALISTIC", "SUITES", "sensor_suite"]
+__all__ = ["IDEAL", "ORACLE", "REALISTIC", "SUITES", "chassis_only", "sensor_suite"]
 
 _G = 9.81
 _DEG = math.pi / 180.0
@@ -68,6 +75,10 @@ def _density(d: float, rate: float) -> float:
 
 IMU_RATE, FAST_RATE, SLOW_RATE = 400.0, 500.0, 100.0  # [Hz]
 IMU_POSITION = (0.60, 0.25, 0.45)  # [m] in fb: on the chassis beside the crane base
+# [m] in the body's frame: on the boom 0.4 m inboard of the tilt joint (at 1.60, 0, 0.10),
+# and on the telescope's extension at its tip (the wrist hangs at 0.40, 0.04, -0.12).
+BOOM_ACCELEROMETER = ("lift", (1.20, 0.0, 0.15))
+TIP_ACCELEROMETER = ("telescope", (0.35, 0.0, 0.0))
 _ACC_DENSITY = 60e-6 * _G  # [m/s^2/sqrt(Hz)]
 _GYRO_DENSITY = 0.007 * _DEG  # [rad/s/sqrt(Hz)]
 _ACC_BIAS_STABILITY = 10e-6 * _G  # [m/s^2]
@@ -90,6 +101,12 @@ _REALISTIC_IMU = ImuSpec(
 REALISTIC = SensorSpec(
     name="realistic",
     imu=_REALISTIC_IMU,
+    link_accelerometers=tuple(
+        LinkAccelerometer(body, position, dataclasses.replace(
+            _REALISTIC_IMU.accelerometer,
+            source="Xsens MTi-630R (accelerometer): 60 ug/sqrt(Hz), in-run bias stability "
+                   "10 ug"))
+        for body, position in (BOOM_ACCELEROMETER, TIP_ACCELEROMETER)),
     stroke=ChannelSpec(rate=FAST_RATE, noise=2.5e-6, bias=20e-6, resolution=1e-6,
                        latency=0.002,
                        source="MTS Temposonics R-series: 1 um resolution, repeatability "
@@ -112,6 +129,8 @@ REALISTIC = SensorSpec(
 IDEAL = dataclasses.replace(
     REALISTIC, name="ideal",
     imu=ImuSpec(ChannelSpec(rate=IMU_RATE), ChannelSpec(rate=IMU_RATE), IMU_POSITION),
+    link_accelerometers=tuple(LinkAccelerometer(body, position, ChannelSpec(rate=IMU_RATE))
+                              for body, position in (BOOM_ACCELEROMETER, TIP_ACCELEROMETER)),
     stroke=ChannelSpec(rate=FAST_RATE), angle=ChannelSpec(rate=FAST_RATE),
     pressure=ChannelSpec(rate=FAST_RATE), wheel_speed=ChannelSpec(rate=SLOW_RATE),
     drive_torque=ChannelSpec(rate=FAST_RATE))
@@ -119,6 +138,11 @@ IDEAL = dataclasses.replace(
 ORACLE = dataclasses.replace(IDEAL, name="oracle", oracle=True)
 
 SUITES = {s.name: s for s in (ORACLE, IDEAL, REALISTIC)}
+
+
+def chassis_only(spec: SensorSpec) -> SensorSpec:
+    """``spec`` without its link accelerometers (the sensor set before them: comparisons)."""
+    return dataclasses.replace(spec, link_accelerometers=())
 
 
 def sensor_suite(name: str, seed: int = 0) -> SensorSpec:

@@ -18,13 +18,20 @@ What each sensor measures (the truth before the errors):
   chambers with the return side at the back pressure `BACK_PRESSURE`: ``F >= 0``: ``p_B =
   p_0``, ``p_A = (F + p_0 A_B) / A_A``; else ``p_A = p_0``, ``p_B = (p_0 A_A - F) / A_B``;
 * wheel-motor speeds: the mean spin rate of each side's two wheels;
-* drive torques: the sum of each side's two wheel drive torques (MuJoCo's actuator forces).
+* drive torques: the sum of each side's two wheel drive torques (MuJoCo's actuator forces);
+* link accelerometers at ``p`` on body ``b`` (its axes): ``a_o + alpha x p + w x (w x p)``
+  with ``a_o`` the specific force of the body frame's origin and ``w``, ``alpha`` the body's
+  angular velocity and acceleration, all in the body's axes (MuJoCo's
+  `mj_objectAcceleration` after `mj_rnePostConstraint`, whose root acceleration is
+  ``-g``: the specific force).
 """
 
 from __future__ import annotations
 
+import mujoco
 import numpy as np
 
+from models.rotations import cross3
 from models.sensing import (
     N_PRESSURE,
     PRESSURE_CYLINDERS,
@@ -121,6 +128,15 @@ class _Stream:
         return out
 
 
+def _body_id(sim: Simulator, name: str) -> int:
+    """MuJoCo's id of the description's body ``name``."""
+    i = mujoco.mj_name2id(sim.model, mujoco.mjtObj.mjOBJ_BODY, name)
+    if i < 0:
+        raise SimulatorError(f"a link accelerometer sits on body {name!r}, which the model "
+                             f"does not have")
+    return i
+
+
 class SensorSimulator:
     """Samples the machine's sensors from a running `Simulator` (module docstring).
 
@@ -147,8 +163,14 @@ class SensorSimulator:
                               transform=self.chamber_pressures, m=N_PRESSURE)
         self._wheels = _Stream(spec.wheel_speed, 2, dt, rng)
         self._drive = _Stream(spec.drive_torque, 2, dt, rng)
+        links = spec.link_accelerometers
+        self._link = (_Stream(links[0].accelerometer, 3 * len(links), dt, rng) if links
+                      else None)
+        self._link_bodies = [_body_id(sim, a.body) for a in links]
+        self._link_points = [np.asarray(a.position, float) for a in links]
+        self._link_f = np.zeros(3 * len(links))
         self._streams = (self._acc, self._gyro, self._pos_lin, self._pos_ang, self._press,
-                         self._wheels, self._drive)
+                         self._wheels, self._drive) + ((self._link,) if links else ())
         ix = sim.index
         self._p_floats = tuple(np.asarray(spec.imu.position, float).tolist())
         self._g = sim.machine.gravity
@@ -218,6 +240,22 @@ class SensorSimulator:
         if n % self._drive.every == 0:
             tau = d.actuator_force[self._wheel_act].tolist()  # FL, RL, FR, RR
             self._drive.record(t, (tau[0] + tau[1], tau[2] + tau[3]))
+        if self._link is not None and n % self._link.every == 0:
+            self._link.record(t, self._link_specific_force(sim))
+
+    def _link_specific_force(self, sim: Simulator) -> np.ndarray:
+        """Each link accelerometer's specific force, in its body's axes, (3 k,) [m/s^2]."""
+        m, d = sim.model, sim.data
+        mujoco.mj_rnePostConstraint(m, d)  # fills cacc (outputs only: the physics is as is)
+        acc, vel = np.zeros(6), np.zeros(6)
+        for i, (body, p) in enumerate(zip(self._link_bodies, self._link_points)):
+            mujoco.mj_objectAcceleration(m, d, mujoco.mjtObj.mjOBJ_XBODY, body, acc, 1)
+            mujoco.mj_objectVelocity(m, d, mujoco.mjtObj.mjOBJ_XBODY, body, vel, 1)
+            w, alpha = vel[:3], acc[:3]
+            # `cross3`: numpy's cross to the bit, without its ~30 us a call
+            self._link_f[3 * i:3 * i + 3] = (acc[3:] + cross3(alpha, p)
+                                             + cross3(w, cross3(w, p)))
+        return self._link_f
 
     def chamber_pressures(self, forces) -> np.ndarray:
         """``p_A, p_B`` [Pa] for cylinder forces [N] (module docstring): (..., 5) -> (..., 10)."""
@@ -244,7 +282,8 @@ class SensorSimulator:
             angular_rate=self._gyro.deliver(tick), positions=positions,
             pressures=self._press.deliver(tick), wheel_speeds=self._wheels.deliver(tick),
             drive_torques=self._drive.deliver(tick),
-            servo_setpoint=self.sim.servo_setpoint)
+            servo_setpoint=self.sim.servo_setpoint,
+            link_specific_force=None if self._link is None else self._link.deliver(tick))
 
     def close(self) -> None:
         """Detach from the simulator."""

@@ -42,7 +42,8 @@ from estimators.observer._vec3 import ground_normal as _ground_normal
 from estimators.observer._vec3 import norm
 from estimators.observer.base_filter import ANGULAR_ACCELERATION_TIME_CONSTANT, BaseFilter
 from estimators.observer.joint_filter import JointFilter
-from estimators.observer.payload_rls import PayloadRLS
+from estimators.observer.link_fusion import LinkFusion
+from estimators.observer.payload_rls import EXPECTED_PICK_TICKS, PayloadRLS
 from estimators.uncertainty import StateUncertainty, model_normal_forces
 from models.coordinates import N_INDEPENDENT
 from models.description import Machine
@@ -67,7 +68,12 @@ WHEEL_ACCELERATION_TIME_CONSTANT = 0.05  # [s]
 _LIFT, _TILT = 3, 4  # independent coordinates of the lift and tilt cylinders
 SLIDING_SPEED = 4e-3  # [m/s] stroke speed above which a seal slides (the observer's estimate)
 SLIDING_FRICTION_STD = 0.2  # std of a sliding seal's friction about its rating [-]
+LINK_LEVER = 4.0  # [m] from the chassis IMU to the link accelerometers (a typical reach)
 PAYLOAD_FILTER_TIME = 0.05  # [s] low-pass of the payload regression (`Observer._filtered`)
+# With link accelerometers the regression's accelerations carry less noise: a shorter
+# low-pass, and an expected pick after one tick (`docs/sensors.md`).
+LINK_PAYLOAD_FILTER_TIME = 0.01  # [s]
+LINK_EXPECTED_PICK_TICKS = 1
 EVENT_VARIANCE_SCALE = 0.1  # filtered over raw innovation variance: 0.01 still, 0.05-0.08 moving
 _PRESS_LIFT_TILT = [PRESSURE_CYLINDERS.index("lift"), PRESSURE_CYLINDERS.index("tilt")]
 _CRANE_CYLINDERS = np.array([2, 3, 4])  # slew, lift, tilt: independent coordinates
@@ -150,11 +156,14 @@ class Observer:
         _, qdd_std = self.joints.std
         model_std = np.sqrt(((e_home[[_LIFT, _TILT]] * qdd_std) ** 2).sum(axis=1))
         lt = _PRESS_LIFT_TILT
+        links = bool(spec.link_accelerometers)
+        self._payload_filter_time = LINK_PAYLOAD_FILTER_TIME if links else PAYLOAD_FILTER_TIME
         self.payload = PayloadRLS(
             m0, initial_payload_std,
             np.sqrt(self._force_std[lt] ** 2 + model_std ** 2
                     + (SLIDING_FRICTION_STD * self._seal[lt]) ** 2),
-            self._force_bias[lt], event_variance_scale=EVENT_VARIANCE_SCALE)
+            self._force_bias[lt], event_variance_scale=EVENT_VARIANCE_SCALE,
+            expected_pick_ticks=LINK_EXPECTED_PICK_TICKS if links else EXPECTED_PICK_TICKS)
         self._regression: list | None = None
         self._wheel_angle = [0.0] * 4
         self._wheel_rate = [0.0] * 4
@@ -181,6 +190,11 @@ class Observer:
                                      + self._friction_std[:2] ** 2))
         self._seal_lift_tilt = self._seal[_PRESS_LIFT_TILT].tolist()
         self._crane_rows: dict[tuple, tuple] = {}
+        # The link accelerometers' predictions carry the base's acceleration errors, its
+        # angular acceleration's through the lever arm to the crane (`LINK_LEVER`).
+        base_std = float(np.hypot(accel_std[0], LINK_LEVER * accel_std[3]))
+        self.links = (LinkFusion(self.efforts, spec.link_accelerometers, base_std, qdd_std)
+                      if spec.link_accelerometers else None)
 
     # ------------------------------------------------------------------ uncertainty
     def _uncertainty_parts(self) -> tuple[np.ndarray, np.ndarray]:
@@ -269,6 +283,9 @@ class Observer:
             np.zeros(3), base.rotation.copy(), base.twist, base.acceleration, q, qd,
             np.concatenate([x[:, 2], self._wheel_acc]), t, forces[:2].copy(),
             r.servo_setpoint)
+        if self.links is not None:  # the crane's accelerations from the link accelerometers
+            state = with_fields(state, qdd=self.links.accelerations(state,
+                                                                     r.link_specific_force))
         # Payload from the lift and tilt cylinders.
         f0, y = self.efforts.payload_regressor(state)
         f = forces.tolist()
@@ -368,7 +385,7 @@ class Observer:
         if self._regression is None or not dt > 0:
             self._regression = now
         else:
-            a = dt / (PAYLOAD_FILTER_TIME + dt)
+            a = dt / (self._payload_filter_time + dt)
             self._regression = [z + a * (n - z) for z, n in zip(self._regression, now)]
         z = self._regression
         return z[:2], z[2:4], z[4:]

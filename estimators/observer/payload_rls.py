@@ -20,17 +20,25 @@ five ticks. (Tried and not kept: the raw, unfiltered regression for the expected
 `docs/sweeps.md`: a tick's own forces carry the boom's unmodelled acceleration, and its
 mass was 15-35 % high.)
 
+A mass that moved by more than `EVENT_MASS_CHANGE` within `EVENT_WINDOW` is an event as well:
+with a short low-pass (the link accelerometers' regression, `docs/sensors.md`) the estimate
+can follow a pick within its own update when its covariance is still the prior's (a machine
+standing still since the start learns nothing: the seals' dead band), and the innovation
+then never stands out against that covariance.
+
 Its standard deviation: the RLS covariance and a floor for what averaging does not remove
 (the transducers' zero offsets mapped through ``Y``).
 """
 
 from __future__ import annotations
 
+import collections
 import math
 
 import numpy as np
 
-__all__ = ["EVENT_CHI2", "EVENT_TICKS", "EXPECTED_PICK_SECONDS", "EXPECTED_PICK_TICKS",
+__all__ = ["EVENT_CHI2", "EVENT_MASS_CHANGE", "EVENT_TICKS", "EVENT_WINDOW",
+           "EXPECTED_PICK_SECONDS", "EXPECTED_PICK_TICKS",
            "FORGETTING_TIME", "PayloadRLS"]
 
 FORGETTING_TIME = 2.0  # [s]
@@ -38,6 +46,8 @@ EVENT_CHI2 = 25.0  # normalised innovation (5 sigma)
 EVENT_TICKS = 5
 EXPECTED_PICK_TICKS = 2  # a growing mass after the grapple command
 EXPECTED_PICK_SECONDS = 6.0  # [s] the grapple command's expectation lapses (an empty grab)
+EVENT_MASS_CHANGE = 50.0  # [kg] a change of the estimate within `EVENT_WINDOW` is an event
+EVENT_WINDOW = 0.5  # [s]
 _RESET_STD = 300.0  # [kg] after an event
 _MIN_SENSITIVITY = 5.0  # [N/kg] below this the cylinders do not see the payload
 _UNUSED_VARIANCE = 1e18  # [N^2] a cylinder inside its dead band this tick
@@ -70,11 +80,15 @@ class PayloadRLS:
         event_variance_scale: Factor on the force variance in the event test (below 1 when
             the caller low-passes the regression: the per-tick noise is smaller then, while
             the ticks are correlated, so the estimate's own update keeps ``force_std``).
+        expected_pick_ticks: Ticks over the threshold that make a growing mass a pick while
+            one is expected (`EXPECTED_PICK_TICKS`).
     """
 
     def __init__(self, initial_mass: float, initial_std: float, force_std, bias_std,
-                 event_variance_scale: float = 1.0):
+                 event_variance_scale: float = 1.0,
+                 expected_pick_ticks: int = EXPECTED_PICK_TICKS):
         self.event_variance_scale = float(event_variance_scale)
+        self.expected_pick_ticks = int(expected_pick_ticks)
         self.mass = float(initial_mass)
         self.P = float(initial_std) ** 2
         self.R = np.asarray(force_std, float) ** 2
@@ -84,6 +98,8 @@ class PayloadRLS:
         self.event: str | None = None
         self.event_time: float | None = None
         self._expect_until = -math.inf
+        self._recent: collections.deque = collections.deque()  # (time, mass) of the window
+        self._settle_until = -math.inf  # an event's estimate converges until then
 
     def expect_pick(self, time: float) -> None:
         """The operator closed the grapple at ``time`` [s]: a pick may come (module docstring)."""
@@ -128,8 +144,9 @@ class PayloadRLS:
         if time > self._expect_until:
             self._expect_until = -math.inf
         elif y0 * x[0] + y1 * x[1] > 0:  # the innovation makes the mass grow
-            ticks = EXPECTED_PICK_TICKS
-        event = self._run >= ticks
+            ticks = self.expected_pick_ticks
+        moved = self._moved(time, mass)
+        event = self._run >= ticks or moved
         if event:
             p = _RESET_STD ** 2
             self._run = 0
@@ -140,10 +157,27 @@ class PayloadRLS:
         if not self.P > 0 and p > 0:  # round-off: p k'y ~ p when y'R^-1 y p >> 1
             self.P = 1.0 / (1.0 / p + y0 * y0 / r[0] + y1 * y1 / r[1])  # the same, exactly
         if event:
-            self.event = "pick" if self.mass > mass else "release"
+            self.event = "pick" if self.mass > self._recent[0][1] else "release"
             self.event_time = time
+            self._settle_until = time + EVENT_WINDOW
             if self.event == "pick":
                 self._expect_until = -math.inf
+
+    def _moved(self, time: float, mass: float) -> bool:
+        """Whether ``mass`` differs by `EVENT_MASS_CHANGE` from the window's oldest estimate.
+
+        The window restarts after each event's `EVENT_WINDOW` (the estimate converges to the
+        new load then: not a second event).
+        """
+        recent = self._recent
+        if time < self._settle_until:
+            recent.clear()
+            recent.append((time, mass))
+            return False
+        while recent and recent[0][0] < time - EVENT_WINDOW:
+            recent.popleft()
+        recent.append((time, mass))
+        return abs(mass - recent[0][1]) > EVENT_MASS_CHANGE
 
     @property
     def std(self) -> float:

@@ -1,0 +1,87 @@
+r"""The crane's accelerations from its link accelerometers and the encoders' estimate.
+
+The stroke sensors' accelerations come from differentiating positions twice: the joint
+filter (`joint_filter.JointFilter`) smooths them, and lags a sudden change by several ticks.
+An accelerometer fixed to a link reads its specific force without that lag; it is affine in
+the axes' accelerations ``u`` (`estimators.efforts.ActuatorEfforts.point_specific_forces`):
+``f = A u + b`` at the state's positions, velocities and base motion. The slew, lift, tilt
+and telescope accelerations (`AXES`) are the weighted least-squares fit of the encoders'
+estimate (the prior, its std per axis) and the accelerometers' tick means (their std):
+
+.. math:: u = u_e + (A^T W A + \Sigma_e^{-1})^{-1} A^T W (f - A u_e - b)
+
+The wrist and the suspension axes are not seen by these accelerometers (downstream of the
+telescope's tip, or not in the crane's chain) and keep the encoders' estimate. The fit's
+std per axis is the square root of the diagonal of the inverse.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from estimators.efforts import ActuatorEfforts
+from models.sensing import LinkAccelerometer, Samples
+from models.state import N_SERVO_AXES, MachineState
+
+__all__ = ["AXES", "MODEL_STD", "LinkFusion"]
+
+AXES = np.array([2, 3, 4, 5])  # slew, lift, tilt, telescope: q[:9] indices
+# [m/s^2] what a reading's prediction misses besides the sensor and the base: the tick's
+# mean (the pressures' window too) against the tick's instant (the positions').
+MODEL_STD = 0.02
+
+
+class LinkFusion:
+    """Fuses the link accelerometers into the crane's accelerations (module docstring).
+
+    Args:
+        efforts: The machine's `ActuatorEfforts` (its kinematics).
+        accelerometers: The link accelerometers' specs.
+        base_std: Std of the base's acceleration estimate at the accelerometers [m/s^2]
+            (it enters every reading's prediction).
+        prior_std: Std of the encoders' acceleration estimate of each of the nine axes
+            [m/s^2], shape (9,).
+    """
+
+    def __init__(self, efforts: ActuatorEfforts, accelerometers: tuple[LinkAccelerometer, ...],
+                 base_std: float, prior_std):
+        self.efforts = efforts
+        self.accelerometers = tuple(accelerometers)
+        prior = np.asarray(prior_std, float)[AXES]
+        self._prior_info = np.diag(1.0 / prior ** 2)
+        self._mounts = [(a.body, a.position) for a in self.accelerometers]
+        # Per reading: the sample noise (averaged over the tick's n samples), and the floor
+        # n does not lower (bias, the base's error, a tick's mean against its instant).
+        self._variance = np.repeat([a.accelerometer.sample_std ** 2
+                                    for a in self.accelerometers], 3)
+        self._floor = np.repeat([a.accelerometer.bias ** 2 + float(base_std) ** 2
+                                 + MODEL_STD ** 2 for a in self.accelerometers], 3)
+        self.std = prior.copy()
+
+    def accelerations(self, state: MachineState, readings: Samples | None) -> np.ndarray:
+        """``state.qdd`` with the four crane axes' fitted to the accelerometers' tick means.
+
+        Without readings this tick (or with a non-finite one) the encoders' estimate stays.
+        """
+        qdd = state.qdd.copy()
+        if readings is None or not len(readings):
+            return qdd
+        mean = np.add.reduce(readings.value, 0) / len(readings)
+        if not np.isfinite(mean).all():
+            return qdd
+        n = len(readings)
+        a, b = self.efforts.point_specific_forces(state, self._mounts)
+        u_e = qdd[:N_SERVO_AXES]
+        residual = mean - a @ u_e - b
+        a = a[:, AXES]
+        w = 1.0 / (self._variance / n + self._floor)
+        info = a.T @ (w[:, None] * a) + self._prior_info
+        try:
+            cov = np.linalg.inv(info)
+        except np.linalg.LinAlgError:
+            return qdd
+        du = cov @ (a.T @ (w * residual))
+        if np.isfinite(du).all():
+            qdd[AXES] += du
+            self.std = np.sqrt(np.diag(cov))
+        return qdd
