@@ -7,11 +7,12 @@ import pytest
 from estimators.efforts import ActuatorEfforts
 from estimators.errors import EstimatorError
 from estimators.observer import Observer
+from estimators.observer.link_fusion import LinkFusion
 from estimators.payload import PayloadEstimator
 from models import build_reference_machine
 from models import terrain as T
 from models.errors import ModelError
-from models.sensing import ChannelSpec, LinkAccelerometer
+from models.sensing import ChannelSpec, LinkAccelerometer, Samples
 from models.sensor_suites import chassis_only, sensor_suite
 from scenarios.closed_loop_scenarios import SCENARIOS, scenario_terrain
 from scenarios.sensors import SensorSimulator
@@ -107,3 +108,17 @@ def test_a_pick_seen_without_the_links_too():
     assert at[199] == pytest.approx(10.0, abs=12.0)
     assert at[399] == pytest.approx(240.0, rel=0.05)
     assert e.payload_mass == pytest.approx(240.0, rel=0.05)
+
+
+def test_the_fusion_keeps_the_encoders_estimate_without_a_good_reading():
+    """No reading this tick, or a NaN one: the encoders' accelerations come back unchanged."""
+    machine, sim, r = next(_swinging(IDEAL, 1))
+    st = sim.measure()[0]
+    fusion = LinkFusion(ActuatorEfforts(machine), IDEAL.link_accelerometers, 0.1,
+                        np.full(9, 0.1))
+    nan = Samples(np.array([sim.time]), np.full((1, 6), np.nan))
+    for readings in (None, Samples(np.zeros(0), np.zeros((0, 6))), nan):
+        np.testing.assert_array_equal(fusion.accelerations(st, readings), st.qdd)
+    moved = fusion.accelerations(st, r.link_specific_force)
+    np.testing.assert_array_equal(np.delete(moved, [2, 3, 4, 5]),
+                                  np.delete(st.qdd, [2, 3, 4, 5]))
