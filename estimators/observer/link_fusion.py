@@ -23,12 +23,18 @@ from estimators.efforts import ActuatorEfforts
 from models.sensing import LinkAccelerometer, Samples
 from models.state import N_SERVO_AXES, MachineState
 
-__all__ = ["AXES", "MODEL_STD", "LinkFusion"]
+__all__ = ["AXES", "LINK_EXPECTED_PICK_TICKS", "LINK_LEVER", "LINK_PAYLOAD_FILTER_TIME",
+           "MODEL_STD", "LinkFusion"]
 
 AXES = np.array([2, 3, 4, 5])  # slew, lift, tilt, telescope: q[:9] indices
 # [m/s^2] what a reading's prediction misses besides the sensor and the base: the tick's
 # mean (the pressures' window too) against the tick's instant (the positions').
 MODEL_STD = 0.02
+LINK_LEVER = 4.0  # [m] from the chassis IMU to the link accelerometers (a typical reach)
+# With link accelerometers the regression's accelerations carry less noise: the observer's
+# payload low-pass is shorter, and an expected pick an event after one tick (`docs/sweeps.md`).
+LINK_PAYLOAD_FILTER_TIME = 0.01  # [s]
+LINK_EXPECTED_PICK_TICKS = 1
 
 
 class LinkFusion:

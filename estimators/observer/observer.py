@@ -37,13 +37,13 @@ import numpy as np
 from estimators.efforts import ActuatorEfforts
 from estimators.errors import EstimatorError
 from estimators.linearization import N_GENERALIZED
+from estimators.observer import link_fusion
 from estimators.observer._states import machine_state, wheel_contacts, with_fields
 from estimators.observer._vec3 import ground_normal as _ground_normal
 from estimators.observer._vec3 import norm
 from estimators.observer.base_filter import ANGULAR_ACCELERATION_TIME_CONSTANT, BaseFilter
 from estimators.observer.joint_filter import JointFilter
-from estimators.observer.link_fusion import LinkFusion
-from estimators.observer.payload_rls import EXPECTED_PICK_TICKS, PayloadRLS
+from estimators.observer.payload_rls import EXPECTED_PICK_TICKS, PayloadRLS, without_seal_friction
 from estimators.uncertainty import StateUncertainty, model_normal_forces
 from models.coordinates import N_INDEPENDENT
 from models.description import Machine
@@ -68,12 +68,7 @@ WHEEL_ACCELERATION_TIME_CONSTANT = 0.05  # [s]
 _LIFT, _TILT = 3, 4  # independent coordinates of the lift and tilt cylinders
 SLIDING_SPEED = 4e-3  # [m/s] stroke speed above which a seal slides (the observer's estimate)
 SLIDING_FRICTION_STD = 0.2  # std of a sliding seal's friction about its rating [-]
-LINK_LEVER = 4.0  # [m] from the chassis IMU to the link accelerometers (a typical reach)
 PAYLOAD_FILTER_TIME = 0.05  # [s] low-pass of the payload regression (`Observer._filtered`)
-# With link accelerometers the regression's accelerations carry less noise: a shorter
-# low-pass, and an expected pick after one tick (`docs/sensors.md`).
-LINK_PAYLOAD_FILTER_TIME = 0.01  # [s]
-LINK_EXPECTED_PICK_TICKS = 1
 EVENT_VARIANCE_SCALE = 0.1  # filtered over raw innovation variance: 0.01 still, 0.05-0.08 moving
 _PRESS_LIFT_TILT = [PRESSURE_CYLINDERS.index("lift"), PRESSURE_CYLINDERS.index("tilt")]
 _CRANE_CYLINDERS = np.array([2, 3, 4])  # slew, lift, tilt: independent coordinates
@@ -156,14 +151,16 @@ class Observer:
         _, qdd_std = self.joints.std
         model_std = np.sqrt(((e_home[[_LIFT, _TILT]] * qdd_std) ** 2).sum(axis=1))
         lt = _PRESS_LIFT_TILT
-        links = bool(spec.link_accelerometers)
-        self._payload_filter_time = LINK_PAYLOAD_FILTER_TIME if links else PAYLOAD_FILTER_TIME
+        has_links = bool(spec.link_accelerometers)
+        self._payload_filter_time = (link_fusion.LINK_PAYLOAD_FILTER_TIME if has_links
+                                     else PAYLOAD_FILTER_TIME)
         self.payload = PayloadRLS(
             m0, initial_payload_std,
             np.sqrt(self._force_std[lt] ** 2 + model_std ** 2
                     + (SLIDING_FRICTION_STD * self._seal[lt]) ** 2),
             self._force_bias[lt], event_variance_scale=EVENT_VARIANCE_SCALE,
-            expected_pick_ticks=LINK_EXPECTED_PICK_TICKS if links else EXPECTED_PICK_TICKS)
+            expected_pick_ticks=(link_fusion.LINK_EXPECTED_PICK_TICKS if has_links
+                                 else EXPECTED_PICK_TICKS))
         self._regression: list | None = None
         self._wheel_angle = [0.0] * 4
         self._wheel_rate = [0.0] * 4
@@ -192,9 +189,9 @@ class Observer:
         self._crane_rows: dict[tuple, tuple] = {}
         # The link accelerometers' predictions carry the base's acceleration errors, its
         # angular acceleration's through the lever arm to the crane (`LINK_LEVER`).
-        base_std = float(np.hypot(accel_std[0], LINK_LEVER * accel_std[3]))
-        self.links = (LinkFusion(self.efforts, spec.link_accelerometers, base_std, qdd_std)
-                      if spec.link_accelerometers else None)
+        base_std = float(np.hypot(accel_std[0], link_fusion.LINK_LEVER * accel_std[3]))
+        self.links = (link_fusion.LinkFusion(self.efforts, spec.link_accelerometers, base_std,
+                                             qdd_std) if has_links else None)
 
     # ------------------------------------------------------------------ uncertainty
     def _uncertainty_parts(self) -> tuple[np.ndarray, np.ndarray]:
@@ -289,8 +286,9 @@ class Observer:
         # Payload from the lift and tilt cylinders.
         f0, y = self.efforts.payload_regressor(state)
         f = forces.tolist()
-        measured, band = self._without_seal_friction([f[i] for i in _PRESS_LIFT_TILT],
-                                                     (qd[_LIFT], qd[_TILT]))
+        measured, band = without_seal_friction([f[i] for i in _PRESS_LIFT_TILT],
+                                               (qd[_LIFT], qd[_TILT]), self._seal_lift_tilt,
+                                               SLIDING_SPEED)
         self.payload.update(t, dt, *self._filtered(dt, measured, f0[_LIFT:_TILT + 1],
                                                    y[_LIFT:_TILT + 1]), band)
         mass = min(max(self.payload.mass, 0.0), 1e4)
@@ -389,20 +387,6 @@ class Observer:
             self._regression = [z + a * (n - z) for z, n in zip(self._regression, now)]
         z = self._regression
         return z[:2], z[2:4], z[4:]
-
-    def _without_seal_friction(self, forces, speeds) -> tuple[list, list]:
-        """The lift and tilt forces less their seals' friction, and the dead band left [N].
-
-        A sliding cylinder's pressures also push its seals' friction, the rating against the
-        motion: subtracted, no band. A cylinder standing still holds anything up to the
-        rating: a band of the rating about the measured force.
-        """
-        corrected, band = [], []
-        for f, v, seal in zip(forces, speeds, self._seal_lift_tilt):
-            sliding = abs(v) > SLIDING_SPEED
-            corrected.append(f - (math.copysign(seal, v) if sliding else 0.0))
-            band.append(0.0 if sliding else seal)
-        return corrected, band
 
     def _longitudinal(self, forces: np.ndarray) -> list:
         """Each wheel's longitudinal ground force [N] (fb x), from its side's drive torque.

@@ -39,7 +39,7 @@ import numpy as np
 
 __all__ = ["EVENT_CHI2", "EVENT_MASS_CHANGE", "EVENT_TICKS", "EVENT_WINDOW",
            "EXPECTED_PICK_SECONDS", "EXPECTED_PICK_TICKS",
-           "FORGETTING_TIME", "PayloadRLS"]
+           "FORGETTING_TIME", "PayloadRLS", "without_seal_friction"]
 
 FORGETTING_TIME = 2.0  # [s]
 EVENT_CHI2 = 25.0  # normalised innovation (5 sigma)
@@ -190,6 +190,22 @@ class PayloadRLS:
             a0, a1 = w0 * b0, w1 * b1
             floor = float(math.sqrt(a0 * a0 + a1 * a1) / (w0 * y0 + w1 * y1))
         return float(math.sqrt(self.P + floor ** 2))
+
+
+def without_seal_friction(forces, speeds, seals, sliding_speed: float) -> tuple[list, list]:
+    """Two cylinders' forces less their seals' friction, and the dead band left [N].
+
+    A sliding cylinder's (``|speed| > sliding_speed`` [m/s]) pressures also push its seals'
+    friction, the rating ``seals`` [N] against the motion: subtracted, no band. A cylinder
+    standing still holds anything up to the rating: a band of the rating about the measured
+    force.
+    """
+    corrected, band = [], []
+    for f, v, seal in zip(forces, speeds, seals):
+        sliding = abs(v) > sliding_speed
+        corrected.append(f - (math.copysign(seal, v) if sliding else 0.0))
+        band.append(0.0 if sliding else seal)
+    return corrected, band
 
 
 def _insensitive(y0: float, y1: float) -> bool:
