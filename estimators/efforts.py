@@ -246,8 +246,8 @@ class ActuatorEfforts:
         model, data = pm.model, pm.data
         fids = [self._body_frame(body) for body, _ in mounts]
         q, v, a, ja = self._tree_motion(state)
-        pin.computeJointJacobians(model, data, q)
         pin.forwardKinematics(model, data, q, v, a)
+        pin.computeJointJacobians(model, data)  # on forwardKinematics' placements: one pass
         rows, bias = [], []
         for fid, (_, point) in zip(fids, mounts):
             pin.updateFramePlacement(model, data, fid)

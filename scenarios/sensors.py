@@ -169,6 +169,7 @@ class SensorSimulator:
         self._link_bodies = [_body_id(sim, a.body) for a in links]
         self._link_points = [np.asarray(a.position, float) for a in links]
         self._link_f = np.zeros(3 * len(links))
+        self._acc6, self._vel6 = np.zeros(6), np.zeros(6)  # MuJoCo's outputs, every step
         self._streams = (self._acc, self._gyro, self._pos_lin, self._pos_ang, self._press,
                          self._wheels, self._drive) + ((self._link,) if links else ())
         ix = sim.index
@@ -247,7 +248,7 @@ class SensorSimulator:
         """Each link accelerometer's specific force, in its body's axes, (3 k,) [m/s^2]."""
         m, d = sim.model, sim.data
         mujoco.mj_rnePostConstraint(m, d)  # fills cacc (outputs only: the physics is as is)
-        acc, vel = np.zeros(6), np.zeros(6)
+        acc, vel = self._acc6, self._vel6
         for i, (body, p) in enumerate(zip(self._link_bodies, self._link_points)):
             mujoco.mj_objectAcceleration(m, d, mujoco.mjtObj.mjOBJ_XBODY, body, acc, 1)
             mujoco.mj_objectVelocity(m, d, mujoco.mjtObj.mjOBJ_XBODY, body, vel, 1)

@@ -6,9 +6,7 @@ import pytest
 
 from estimators.efforts import ActuatorEfforts
 from estimators.errors import EstimatorError
-from estimators.observer import Observer
 from estimators.observer.link_fusion import LinkFusion
-from estimators.payload import PayloadEstimator
 from models import build_reference_machine
 from models import terrain as T
 from models.errors import ModelError
@@ -17,7 +15,7 @@ from models.sensor_suites import chassis_only, sensor_suite
 from scenarios.closed_loop_scenarios import SCENARIOS, scenario_terrain
 from scenarios.sensors import SensorSimulator
 from scenarios.simulator import Simulator
-from tests.test_observer import PICK_POSE, _pick_run
+from tests.test_observer import PICK_POSE, _observer, _pick_run
 
 IDEAL = sensor_suite("ideal", 0)
 
@@ -91,8 +89,7 @@ def test_fused_crane_accelerations_are_closer_to_mujocos(suite):
         obs, err = None, []
         for k, (machine, sim, r) in enumerate(_swinging(spec)):
             if obs is None:
-                obs = Observer(machine, spec, PayloadEstimator(machine, fourth="cylinder-force",
-                                                               strokes="clip"))
+                obs = _observer(machine, spec)
             e = obs.update(r)
             if k > 20:
                 err.append(e.state.qdd[3:6] - sim.measure()[0].qdd[3:6])

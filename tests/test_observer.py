@@ -28,8 +28,10 @@ PICK_POSE = SCENARIOS["pick-in-motion"].start_pose  # crane out on the downhill 
 
 
 def _observer(machine, suite="realistic", seed=2, prior=None):
+    """An observer with the closure it runs in the loop; ``suite``: a name or a `SensorSpec`."""
+    spec = sensor_suite(suite, seed) if isinstance(suite, str) else suite
     closure = PayloadEstimator(machine, fourth="cylinder-force", strokes="clip")
-    return Observer(machine, sensor_suite(suite, seed), closure, initial_payload=prior)
+    return Observer(machine, spec, closure, initial_payload=prior)
 
 
 def _pick_run(seed, mass, slope, grapple_tick=None, pick=True, chassis=False):
@@ -42,8 +44,7 @@ def _pick_run(seed, mass, slope, grapple_tick=None, pick=True, chassis=False):
     spec = sensor_suite("realistic", seed)
     spec = chassis_only(spec) if chassis else spec
     sensors = SensorSimulator(sim, spec)
-    obs = Observer(machine, spec, PayloadEstimator(machine, fourth="cylinder-force",
-                                                   strokes="clip"), initial_payload=10.0)
+    obs = _observer(machine, spec, prior=10.0)
     events, at = [], {}
     for k in range(500):
         if k == grapple_tick:
@@ -211,8 +212,7 @@ def test_crane_accelerations_from_the_pressures():
         sim.reset(PICK_POSE.q(machine), (8.0, 0.0, 0.0))
         spec = chassis_only(sensor_suite("realistic", 7))
         sensors = SensorSimulator(sim, spec)
-        obs = Observer(machine, spec, PayloadEstimator(machine, fourth="cylinder-force",
-                                                       strokes="clip"), initial_payload=150.0)
+        obs = _observer(machine, spec, prior=150.0)
         obs.crane_from_pressures = from_pressures
         da, df = [], []
         for k in range(300):
