@@ -15,6 +15,11 @@ On the nine servo axes, with their accelerations ``u`` free and everything else 
 acceleration is an input (the ground supplies whatever the motion needs), as in the
 estimator. Affine in the payload mass as well (`models.pinocchio_model.payload_pair`).
 
+The per-tick path is compiled (`estimators.efforts_kernel`: one C call gives both payload
+anchors' ``E`` and ``e_0``, another the link accelerometers' ``A`` and ``b``); Pinocchio's
+RNEA and CRBA of the same description are the reference the kernels are tested against, and
+the path taken without a C compiler (``compiled=False``).
+
 The suspension cylinders also carry the ground's reaction, which the tree's dynamics do not
 contain: their rows here are the tree's share only (the estimator's bogie rows add the
 ground); the MPC bounds the crane's efforts.
@@ -27,6 +32,7 @@ import functools
 import numpy as np
 import pinocchio as pin
 
+from estimators.efforts_kernel import ANCHORS, EffortKernels, kernels_for
 from estimators.errors import EstimatorError
 from models.coordinates import N_INDEPENDENT
 from models.description import Machine
@@ -61,13 +67,14 @@ def effort_ranges(machine: Machine) -> tuple[np.ndarray, np.ndarray]:
 
 @functools.lru_cache(maxsize=8)
 def _shared_last(fingerprint: str) -> list:
-    """``[key, ((E_1, e_1), (E_2, e_2))]``: the last motion's pair results, one per machine.
+    """``[key, ((E_1, e_1), (E_2, e_2)), (m_1, m_2)]``: the last motion's maps, one per machine.
 
+    The pair's results at masses ``m_1, m_2`` [kg]: the kernels' anchors or Pinocchio's pair.
     Kept by the machine's fingerprint, so every `ActuatorEfforts` of the same description
     (whatever its payload mass: the pair's results do not depend on it) reads and writes the
     same entry. Callers must not write into the arrays.
     """
-    return [None, None]
+    return [None, None, None]
 
 
 def _motion_key(state: MachineState) -> bytes:
@@ -87,13 +94,17 @@ class ActuatorEfforts:
     Args:
         machine: The machine description.
         payload_mass: Payload [kg]; the description's if None.
+        compiled: Use the compiled kernels (`estimators.efforts_kernel`, built now if not
+            cached); False, or no C compiler: Pinocchio.
 
     Attributes:
         payload_mass: Settable (finite, >= 0).
     """
 
-    def __init__(self, machine: Machine, payload_mass: float | None = None):
+    def __init__(self, machine: Machine, payload_mass: float | None = None,
+                 compiled: bool = True):
         self.machine = machine
+        self._kernels: EffortKernels | None = kernels_for(machine) if compiled else None
         self._pair = payload_pair(machine)
         self._mass_entries = [_upper_entries(pm._tree_v_idx, pm.model.nv) for pm in self._pair]
         self._tree_map()
@@ -195,35 +206,42 @@ class ActuatorEfforts:
         """
         if not isinstance(state, MachineState):
             raise EstimatorError(f"expected a MachineState, got {type(state).__name__}")
-        key = _motion_key(state)
-        shared = self._shared
-        if shared[0] == key:
-            (e1, f1), (e2, f2) = shared[1]
-        else:
-            motion = self._tree_motion(state)
-            pair = tuple(self._one(pm, entries, *motion)
-                         for pm, entries in zip(self._pair, self._mass_entries))
-            shared[:] = [key, pair]
-            (e1, f1), (e2, f2) = pair
-        m1, m2 = PAYLOAD_PAIR_MASSES
+        (e1, f1), (e2, f2), (m1, m2) = self._pair_results(state)
         w = (self._mass - m1) / (m2 - m1)
         return e1 + w * (e2 - e1), f1 + w * (f2 - f1)
+
+    def _pair_results(self, state: MachineState) -> tuple:
+        """``((E_1, e_1), (E_2, e_2), (m_1, m_2))``: the efforts' maps at two payload masses.
+
+        The compiled kernel's (at its `ANCHORS`), else Pinocchio's (its pair's masses); the
+        last motion's kept for every `ActuatorEfforts` of the machine (`_shared_last`).
+        """
+        key = _motion_key(state)
+        shared = self._shared
+        if shared[0] != key:
+            pair = None if self._kernels is None else self._kernels.efforts(state)
+            masses = ANCHORS
+            if pair is None:  # no compiler, or a state the kernel gives no finite result
+                motion = self._tree_motion(state)
+                pair = tuple(self._one(pm, entries, *motion)
+                             for pm, entries in zip(self._pair, self._mass_entries))
+                masses = PAYLOAD_PAIR_MASSES
+            shared[:] = [key, pair, masses]
+        return (*shared[1], shared[2])
 
     def payload_regressor(self, state: MachineState) -> tuple[np.ndarray, np.ndarray]:
         """``(e_0, Y)``: the efforts at the state's own accelerations are ``e_0 + m Y``.
 
-        Shapes (9,) each [N or N m, and per kg]. Two RNEA passes, no mass matrix.
+        Shapes (9,) each [N or N m, and per kg]: the efforts' maps at two masses
+        (`_pair_results`) at the state's ``u``.
         """
         if not isinstance(state, MachineState):
             raise EstimatorError(f"expected a MachineState, got {type(state).__name__}")
-        q, v, a, ja = self._tree_motion(state)
-        idx = self._pair[0]._tree_v_idx
-        a = a.copy()
-        a[idx] += ja @ state.qdd[:N_SERVO_AXES]
-        e1, e2 = (ja.T @ pin.rnea(pm.model, pm.data, q, v, a)[idx] for pm in self._pair)
-        m1, m2 = PAYLOAD_PAIR_MASSES
-        y = (e2 - e1) / (m2 - m1)
-        return e1 - m1 * y, y
+        (e1, f1), (e2, f2), (m1, m2) = self._pair_results(state)
+        u = state.qdd[:N_SERVO_AXES]
+        at_1, at_2 = e1 @ u + f1, e2 @ u + f2
+        y = (at_2 - at_1) / (m2 - m1)
+        return at_1 - m1 * y, y
 
     def point_specific_forces(self, state: MachineState,
                               mounts) -> tuple[np.ndarray, np.ndarray]:
@@ -242,6 +260,10 @@ class ActuatorEfforts:
         Raises:
             EstimatorError: A body that is not one of the description's.
         """
+        if self._kernels is not None:
+            out = self._kernels.points(state, mounts)
+            if out is not None:
+                return out
         pm = self._pair[0]
         model, data = pm.model, pm.data
         fids = [self._body_frame(body) for body, _ in mounts]

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from estimators.efforts import ActuatorEfforts, effort_ranges
+from estimators.efforts_kernel import EffortKernels
 from estimators.errors import EstimatorError
 from models import build_reference_machine
 from models import terrain as T
@@ -79,13 +80,13 @@ def test_efforts_of_one_machine_share_the_last_motion(moving_samples, monkeypatc
     state = moving_samples[-1][0]
     first = ActuatorEfforts(MACHINE)
     fresh = ActuatorEfforts(MACHINE, payload_mass=180.0)
-    fresh._shared[:] = [None, None]
+    fresh._shared[:] = [None, None, None]
     expected = fresh.affine(state)  # computed
     first.affine(moving_samples[0][0])  # another motion in between
     first.affine(state)
     second = ActuatorEfforts(MACHINE, payload_mass=180.0)
-    monkeypatch.setattr(ActuatorEfforts, "_tree_motion",
-                        lambda self, s: pytest.fail("recomputed a shared motion"))
+    for cls, name in ((ActuatorEfforts, "_tree_motion"), (EffortKernels, "efforts")):
+        monkeypatch.setattr(cls, name, lambda self, s: pytest.fail("recomputed a shared motion"))
     qdd = state.qdd.copy()
     qdd[:9] += 1.0  # the axes' accelerations are affine's free u: the same motion
     E, e0 = second.affine(dataclasses.replace(state, qdd=qdd))

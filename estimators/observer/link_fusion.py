@@ -55,7 +55,7 @@ class LinkFusion:
         self.accelerometers = tuple(accelerometers)
         prior = np.asarray(prior_std, float)[AXES]
         self._prior_info = np.diag(1.0 / prior ** 2)
-        self._mounts = [(a.body, a.position) for a in self.accelerometers]
+        self._mounts = tuple((a.body, a.position) for a in self.accelerometers)
         # Per reading: the sample noise (averaged over the tick's n samples), and the floor
         # n does not lower (bias, the base's error, a tick's mean against its instant).
         self._variance = np.repeat([a.accelerometer.sample_std ** 2

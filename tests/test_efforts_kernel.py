@@ -1,0 +1,114 @@
+"""The compiled efforts and link-acceleration kernels against Pinocchio's RNEA and CRBA."""
+
+import numpy as np
+import pytest
+
+from estimators.efforts import ActuatorEfforts
+from estimators.efforts_kernel import INPUTS, EffortKernels, kernels_for
+from estimators.errors import EstimatorError
+from models import build_reference_machine
+from models.rotations import rpy_rotation
+from models.state import N_SERVO_AXES, MachineState
+
+MACHINE = build_reference_machine()
+# A point on a moving link, one on the fixed payload body (merged into its host by the
+# tree), one on the chassis.
+MOUNTS = (("lift", (1.2, 0.0, 0.15)), ("payload", (0.1, -0.2, 0.05)),
+          ("chassis", (0.5, 0.3, 0.8)))
+
+
+def _states(n=12, seed=3):
+    """Random states: any attitude, base motion, strokes inside their ranges, rates."""
+    rng = np.random.default_rng(seed)
+    coords = MACHINE.coordinates
+    lo, hi = coords.lower, coords.upper
+    out = []
+    for _ in range(n):
+        q = coords.home().copy()
+        finite = np.isfinite(lo) & np.isfinite(hi)
+        q[finite] = lo[finite] + rng.uniform(0.05, 0.95, finite.sum()) * (hi - lo)[finite]
+        out.append(MachineState(
+            rng.normal(size=3), rpy_rotation(*rng.uniform(-0.5, 0.5, 3)),
+            rng.normal(scale=0.5, size=6), rng.normal(scale=2.0, size=6), q,
+            rng.normal(scale=0.2, size=q.size), rng.normal(scale=0.5, size=q.size)))
+    return out
+
+
+STATES = _states()
+
+
+@pytest.fixture(scope="module")
+def pair():
+    kernels = kernels_for(MACHINE)
+    if kernels is None:
+        pytest.skip("no C compiler: the efforts run on Pinocchio only")
+    return ActuatorEfforts(MACHINE), ActuatorEfforts(MACHINE, compiled=False)
+
+
+@pytest.mark.parametrize("mass", [0.0, 150.0, 420.0])
+def test_affine_and_regressor_equal_pinocchios(pair, mass):
+    compiled, reference = pair
+    for eff in pair:
+        eff.payload_mass = mass
+    for st in STATES:
+        for eff in pair:  # each computes its own (the shared last motion is per machine)
+            eff._shared[0] = None
+        E, e0 = compiled.affine(st)
+        compiled._shared[0] = None
+        f0, y = compiled.payload_regressor(st)
+        reference._shared[0] = None
+        E_ref, e0_ref = reference.affine(st)
+        f0_ref, y_ref = reference.payload_regressor(st)
+        scale = np.abs(E_ref).max()
+        np.testing.assert_allclose(E, E_ref, rtol=0, atol=1e-11 * scale)
+        np.testing.assert_allclose(e0, e0_ref, rtol=0, atol=1e-10 * np.abs(e0_ref).max())
+        np.testing.assert_allclose(f0 + mass * y, f0_ref + mass * y_ref, rtol=0,
+                                   atol=1e-10 * np.abs(f0_ref).max())
+        np.testing.assert_allclose(y, y_ref, rtol=0, atol=1e-9 * np.abs(y_ref).max())
+
+
+def test_point_specific_forces_equal_pinocchios(pair):
+    compiled, reference = pair
+    for st in STATES:
+        a, b = compiled.point_specific_forces(st, MOUNTS)
+        a_ref, b_ref = reference.point_specific_forces(st, MOUNTS)
+        assert a.shape == (9, N_SERVO_AXES) and b.shape == (9,)
+        np.testing.assert_allclose(a, a_ref, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(b, b_ref, rtol=0, atol=1e-11)
+
+
+def test_the_kernels_are_exact_in_u_and_shared_across_payload_masses(pair):
+    """The efforts at the state's own accelerations (one RNEA pass of Pinocchio, with u
+    inside) equal the compiled E u + e_0; a machine that differs in its payload's mass
+    only gets the same compiled kernels (no compile in the loop at a pick)."""
+    compiled, reference = pair
+    for eff in pair:
+        eff.payload_mass = 210.0
+    st = STATES[0]
+    reference._shared[0] = None
+    expected = reference.payload_regressor(st)
+    compiled._shared[0] = None
+    got = compiled.efforts(st)
+    np.testing.assert_allclose(got, expected[0] + 210.0 * expected[1], rtol=1e-10,
+                               atol=1e-8)
+    assert kernels_for(build_reference_machine(payload_mass=290.0)) is kernels_for(MACHINE)
+
+
+def test_a_state_the_kernel_cannot_evaluate_falls_back_to_pinocchio(pair, monkeypatch):
+    compiled, reference = pair
+    st = STATES[1]
+    monkeypatch.setattr(EffortKernels, "efforts", lambda self, s: None)
+    monkeypatch.setattr(EffortKernels, "points", lambda self, s, m: None)
+    for eff in pair:
+        eff._shared[0] = None
+    E, _ = compiled.affine(st)
+    reference._shared[0] = None
+    np.testing.assert_array_equal(E, reference.affine(st)[0])
+    np.testing.assert_array_equal(compiled.point_specific_forces(st, MOUNTS)[1],
+                                  reference.point_specific_forces(st, MOUNTS)[1])
+
+
+def test_inputs_layout_and_an_unknown_body(pair):
+    assert INPUTS["size"] == 9 + 6 + 6 + 13 + 13 + 4
+    with pytest.raises(EstimatorError, match="no body 'boom'"):
+        pair[0].point_specific_forces(STATES[0], (("boom", (0.0, 0.0, 0.0)),))
