@@ -30,6 +30,7 @@ from estimators.errors import EstimatorError
 from estimators.estimator import NormalForceEstimator
 from estimators.linearization import ForceLinearization
 from estimators.results import Estimate
+from estimators.suspension_response import stepped_forces
 from models.description import Machine
 from models.reference_machine import MAX_PAYLOAD_MASS
 from models.state import MachineState
@@ -161,6 +162,17 @@ class PayloadEstimator:
         if self._w == 0.0:
             return ea.normal_forces
         return self._mix(ea.normal_forces, self._anchor(self._b, state).normal_forces)
+
+    def stepped_suspension_forces(self, state: MachineState, step: float) -> np.ndarray | None:
+        """`estimators.suspension_response.stepped_forces` at the current payload mass.
+
+        Mixed as `normal_forces` mixes (the same bits); None where either anchor gives None.
+        """
+        fa = stepped_forces(self._a, state, step)
+        if fa is None or self._w == 0.0:
+            return fa
+        fb = stepped_forces(self._b, state, step)
+        return None if fb is None else self._mix(fa, fb)
 
     def contact_points(self, state: MachineState) -> np.ndarray:
         """`Estimate.contact_points` of ``state`` (4, 3) [m].

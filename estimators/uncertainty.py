@@ -36,6 +36,7 @@ import numpy as np
 
 from estimators.errors import EstimatorError
 from estimators.linearization import N_GENERALIZED, ForceLinearization
+from estimators.suspension_response import stepped_forces
 from models.coordinates import N_INDEPENDENT
 from models.state import MachineState, frozen_array
 
@@ -105,6 +106,13 @@ def suspension_sensitivity(estimator, state: MachineState) -> np.ndarray:
     """
     out = np.zeros((4, 2))
     if state.suspension_force is None:
+        return out
+    # One packed row per payload anchor (`estimators.suspension_response`): the same forces.
+    stepped = (estimator.stepped_suspension_forces(state, _SUSPENSION_STEP)
+               if hasattr(estimator, "stepped_suspension_forces")
+               else stepped_forces(estimator, state, _SUSPENSION_STEP))
+    if stepped is not None:
+        out[:] = ((stepped[1:] - stepped[0]) / _SUSPENSION_STEP).T
         return out
     f0 = np.asarray(model_normal_forces(estimator, state), float)
     for s in range(2):

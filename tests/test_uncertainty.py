@@ -85,3 +85,23 @@ def test_margin_and_bad_inputs():
         StateUncertainty(np.ones(19), np.zeros(13), np.zeros(2), payload_mass=float("nan"))
     with pytest.raises(EstimatorError, match="StateUncertainty"):
         normal_force_std(None, "big")
+
+
+def test_suspension_sensitivity_from_one_packed_row_equals_the_estimates(estimator,
+                                                                          monkeypatch):
+    """The stepped forces of one packed kernel row (`estimators.suspension_response`) give the
+    sensitivity of three separate estimates to the bit, for one estimator and for the
+    payload estimator's mix of its two anchors."""
+    from estimators import uncertainty
+    from estimators.payload import PayloadEstimator
+
+    payload = PayloadEstimator(estimator.machine, fourth="cylinder-force")
+    payload.payload_mass = 205.0
+    states = [_state(k) for k in range(4)]
+    fast = [[suspension_sensitivity(m, s) for s in states] for m in (estimator, payload)]
+    assert np.abs(fast[0][0]).max() > 0.01  # the cylinder-force row reads them [N/N]
+    monkeypatch.setattr(uncertainty, "stepped_forces", lambda *a: None)
+    monkeypatch.setattr(PayloadEstimator, "stepped_suspension_forces", lambda *a: None)
+    for m, got in zip((estimator, payload), fast):
+        for s, d in zip(states, got):
+            assert np.array_equal(d, suspension_sensitivity(m, s))
