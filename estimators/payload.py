@@ -99,6 +99,7 @@ class PayloadEstimator:
             est.warm()
         self.method, self.fourth = self._a.method, self._a.fourth
         self._last: tuple | None = None  # (key, linearization) of the last `linearize`
+        self._stepped: tuple | None = None  # (state, f_a, f_b): `stepped_suspension_forces`
         self.payload_mass = float(body.inertia.mass)  # the machine's payload to begin with
 
     @property
@@ -167,12 +168,15 @@ class PayloadEstimator:
         """`estimators.suspension_response.stepped_forces` at the current payload mass.
 
         Mixed as `normal_forces` mixes (the same bits); None where either anchor gives None.
+        Both anchors' forces at the state are kept for `payload_sensitivity` (the margin asks
+        for both at the same state).
         """
         fa = stepped_forces(self._a, state, step)
-        if fa is None or self._w == 0.0:
-            return fa
-        fb = stepped_forces(self._b, state, step)
-        return None if fb is None else self._mix(fa, fb)
+        fb = None if fa is None else stepped_forces(self._b, state, step)
+        if fb is None:
+            return None
+        self._stepped = (state, fa[0], fb[0])
+        return fa if self._w == 0.0 else self._mix(fa, fb)
 
     def contact_points(self, state: MachineState) -> np.ndarray:
         """`Estimate.contact_points` of ``state`` (4, 3) [m].
@@ -229,8 +233,12 @@ class PayloadEstimator:
 
     def payload_sensitivity(self, state: MachineState) -> np.ndarray:
         """``df/dm`` of the normal forces [N/kg], shape (4,) (exact: affine in ``m``)."""
-        fa = self._anchor(self._a, state).normal_forces
-        fb = self._anchor(self._b, state).normal_forces
+        kept = self._stepped
+        if kept is not None and kept[0] is state:  # the same rows as the anchors' estimates
+            _, fa, fb = kept
+        else:
+            fa = self._anchor(self._a, state).normal_forces
+            fb = self._anchor(self._b, state).normal_forces
         return (np.asarray(fb) - np.asarray(fa)) / SPAN
 
     @property

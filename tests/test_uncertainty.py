@@ -99,9 +99,13 @@ def test_suspension_sensitivity_from_one_packed_row_equals_the_estimates(estimat
     payload.payload_mass = 205.0
     states = [_state(k) for k in range(4)]
     fast = [[suspension_sensitivity(m, s) for s in states] for m in (estimator, payload)]
+    d_m = payload.payload_sensitivity(states[-1])  # from the rows `stepped` kept
     assert np.abs(fast[0][0]).max() > 0.01  # the cylinder-force row reads them [N/N]
     monkeypatch.setattr(uncertainty, "stepped_forces", lambda *a: None)
     monkeypatch.setattr(PayloadEstimator, "stepped_suspension_forces", lambda *a: None)
     for m, got in zip((estimator, payload), fast):
         for s, d in zip(states, got):
             assert np.array_equal(d, suspension_sensitivity(m, s))
+    fresh = PayloadEstimator(estimator.machine, fourth="cylinder-force")
+    fresh.payload_mass = 205.0
+    assert np.array_equal(d_m, fresh.payload_sensitivity(states[-1]))
