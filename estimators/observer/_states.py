@@ -45,9 +45,16 @@ def machine_state(base_position: np.ndarray, base_rotation: np.ndarray,
 def with_fields(state: MachineState, **changes) -> MachineState:
     """``state.replace(**changes)`` for values known valid.
 
-    Each a `WheelContacts`, or a fresh finite float array of the field's shape (frozen here).
+    Each a `WheelContacts`, or a fresh finite float array of the field's shape (frozen here);
+    not the time. The other fields are shared, frozen since ``state`` was made.
     """
-    return MachineState._trusted(**{**state.__dict__, **changes})
+    for value in changes.values():
+        if type(value) is np.ndarray:
+            value.setflags(write=False)
+    new = object.__new__(MachineState)
+    new.__dict__.update(state.__dict__)
+    new.__dict__.update(changes)
+    return new
 
 
 def wheel_contacts(in_contact: np.ndarray, force: np.ndarray, point: np.ndarray,
