@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import ctypes
 import logging
+import math
 import subprocess
 import threading
 
@@ -152,7 +153,13 @@ class EffortKernels:
 
     def points_kernel(self, mounts) -> Compiled:
         """The compiled ``points`` kernel of ``mounts`` (built on first use: ask early)."""
-        key = tuple((str(b), tuple(float(x) for x in p)) for b, p in mounts)
+        try:
+            key = tuple((str(b), tuple(float(x) for x in np.ravel(p))) for b, p in mounts)
+        except (TypeError, ValueError) as exc:
+            raise EstimatorError(f"mounts must be (body, point) pairs: {exc}") from exc
+        bad = [p for _, p in key if len(p) != 3 or not all(map(math.isfinite, p))]
+        if bad:
+            raise EstimatorError(f"a mount's point must be 3 finite numbers [m], got {bad[0]}")
         k = self._points.get(key)
         if k is None:
             with self._lock:

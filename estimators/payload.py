@@ -99,7 +99,8 @@ class PayloadEstimator:
             est.warm()
         self.method, self.fourth = self._a.method, self._a.fourth
         self._last: tuple | None = None  # (key, linearization) of the last `linearize`
-        self._stepped: tuple | None = None  # (state, f_a, f_b): `stepped_suspension_forces`
+        # `stepped_suspension_forces`' (state, the anchors' D and beta, f_a, f_b)
+        self._stepped: tuple | None = None
         self.payload_mass = float(body.inertia.mass)  # the machine's payload to begin with
 
     @property
@@ -175,8 +176,11 @@ class PayloadEstimator:
         fb = None if fa is None else stepped_forces(self._b, state, step)
         if fb is None:
             return None
-        self._stepped = (state, fa[0], fb[0])
+        self._stepped = (state, self._d_betas(), fa[0], fb[0])
         return fa if self._w == 0.0 else self._mix(fa, fb)
+
+    def _d_betas(self) -> tuple:
+        return (self._a.D, self._a.beta, self._b.D, self._b.beta)
 
     def contact_points(self, state: MachineState) -> np.ndarray:
         """`Estimate.contact_points` of ``state`` (4, 3) [m].
@@ -234,8 +238,8 @@ class PayloadEstimator:
     def payload_sensitivity(self, state: MachineState) -> np.ndarray:
         """``df/dm`` of the normal forces [N/kg], shape (4,) (exact: affine in ``m``)."""
         kept = self._stepped
-        if kept is not None and kept[0] is state:  # the same rows as the anchors' estimates
-            _, fa, fb = kept
+        if kept is not None and kept[0] is state and kept[1] == self._d_betas():
+            _, _, fa, fb = kept  # the rows of the anchors' estimates at this state
         else:
             fa = self._anchor(self._a, state).normal_forces
             fb = self._anchor(self._b, state).normal_forces

@@ -112,3 +112,29 @@ def test_inputs_layout_and_an_unknown_body(pair):
     assert INPUTS["size"] == 9 + 6 + 6 + 13 + 13 + 4
     with pytest.raises(EstimatorError, match="no body 'boom'"):
         pair[0].point_specific_forces(STATES[0], (("boom", (0.0, 0.0, 0.0)),))
+
+
+def test_without_a_compiler_the_efforts_run_on_pinocchio(monkeypatch, tmp_path):
+    """A C compiler that fails (an empty cache, ``CC=false``): no kernels, the same efforts
+    from Pinocchio, no error."""
+    from estimators import efforts_kernel
+
+    monkeypatch.setenv("WBC_HDMM_CACHE", str(tmp_path / "cache"))
+    monkeypatch.setenv("CC", "false")
+    monkeypatch.setattr(efforts_kernel, "_REGISTRY", {})
+    assert kernels_for(MACHINE) is None
+    eff = ActuatorEfforts(MACHINE)
+    eff._shared[0] = None
+    reference = ActuatorEfforts(MACHINE, compiled=False)
+    E, e0 = eff.affine(STATES[2])
+    reference._shared[0] = None
+    np.testing.assert_array_equal(E, reference.affine(STATES[2])[0])
+    np.testing.assert_array_equal(eff.point_specific_forces(STATES[2], MOUNTS)[0],
+                                  reference.point_specific_forces(STATES[2], MOUNTS)[0])
+
+
+@pytest.mark.parametrize("mounts", [(("lift", (1.0, 0.0)),), (("lift", (1.0, np.nan, 0.0)),),
+                                    (("lift",),)])
+def test_a_bad_mount_is_refused(pair, mounts):
+    with pytest.raises(EstimatorError, match="mount"):
+        pair[0].point_specific_forces(STATES[0], mounts)
