@@ -37,7 +37,7 @@ from estimators.tree import TreeModel
 from models.cbuild import compile_shared
 from models.coordinates import N_INDEPENDENT
 
-__all__ = ["CasadiOps", "Kernels", "Layout", "build_kernels"]
+__all__ = ["CasadiOps", "Kernels", "Layout", "build_kernels", "checked_row", "row_major"]
 
 _log = logging.getLogger(__name__)
 
@@ -187,6 +187,21 @@ class Layout:
 LAYOUT = Layout()
 
 
+def row_major(m) -> ca.SX:
+    """The entries of matrix ``m`` as one column, row after row."""
+    return ca.reshape(m.T, -1, 1)
+
+
+def checked_row(*parts) -> ca.SX:
+    """The parts as one dense column, then their sum (the checksum, see `Layout`).
+
+    Dense: generated C writes only structural nonzeros, and the ctypes callers read fixed
+    row layouts. The checksum is finite exactly when every other entry is.
+    """
+    body = ca.densify(ca.vertcat(*parts))
+    return ca.vertcat(body, ca.sum1(body))
+
+
 def build_kernels(tree: TreeModel) -> dict[str, ca.Function]:
     """The three CasADi functions of the estimator for ``tree`` (see the module docstring)."""
     lay = LAYOUT
@@ -212,14 +227,8 @@ def build_kernels(tree: TreeModel) -> dict[str, ca.Function]:
     jq = ca.jacobian(x, q)
     jqd = ca.jacobian(x, qd)
     jb = ca.jacobian(out["b"], a_sym)
-    flat = lambda m: ca.reshape(m.T, -1, 1)  # noqa: E731  (row-major)
+    flat, row = row_major, checked_row
     g0 = x - ja @ a_sym
-
-    def row(*parts):
-        # Dense outputs: generated C writes only structural nonzeros, and the ctypes callers
-        # read fixed row layouts. The last entry is the checksum (see `Layout`).
-        body = ca.densify(ca.vertcat(*parts))
-        return ca.vertcat(body, ca.sum1(body))
 
     return {
         "nf_estimate": ca.Function("nf_estimate", [z], [row(est)]),

@@ -284,6 +284,18 @@ class ActuatorEfforts:
             bias.append(a_p - data.oMf[fid].rotation.T @ model.gravity.linear)
         return np.vstack(rows), np.concatenate(bias)
 
+    def prepare_points(self, mounts) -> None:
+        """Build `point_specific_forces`' kernel for ``mounts`` now (start-up, not a tick).
+
+        Raises:
+            EstimatorError: As `point_specific_forces` for a bad mount.
+        """
+        if self._kernels is not None:
+            self._kernels.points_kernel(mounts)
+        else:
+            for body, _ in mounts:
+                self._body_frame(body)
+
     def _body_frame(self, body: str) -> int:
         """Pinocchio's frame id of the description's body ``body`` (kept)."""
         fid = self._frames.get(body)

@@ -35,9 +35,8 @@ import threading
 import casadi as ca
 import numpy as np
 
-from estimators import spatial
 from estimators._kernel_calls import Compiled
-from estimators._symbolic import CasadiOps, _packed, kernel_source
+from estimators._symbolic import CasadiOps, _packed, checked_row, kernel_source, row_major
 from estimators.errors import EstimatorError
 from estimators.payload import ANCHOR_MASSES, anchor_machines
 from estimators.tree import TreeModel
@@ -65,17 +64,6 @@ def _symbols():
                   z[INPUTS["qd"]], qdd)
 
 
-def _checked_row(*parts) -> ca.SX:
-    # Dense (the generated C writes only structural nonzeros); the checksum last, finite
-    # exactly when every other entry is.
-    body = ca.densify(ca.vertcat(*parts))
-    return ca.vertcat(body, ca.sum1(body))
-
-
-def _flat(m) -> ca.SX:
-    return ca.reshape(m.T, -1, 1)  # row-major
-
-
 def efforts_function(machine: Machine) -> ca.Function:
     """The ``efforts`` kernel of ``machine`` (module docstring)."""
     z, u, args = _symbols()
@@ -94,21 +82,18 @@ def efforts_function(machine: Machine) -> ca.Function:
                     + tau[c.piston]
         e = ca.vertcat(*e)
         jac = ca.jacobian(e, u)
-        parts += [_flat(jac), ca.substitute(e, u, ca.DM.zeros(N_SERVO_AXES))]
-    return ca.Function("efforts", [z], [_checked_row(*parts)])
+        parts += [row_major(jac), ca.substitute(e, u, ca.DM.zeros(N_SERVO_AXES))]
+    return ca.Function("efforts", [z], [checked_row(*parts)])
 
 
-def _host(machine: Machine, tree: TreeModel, body: str) -> tuple[int, np.ndarray]:
-    """(tree index, 4x4 pose of ``body`` in it): a fixed body's moving host (as merged)."""
-    names = {b.name: b for b in machine.bodies}
-    if body not in names:
+def _host(tree: TreeModel, body: str) -> tuple[int, np.ndarray]:
+    """(tree index, 4x4 pose of ``body`` in it): a fixed body's moving host (`TreeModel.hosts`)."""
+    if body in tree.index:
+        return tree.index[body], np.eye(4)
+    if body not in tree.hosts:
         raise EstimatorError(f"no body {body!r} in the machine description")
-    t = np.eye(4)
-    while body not in tree.index:
-        b = names[body]
-        t = spatial.se3(b.rotation, b.position) @ t
-        body = b.parent
-    return tree.index[body], t
+    host, pose = tree.hosts[body]
+    return tree.index[host], pose
 
 
 def points_function(machine: Machine, mounts) -> ca.Function:
@@ -118,7 +103,7 @@ def points_function(machine: Machine, mounts) -> ca.Function:
     dyn = tree.dynamics(CasadiOps, *args)
     rows = []
     for body, point in mounts:
-        i, t = _host(machine, tree, body)
+        i, t = _host(tree, body)
         p_host = t[:3, :3] @ np.asarray(point, float) + t[:3, 3]
         p = ca.DM(p_host)
         v, w = dyn.twist[i][:3], dyn.twist[i][3:]
@@ -128,7 +113,7 @@ def points_function(machine: Machine, mounts) -> ca.Function:
     f = ca.vertcat(*rows)
     jac = ca.jacobian(f, u)
     return ca.Function(f"points_{len(mounts)}", [z],
-                       [_checked_row(_flat(jac), ca.substitute(f, u,
+                       [checked_row(row_major(jac), ca.substitute(f, u,
                                                               ca.DM.zeros(N_SERVO_AXES)))])
 
 

@@ -143,6 +143,7 @@ class TreeModel:
         machine: The description.
         bodies: Moving bodies (the base first), parents before children.
         index: Body name -> index.
+        hosts: Fixed body name -> (its moving host's name, the body's pose in it (4, 4)).
         chains: One `ChainSpec` per cylinder chain, in independent-coordinate order.
         direct: (independent index, body index) of the directly driven coordinates.
         wheels: Body indices of the wheels, order FL, RL, FR, RR.
@@ -173,6 +174,7 @@ class TreeModel:
                 merged[b.name] = b.inertia
                 order.append(b)
         self.index = {b.name: i for i, b in enumerate(order)}
+        self.hosts = host
 
         suspension_bodies = {order[0].name}
         for name in machine.suspension_coordinates:

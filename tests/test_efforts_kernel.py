@@ -138,3 +138,19 @@ def test_without_a_compiler_the_efforts_run_on_pinocchio(monkeypatch, tmp_path):
 def test_a_bad_mount_is_refused(pair, mounts):
     with pytest.raises(EstimatorError, match="mount"):
         pair[0].point_specific_forces(STATES[0], mounts)
+
+
+def test_prepared_points_build_nothing_at_the_first_call(pair, monkeypatch):
+    """`prepare_points` (the link fusion's constructor) builds the kernel; a tick then only
+    calls it."""
+    from estimators import efforts_kernel
+
+    with pytest.raises(EstimatorError, match="no body 'boom'"):
+        pair[0].prepare_points((("boom", (0.0, 0.0, 0.0)),))
+    mounts = (("telescope", (0.2, 0.0, 0.05)),)
+    pair[0].prepare_points(mounts)
+    monkeypatch.setattr(efforts_kernel, "points_function",
+                        lambda *a: pytest.fail("built a kernel at the first call"))
+    a, _ = pair[0].point_specific_forces(STATES[3], mounts)
+    np.testing.assert_allclose(a, pair[1].point_specific_forces(STATES[3], mounts)[0],
+                               rtol=0, atol=1e-12)

@@ -56,6 +56,7 @@ class LinkFusion:
         prior = np.asarray(prior_std, float)[AXES]
         self._prior_info = np.diag(1.0 / prior ** 2)
         self._mounts = tuple((a.body, a.position) for a in self.accelerometers)
+        efforts.prepare_points(self._mounts)  # compiled before the loop's first tick
         # Per reading: the sample noise (averaged over the tick's n samples), and the floor
         # n does not lower (bias, the base's error, a tick's mean against its instant).
         self._variance = np.repeat([a.accelerometer.sample_std ** 2
