@@ -89,7 +89,8 @@ class HorizonEffortLimit(Constraint):
         N = lay.n_steps
         steps, which, (upper_idx, lower_idx), diagonal = self._structure(ctx)
         if steps.size > 1:  # the nominal trajectory is needed beyond the measured state
-            qn, vn = pred.trajectory(ctx.q, ctx.qd, ctx.nominal_inputs)
+            qn, vn = pred.trajectory(ctx.q, ctx.qd, ctx.nominal_inputs,
+                                     (ctx.free_positions, ctx.free_velocities))
             qn = np.vstack([ctx.state.q[:N_AXES], qn])
             vn = np.vstack([ctx.state.qd[:N_AXES], vn])
         maps = []
@@ -99,15 +100,21 @@ class HorizonEffortLimit(Constraint):
             maps.append(self.efforts.affine(st))
         ax = self.axes
         na_b = ax.size
-        # Every step at once: E_k (N, bounded axes, axes) and e_0,k of the node each step uses.
-        E = np.stack([m[0] for m in maps])[which][:, ax]
-        e0 = np.stack([m[1] for m in maps])[which][:, ax]
+        # Every step at once: E_k (N, bounded axes, axes) and e_0,k of the node each step uses
+        # (one node: its arrays, which the operations broadcast over the steps).
+        if len(maps) == 1:
+            E1 = maps[0][0][ax]
+            E, e0 = E1[None], maps[0][1][ax]
+            scaled = np.tile((E1 / self._scale[:, None]).ravel(), N)
+        else:
+            E = np.stack([m[0] for m in maps])[which][:, ax]
+            e0 = np.stack([m[1] for m in maps])[which][:, ax]
+            # Rows scaled to the effort range (the solver's tolerance is absolute).
+            scaled = (E / self._scale[:, None]).ravel()
         brake = (E @ ctx.brake_inputs[:N, :, None])[:, :, 0] + e0
         hi = np.maximum(self.upper[ax], brake)
         lo = np.minimum(self.lower[ax], brake)
-        # Rows scaled to the effort range (the solver's tolerance is absolute); per step k
-        # the upper rows then the lower rows.
-        scaled = (E / self._scale[:, None]).ravel()
+        # Per step k the upper rows, then the lower rows.
         G = np.zeros(2 * N * na_b * lay.n)
         G[upper_idx] = scaled
         G[lower_idx] = -scaled

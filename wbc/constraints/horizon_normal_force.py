@@ -9,6 +9,7 @@ import numpy as np
 from estimators.linearization import ForceLinearization
 from models.coordinates import N_INDEPENDENT, SUSPENSION
 from wbc.axes import N_AXES
+from wbc.constraints.force_map_c import compiled_force_map
 from wbc.constraints.force_rows import ForceRowsConstraint
 from wbc.drive_model import speed_scale_direction
 from wbc.errors import ConfigurationError
@@ -96,6 +97,9 @@ class HorizonNormalForceConstraint(ForceRowsConstraint):
             step-major (4 N,), then the terminal rows if any; for logging and tests.
         last_in_contact: Contact flags used, shape (4,).
         linearization_steps: Steps at which the model was evaluated at the last call.
+        compiled: `forces_map` in C (`wbc.constraints.force_map_c`: one call a tick, the
+            same numbers to round-off) when a C compiler is there; False: numpy (the
+            reference).
     """
 
     def __init__(self, model: NormalForceModel, thresholds, n_linearizations: int = 3,
@@ -115,6 +119,8 @@ class HorizonNormalForceConstraint(ForceRowsConstraint):
         self.start_time = float(start_time)
         super().__init__(model, thresholds, force_scale, drive_time_constant)
         self.n_linearizations = int(n_linearizations)
+        self.compiled = True  # `forces_map` in C (`force_map_c`) when a compiler is there
+        self._compiled_map: list = []  # [its `CompiledForceMap` or None], made on first use
         self.linearization_steps: np.ndarray = np.zeros(0, dtype=int)
         self._structure_cache: tuple | None = None
         self._warp_cache: tuple | None = None
@@ -126,7 +132,8 @@ class HorizonNormalForceConstraint(ForceRowsConstraint):
         ``j = steps[which]``, ``n_eval``, ``times`` (the nodes' times), ``since_j`` (time
         since node ``j``, (n_eval, 1)), ``decay`` (the drive's ``exp(-t / tau)``,
         (n_eval, 1)), ``u_flat`` (flat indices of the input blocks in A), ``Pq``, ``Pv``
-        (the later nodes' prediction rows, (n_eval - 1, 9, n)) and the constrained
+        (the later nodes' prediction rows, (n_eval - 1, 9, n)), ``lq``, ``lv`` (their
+        scalar factors, `CondensedPrediction.Lq`, ``Lv``) and the constrained
         ``nodes`` with their ``later`` flags.
         """
         key = (ctx.structure_key, self.n_linearizations, self.terminal_brake_time,
@@ -152,7 +159,8 @@ class HorizonNormalForceConstraint(ForceRowsConstraint):
                 since_j=(times[:n_eval] - times[j])[:, None],
                 decay=np.exp(-times[:n_eval] / self.drive_time_constant)[:, None],
                 u_flat=u_flat, Pq=pred.Pq.reshape(N, na, lay.n)[:n_eval - 1],
-                Pv=pred.Pv.reshape(N, na, lay.n)[:n_eval - 1], nodes=nodes,
+                Pv=pred.Pv.reshape(N, na, lay.n)[:n_eval - 1], lq=pred.Lq, lv=pred.Lv,
+                nodes=nodes,
                 later=times[:n_eval][nodes] > ctx.dt / 2))
         return self._structure_cache[1]
 
@@ -165,10 +173,13 @@ class HorizonNormalForceConstraint(ForceRowsConstraint):
             (N + 1, 9)) with node 0 the measured state (its measured axes, which may differ
             from the prediction's start ``ctx.q`` by the servo deflection's vibration).
         """
-        start = ctx.prediction.start_times
-        qn, vn = ctx.prediction.trajectory(ctx.q, ctx.qd, ctx.nominal_inputs)
-        qn = np.vstack([ctx.state.q[:N_AXES], qn])
-        vn = np.vstack([ctx.state.qd[:N_AXES], vn])
+        pred = ctx.prediction
+        start, u = pred.start_times, ctx.nominal_inputs
+        qn = np.empty((u.shape[0] + 1, N_AXES))
+        vn = np.empty_like(qn)
+        qn[0], vn[0] = ctx.state.q[:N_AXES], ctx.state.qd[:N_AXES]
+        np.add(ctx.free_positions, pred.Lq @ u, out=qn[1:])  # `CondensedPrediction.trajectory`
+        np.add(ctx.free_velocities, pred.Lv @ u, out=vn[1:])
         steps = self._structure(ctx).steps
         lins = []
         for j in steps:
@@ -211,6 +222,16 @@ class HorizonNormalForceConstraint(ForceRowsConstraint):
         if in_contact is None:
             in_contact = linearized_contact_flags(st, lins[0])
         warp = ctx.warp if np.asarray(in_contact, dtype=bool).all() else None
+        drift = (ctx.warp_drift if warp is not None and ctx.warp_drift is not None
+                 else None)
+        s_prev = max(ctx.speed_scale, _MIN_SCALE)
+        kernel = self._kernel() if na == N_AXES else None
+        if kernel is not None:
+            return kernel.evaluate(
+                struct, N, lay.n, lay.scale, lins, ctx, qn, vn,
+                zero_suspension=ctx.warp is not None, warp=warp, direction=direction,
+                bias=None if ctx.feedback is None else ctx.feedback.bias, drift=drift,
+                s_prev=s_prev, brake_time=self.terminal_brake_time)
         # Every step at once: (n_eval, 4, .) stacks of the linearization each step uses
         # (the suspension acts through the warp model only when there is one).
         G, d_q, d_qd, g0 = _stacked(lins, which, ctx.warp is not None)
@@ -241,14 +262,21 @@ class HorizonNormalForceConstraint(ForceRowsConstraint):
         b = b.reshape(4 * n_eval)
         if ctx.feedback is not None:  # the load split measured now, held over the horizon
             b.reshape(n_eval, 4)[:] += ctx.feedback.bias
-        if warp is not None and ctx.warp_drift is not None:  # the terrain keeps twisting
-            drift = (ctx.warp_drift[:n_eval, None] * DIAGONAL).reshape(-1)  # kron(drift, D)
+        if drift is not None:  # the terrain keeps twisting
+            drift = (drift[:n_eval, None] * DIAGONAL).reshape(-1)  # kron(drift, D)
             b += drift
             if lay.scale is not None:
-                s_prev = max(ctx.speed_scale, _MIN_SCALE)
                 A[:, lay.scale] += drift / s_prev
                 b -= drift * ctx.speed_scale / s_prev
         return A, b
+
+    def _kernel(self):
+        """This constraint's `CompiledForceMap` if `compiled` (None without a compiler)."""
+        if not self.compiled:
+            return None
+        if not self._compiled_map:
+            self._compiled_map.append(compiled_force_map())
+        return self._compiled_map[0]
 
     def _warp_rows(self, warp: np.ndarray, Pq: np.ndarray) -> np.ndarray:
         """``warp @ Pq`` (n_eval - 1, 4, n), kept while the warp matrix stays the same."""

@@ -76,6 +76,7 @@ class MpcPlanner:
         self.builder = QPBuilder(self.tasks, self.constraints, self.regularization)
         self._plan: np.ndarray | None = None  # (N, 9) inputs of the last plan
         self._plan_time = 0.0
+        self._shift: tuple | None = None  # (elapsed time, the plan's step for each step)
 
     @property
     def horizon(self) -> float:
@@ -101,10 +102,13 @@ class MpcPlanner:
         N = self.layout.n_steps
         if self._plan is None:
             return np.zeros((N, N_AXES))
-        starts = self.prediction.start_times
         elapsed = max(time - self._plan_time, 0.0)
-        idx = np.searchsorted(starts, starts + elapsed + 1e-9, side="right") - 1
-        return self._plan[np.clip(idx, 0, N - 1)]
+        starts = self.prediction.start_times
+        shift = self._shift  # the last tick's: the same elapsed time, tick after tick
+        if shift is None or shift[0] != elapsed or shift[2] is not starts:
+            idx = np.searchsorted(starts, starts + elapsed + 1e-9, side="right") - 1
+            self._shift = (elapsed, np.clip(idx, 0, N - 1), starts)
+        return self._plan[self._shift[1]]
 
     def context(self, state: MachineState, reference: ReferenceSample,
                 previous_acceleration: np.ndarray, speed_scale: float, *,
@@ -125,7 +129,8 @@ class MpcPlanner:
         q = state.q[:N_AXES].copy() if q is None else np.array(q, float)
         qd = state.qd[:N_AXES].copy() if qd is None else np.array(qd, float)
         qf, vf = self.prediction.free_response(q, qd)
-        ub, qb, vb = self.prediction.brake_trajectory(q, qd, self.limits.acceleration)
+        ub, qb, vb = self.prediction.brake_trajectory(q, qd, self.limits.acceleration,
+                                                      (qf, vf))
         return HorizonContext(state, q, qd, self.dt, self.layout, self.limits, self.prediction,
                               reference, self.nominal_inputs(state.time),
                               np.asarray(previous_acceleration, float), float(speed_scale),
@@ -148,7 +153,8 @@ class MpcPlanner:
             raise
         lay = self.layout
         u = sol.x[lay.accelerations].reshape(lay.n_steps, lay.n_axes)
-        qs, vs = self.prediction.trajectory(ctx.q, ctx.qd, u)
+        qs, vs = self.prediction.trajectory(ctx.q, ctx.qd, u,
+                                            (ctx.free_positions, ctx.free_velocities))
         s = 1.0 if lay.scale is None else float(sol.x[lay.scale])
         slack = np.zeros(4) if lay.slack is None else sol.x[lay.slack].copy()
         self._plan, self._plan_time = u.copy(), ctx.state.time

@@ -89,13 +89,18 @@ class CondensedPrediction:
         v[:] = qd0  # every node at the initial velocity
         return q, v
 
-    def trajectory(self, q0, qd0, inputs) -> tuple[np.ndarray, np.ndarray]:
-        """Node positions and velocities for inputs (N, n_axes): shapes (N, n_axes)."""
-        qf, vf = self.free_response(q0, qd0)
+    def trajectory(self, q0, qd0, inputs, free=None) -> tuple[np.ndarray, np.ndarray]:
+        """Node positions and velocities for inputs (N, n_axes): shapes (N, n_axes).
+
+        ``free``: `free_response` of ``q0, qd0`` if the caller has it (a context does).
+        """
+        qf, vf = self.free_response(q0, qd0) if free is None else free
         return qf + self.Lq @ inputs, vf + self.Lv @ inputs
 
-    def brake_trajectory(self, q0, qd0, acceleration) -> tuple[np.ndarray, ...]:
+    def brake_trajectory(self, q0, qd0, acceleration, free=None) -> tuple[np.ndarray, ...]:
         """Brake every axis to rest at the acceleration limit, then hold.
+
+        ``free``: as for `trajectory`.
 
         Returns:
             (inputs, positions, velocities), shapes (N, n_axes); the inputs respect
@@ -111,7 +116,7 @@ class CondensedPrediction:
             if not v.any():  # at rest (every v now +0): the later inputs are -0
                 u[k + 1:] = -0.0
                 break
-        q, vel = self.trajectory(q0, qd0, u)
+        q, vel = self.trajectory(q0, qd0, u, free)
         return u, q, vel
 
 

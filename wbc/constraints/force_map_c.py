@@ -1,0 +1,283 @@
+"""The MPC's predicted-force map ``(A, b)`` in C: one call per tick instead of ~40 numpy ops.
+
+`HorizonNormalForceConstraint` predicts the four normal forces at every node of the horizon
+as ``A x + b`` (its docstring has the model). In numpy that is a few dozen operations on
+small arrays, each one mostly call overhead (~0.15 ms a tick, cache-cold in the loop, for a
+few thousand multiplications). `FORCE_MAP_C` is the same arithmetic as loops over what is
+not structurally zero: the condensed prediction of every axis is ``kron(Lq, I)`` on the
+inputs, so node k's row of wheel i reads ``dq[k, i, a] Lq[k-1, j] + dqd[k, i, a] Lv[k-1,
+j]`` in the column of step j's input to axis a. Compiled once with the system compiler
+(`models.cbuild`) and called through ctypes with one block of pointers; the numpy version
+stays as the fallback without a compiler and as the test's oracle
+(`tests/test_force_map_c.py`: the same ``A`` to the bit where the numpy sums hold one
+nonzero term, ``b`` to round-off).
+"""
+
+from __future__ import annotations
+
+import ctypes
+import logging
+import subprocess
+
+import numpy as np
+
+from models.cbuild import compile_shared
+from models.coordinates import N_INDEPENDENT, SUSPENSION
+from wbc.axes import N_AXES
+from wbc.force_models.feedback import DIAGONAL
+
+__all__ = ["FORCE_MAP_C", "CompiledForceMap", "compiled_force_map"]
+
+_log = logging.getLogger(__name__)
+
+# Integer header `iv` (then `which` and `j` of every node), double header `dv`, pointers `p`.
+_I_NAMES = ("n_eval", "n_steps", "n", "row_len", "off_g", "off_dq", "off_dqd", "off_g0",
+            "scale", "susp_lo", "susp_hi", "zero_susp", "warp", "direction", "bias",
+            "drift", "terminal")
+_D_NAMES = ("speed_scale", "brake_time", "s_prev")
+_P_NAMES = ("rows", "lq", "lv", "since", "decay", "omega", "free_q", "free_v", "qn", "vn",
+            "q0", "warp", "direction", "bias", "drift", "diagonal")
+NW, NA, NQ = 4, N_AXES, N_INDEPENDENT  # wheels, axes, coordinates (as in FORCE_MAP_C)
+NG = 6 + NQ  # accelerations: base twist, coordinates
+IV = {name: k for k, name in enumerate(_I_NAMES)}  # places in the headers
+DV = {name: k for k, name in enumerate(_D_NAMES)}
+
+FORCE_MAP_C = r"""
+#include <string.h>
+enum { NW = 4, NA = 9, NB = 6, NG = 19, NQ = 13, N_HEADER = 17 };
+/* Mirrors `HorizonNormalForceConstraint._forces_map` (the numpy version), step by step.
+   A: (n_eval, 4, n) row-major, b: (n_eval, 4). */
+int force_map(const double* const* p, const long long* iv, const double* dv,
+              double* A, double* b) {
+  const long long n_eval = iv[0], N = iv[1], n = iv[2], row_len = iv[3];
+  const long long off_g = iv[4], off_dq = iv[5], off_dqd = iv[6], off_g0 = iv[7];
+  const long long scale = iv[8], s_lo = iv[9], s_hi = iv[10], zero_susp = iv[11];
+  const int has_warp = (int)iv[12], has_dir = (int)iv[13], has_bias = (int)iv[14];
+  const int has_drift = (int)iv[15], terminal = (int)iv[16];
+  const long long* which = iv + N_HEADER;
+  const long long* jn = which + n_eval;
+  const double speed_scale = dv[0], Tb = dv[1], s_prev = dv[2];
+  const double *rows = p[0], *Lq = p[1], *Lv = p[2], *since = p[3], *decay = p[4];
+  const double *omega = p[5], *fq = p[6], *fv = p[7], *qn = p[8], *vn = p[9], *q0 = p[10];
+  const double *warp = p[11], *dir = p[12], *bias = p[13], *drift = p[14], *diag = p[15];
+  double G[NW][NG], dq[NW][NQ], dqd[NW][NQ];
+  long long k, i, a, jj, c, n_u = n_eval < N ? n_eval : N;
+  if (n_eval < 1 || N < 1 || n < N * NA || n_eval > N + 1) return -1;
+  memset(A, 0, sizeof(double) * (size_t)(n_eval * NW * n));
+  for (k = 0; k < n_eval; ++k) {
+    const double* row = rows + which[k] * row_len;
+    double* Ak = A + k * NW * n;
+    double* bk = b + k * NW;
+    memcpy(G, row + off_g, sizeof G);
+    memcpy(dq, row + off_dq, sizeof dq);
+    memcpy(dqd, row + off_dqd, sizeof dqd);
+    if (zero_susp) {  /* the suspension acts through the warp model only */
+      for (i = 0; i < NW; ++i)
+        for (a = s_lo; a < s_hi; ++a) { G[i][NB + a] = 0.0; dq[i][a] = 0.0; dqd[i][a] = 0.0; }
+    }
+    for (i = 0; i < NW; ++i) {  /* b = g0 + (dq_wheels . omega) * since_j */
+      double s = 0.0;
+      for (c = 0; c < NQ - NA; ++c) s += dq[i][NA + c] * omega[c];
+      bk[i] = row[off_g0 + i] + s * since[k];
+    }
+    if (k >= 1) {  /* the configuration along the condensed prediction */
+      const double* lq = Lq + (k - 1) * N;
+      const double* lv = Lv + (k - 1) * N;
+      const double* dqk = fq + (k - 1) * NA;
+      const double* dvk = fv + (k - 1) * NA;
+      const double* qj = qn + jn[k] * NA;
+      const double* vj = vn + jn[k] * NA;
+      for (i = 0; i < NW; ++i) {
+        double* Ai = Ak + i * n;
+        double s = 0.0, t = 0.0;
+        for (jj = 0; jj < N; ++jj) {
+          if (lq[jj] == 0.0 && lv[jj] == 0.0) continue;
+          for (a = 0; a < NA; ++a)
+            Ai[jj * NA + a] = dq[i][a] * lq[jj] + dqd[i][a] * lv[jj];
+        }
+        for (a = 0; a < NA; ++a) s += dq[i][a] * (dqk[a] - qj[a]);
+        for (a = 0; a < NA; ++a) t += dqd[i][a] * (dvk[a] - vj[a]);
+        bk[i] += s + t;
+      }
+    }
+    if (k < n_u) {  /* step k's own input: the accelerations' direct effect */
+      for (i = 0; i < NW; ++i)
+        for (a = 0; a < NA; ++a) Ak[i * n + k * NA + a] = G[i][NB + a];
+    }
+    if (terminal && k == N) {  /* brake to rest after the horizon: a = -qd_N / T_b */
+      const double* lv = Lv + (N - 1) * N;
+      const double* vN = fv + (N - 1) * NA;
+      for (i = 0; i < NW; ++i) {
+        double s = 0.0;
+        for (jj = 0; jj < N; ++jj) {
+          if (lv[jj] == 0.0) continue;
+          for (a = 0; a < NA; ++a) Ak[i * n + jj * NA + a] -= G[i][NB + a] * lv[jj] / Tb;
+        }
+        for (a = 0; a < NA; ++a) s += G[i][NB + a] * vN[a];
+        bk[i] -= s / Tb;
+      }
+    }
+    if (has_warp && k >= 1) {  /* the suspension twists the chassis */
+      const double* lq = Lq + (k - 1) * N;
+      const double* qk = fq + (k - 1) * NA;
+      for (i = 0; i < NW; ++i) {
+        double s = 0.0;
+        for (jj = 0; jj < N; ++jj) {
+          if (lq[jj] == 0.0) continue;
+          for (a = 0; a < NA; ++a) Ak[i * n + jj * NA + a] += warp[i * NA + a] * lq[jj];
+        }
+        for (a = 0; a < NA; ++a) s += (qk[a] - q0[a]) * warp[i * NA + a];
+        bk[i] += s;
+      }
+    }
+    if (has_dir && scale >= 0) {  /* the wheel-speed scale's drive acceleration */
+      for (i = 0; i < NW; ++i) {
+        double s = 0.0;
+        for (c = 0; c < NG; ++c) s += G[i][c] * dir[c];
+        s *= decay[k];
+        Ak[i * n + scale] += s;
+        bk[i] -= s * speed_scale;
+      }
+    }
+    if (has_bias)
+      for (i = 0; i < NW; ++i) bk[i] += bias[i];
+    if (has_drift) {  /* the terrain keeps twisting */
+      for (i = 0; i < NW; ++i) {
+        double d = drift[k] * diag[i];
+        bk[i] += d;
+        if (scale >= 0) {
+          Ak[i * n + scale] += d / s_prev;
+          bk[i] -= d * speed_scale / s_prev;
+        }
+      }
+    }
+  }
+  return 0;
+}
+"""
+# The C source's sizes are this module's.
+if "NA = %d, NB = 6, NG = %d, NQ = %d, N_HEADER = %d" % (NA, NG, NQ, len(_I_NAMES)) \
+        not in FORCE_MAP_C:
+    raise ImportError("FORCE_MAP_C's sizes differ from the coordinates'")
+
+
+class CompiledForceMap:
+    """`FORCE_MAP_C` with the buffers of one constraint (not shared between threads).
+
+    `evaluate` copies a tick's inputs into buffers that a block of pointers points at (kept
+    while the horizon's structure stays the same) and writes fresh ``A``, ``b``.
+    """
+
+    def __init__(self, fun):
+        self._fun = fun
+        self._key: tuple | None = None
+
+    def _buffers(self, struct, n_steps: int, n: int, scale, rows_shape: tuple) -> None:
+        """The buffers of a structure (`HorizonNormalForceConstraint._structure`)."""
+        key = (struct, n_steps, n, scale, rows_shape)
+        if self._key is not None and all(map(_same, self._key, key)):
+            return
+        N, n_eval = n_steps, struct.n_eval
+        head = len(_I_NAMES)
+        iv = self.iv = np.zeros(head + 2 * n_eval, np.int64)
+        iv[head:head + n_eval] = struct.which
+        iv[head + n_eval:] = struct.j
+        iv[IV["n_eval"]], iv[IV["n_steps"]], iv[IV["n"]] = n_eval, N, n
+        iv[IV["scale"]] = -1 if scale is None else scale
+        iv[IV["terminal"]] = n_eval > N
+        iv[IV["susp_lo"]], iv[IV["susp_hi"]] = SUSPENSION.start, SUSPENSION.stop
+        self.dv = np.zeros(len(_D_NAMES))
+        self._iv_at, self._dv_at = iv.ctypes.data, self.dv.ctypes.data
+        a = self.arrays = {
+            "rows": np.zeros(rows_shape), "lq": np.ascontiguousarray(struct.lq, float),
+            "lv": np.ascontiguousarray(struct.lv, float),
+            "since": np.ascontiguousarray(struct.since_j[:, 0], float),
+            "decay": np.ascontiguousarray(struct.decay[:, 0], float), "omega": np.zeros(NW),
+            "free_q": np.zeros((N, NA)), "free_v": np.zeros((N, NA)),
+            "qn": np.zeros((N + 1, NA)), "vn": np.zeros((N + 1, NA)), "q0": np.zeros(NA),
+            "warp": np.zeros((NW, NA)), "direction": np.zeros(NG), "bias": np.zeros(NW),
+            "drift": np.zeros(n_eval), "diagonal": np.array(DIAGONAL, float)}
+        self.pointers = (ctypes.c_void_p * len(_P_NAMES))(
+            *(a[name].ctypes.data for name in _P_NAMES))
+        self._key = key
+
+    def evaluate(self, struct, n_steps: int, n: int, scale, lins, ctx, qn, vn, *,
+                 zero_suspension: bool, warp, direction, bias, drift, s_prev: float,
+                 brake_time: float | None) -> tuple[np.ndarray, np.ndarray]:
+        """``(A, b)`` as `HorizonNormalForceConstraint._forces_map` computes them.
+
+        ``lins``: the linearizations (`ForceLinearization`); ``warp``, ``direction``,
+        ``bias``, ``drift``: None where the numpy version skips the term.
+        """
+        views = lins[0].__dict__.get("_views")
+        slices = getattr(views, "slices", None)
+        rowed = slices is not None and all(o.__dict__.get("_views") is views for o in lins)
+        width = lins[0].__dict__["_row"].size if rowed else _OWN_ROW
+        self._buffers(struct, n_steps, n, scale, (len(lins), width))
+        a, iv, dv = self.arrays, self.iv, self.dv
+        rows = a["rows"]
+        if rowed:
+            for k, lin in enumerate(lins):
+                rows[k] = lin.__dict__["_row"]
+            offsets = (slices["G"][0].start, slices["d_q"][0].start,
+                       slices["d_qd"][0].start, slices["g0"][0].start)
+        else:
+            for k, lin in enumerate(lins):
+                for name, (lo, hi) in _OWN_FIELDS.items():
+                    rows[k, lo:hi] = np.ravel(getattr(lin, name))
+            offsets = tuple(lo for lo, _ in _OWN_FIELDS.values())
+        iv[IV["row_len"]] = width
+        iv[IV["off_g"]:IV["off_g0"] + 1] = offsets
+        iv[IV["zero_susp"]] = zero_suspension
+        a["omega"][:] = ctx.state.qd[NA:NQ]
+        a["free_q"][:] = ctx.free_positions
+        a["free_v"][:] = ctx.free_velocities
+        a["qn"][:] = qn
+        a["vn"][:] = vn
+        a["q0"][:] = ctx.q
+        for name, value in (("warp", warp), ("direction", direction), ("bias", bias),
+                            ("drift", drift)):
+            iv[IV[name]] = value is not None
+            if value is not None:
+                a[name][:] = value if name != "drift" else value[:struct.n_eval]
+        dv[DV["speed_scale"]] = ctx.speed_scale
+        dv[DV["brake_time"]] = 1.0 if brake_time is None else brake_time
+        dv[DV["s_prev"]] = s_prev
+        A = np.empty((NW * struct.n_eval, n))
+        b = np.empty(NW * struct.n_eval)
+        if self._fun(self.pointers, self._iv_at, self._dv_at, A.ctypes.data,
+                     b.ctypes.data) != 0:
+            raise ValueError(f"force map: inconsistent sizes {iv[:4].tolist()}")
+        return A, b
+
+
+def _same(x, y) -> bool:
+    return x is y or (type(x) is type(y) and not hasattr(x, "__dict__") and x == y)
+
+
+# A linearization without a kernel row (a test double's): its fields in a row of our own.
+_OWN_FIELDS = {"G": (0, NW * NG), "d_q": (NW * NG, NW * (NG + NQ)),
+               "d_qd": (NW * (NG + NQ), NW * (NG + 2 * NQ)),
+               "g0": (NW * (NG + 2 * NQ), NW * (NG + 2 * NQ + 1))}
+_OWN_ROW = NW * (NG + 2 * NQ + 1)
+
+
+_LOADED: list = []  # [the C function] or [None] (no compiler), once per process
+
+
+def compiled_force_map() -> CompiledForceMap | None:
+    """A new `CompiledForceMap` (its own buffers), or None without a working compiler.
+
+    The library is compiled (or found in the cache) and loaded once per process.
+    """
+    if not _LOADED:
+        try:
+            lib = ctypes.CDLL(str(compile_shared(FORCE_MAP_C, "force_map", "-O3")))
+            fun = lib.force_map
+            fun.argtypes = [ctypes.c_void_p] * 5
+            fun.restype = ctypes.c_int
+            _LOADED.append(fun)
+        except (OSError, subprocess.SubprocessError) as exc:
+            _log.warning("force map not compiled (%s); using numpy", exc)
+            _LOADED.append(None)
+    return None if _LOADED[0] is None else CompiledForceMap(_LOADED[0])
