@@ -6,6 +6,7 @@ import numpy as np
 
 from wbc.axes import N_AXES
 from wbc.constraints.constraint import Box, Constraint, unbounded
+from wbc.constraints.limits_c import compiled_bounds
 from wbc.errors import ConfigurationError
 
 __all__ = ["PositionLimit"]
@@ -33,6 +34,10 @@ class PositionLimit(Constraint):
     Args:
         horizon: T [s]; None: the control period.
         braking_fraction: Fraction of the acceleration limit used for braking, in (0, 1].
+
+    Attributes:
+        compiled: Evaluate in C (`wbc.constraints.limits_c`, the same bits) when a C
+            compiler is there; False: numpy.
     """
 
     def __init__(self, horizon: float | None = None, braking_fraction: float = 0.5):
@@ -45,6 +50,9 @@ class PositionLimit(Constraint):
         self.braking_fraction = float(braking_fraction)
         self._key: tuple | None = None
         self._const: tuple = ()
+        self.compiled = True
+        self._c: list = []  # [`CompiledBounds` or None], made on first use
+        self._c_const: tuple | None = None  # the constants its input buffer holds
 
     def _constants(self, ctx) -> tuple:
         """What depends on the limits, the period and the layout only, kept while they do.
@@ -63,10 +71,36 @@ class PositionLimit(Constraint):
                            np.empty(2 * N_AXES), np.empty(2 * N_AXES), np.empty(2 * N_AXES))
         return self._const
 
+    def _compiled(self, const: tuple, lim, dt: float):
+        """The C evaluation with ``const`` in its input buffer, or None (numpy)."""
+        if not self.compiled:
+            return None
+        if not self._c:
+            self._c.append(compiled_bounds("position_bounds"))
+        c = self._c[0]
+        if c is not None and self._c_const is not const:
+            na = N_AXES
+            inp = c.inp
+            inp[3 * na:4 * na], inp[4 * na:5 * na] = lim.position_upper, lim.position_lower
+            inp[5 * na:7 * na], inp[7 * na:9 * na], inp[9 * na:11 * na] = const[:3]
+            inp[11 * na:] = const[3], const[4], dt
+            self._c_const = const
+        return c
+
     def compute(self, ctx) -> Box:
         """Box on step 0's accelerations."""
         lim, dt, q, qd = ctx.limits, ctx.dt, ctx.q, ctx.qd
-        neg_bdt, bdt2, two_b, T, T2, d, v, x = self._constants(ctx)
+        const = self._constants(ctx)
+        c = self._compiled(const, lim, dt)
+        if c is not None:
+            inp = c.inp
+            inp[:N_AXES], inp[N_AXES:2 * N_AXES], inp[2 * N_AXES:3 * N_AXES] = q, qd, ctx.brake
+            c.call()
+            lb, ub = unbounded(ctx.layout.n)
+            s = ctx.layout.step(0)
+            lb[s], ub[s] = c.out
+            return Box(lb, ub)
+        neg_bdt, bdt2, two_b, T, T2, d, v, x = const
         # Both sides in one pass: the upper side (distance d = q_hi - q, speed v = qd towards
         # it) and the lower side mirrored (d = q - q_lo, v = -qd), whose bound is the negated
         # upper one. Written into scratch arrays, in the order of the operations of

@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from wbc.axes import N_AXES
 from wbc.constraints.constraint import Box, Constraint, unbounded
+from wbc.constraints.limits_c import compiled_bounds
 
 __all__ = ["VelocityLimit"]
 
@@ -16,7 +18,16 @@ class VelocityLimit(Constraint):
     asymmetric) and the drives' ``velocity_limit``. Each bound is relaxed to admit the
     braking acceleration (`AxisLimits.brake_acceleration`): an axis measured above its limit
     is brought back at the acceleration limit instead of making the QP infeasible.
+
+    Attributes:
+        compiled: Evaluate in C (`wbc.constraints.limits_c`, the same bits) when a C
+            compiler is there; False: numpy.
     """
+
+    def __init__(self):
+        self.compiled = True
+        self._c: list = []  # [`CompiledBounds` or None], made on first use
+        self._c_key: tuple | None = None  # (limits, dt) its input buffer holds
 
     def compute(self, ctx) -> Box:
         """Box on step 0's accelerations."""
@@ -24,6 +35,20 @@ class VelocityLimit(Constraint):
         brake = ctx.brake
         lb, ub = unbounded(ctx.layout.n)
         s = ctx.layout.step(0)
+        if self.compiled and not self._c:
+            self._c.append(compiled_bounds("velocity_bounds"))
+        c = self._c[0] if self.compiled else None
+        if c is not None:
+            inp, na = c.inp, N_AXES
+            key = self._c_key
+            if key is None or key[0] is not lim or key[1] != dt:
+                inp[2 * na:3 * na], inp[3 * na:4 * na] = lim.velocity_upper, lim.velocity_lower
+                inp[4 * na] = dt
+                self._c_key = (lim, dt)
+            inp[:na], inp[na:2 * na] = qd, brake
+            c.call()
+            lb[s], ub[s] = c.out
+            return Box(lb, ub)
         # min((v_lo - qd) / dt, brake) and max((v_hi - qd) / dt, brake), in place
         lower = np.subtract(lim.velocity_lower, qd, out=lb[s])
         lower /= dt

@@ -1,0 +1,120 @@
+"""The whole-body QP's stroke and speed bounds in C: one call each instead of ~20 ufuncs.
+
+`PositionLimit` and `VelocityLimit` turn the nine axes' limits into bounds on the
+accelerations, element by element; in numpy that is one ufunc call per operation on
+18-element arrays (~25 us a tick together, for a few hundred flops). `LIMITS_C` is the same
+IEEE operations in the same order (numpy's ``minimum``/``maximum`` NaN rule included),
+compiled once with the system compiler (`models.cbuild`, no contraction into fused
+multiply-adds) and called through ctypes on kept buffers: the same bits
+(`tests/test_limits_c.py`). Without a compiler the numpy code runs.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import functools
+import logging
+import subprocess
+
+import numpy as np
+
+from models.cbuild import compile_shared
+from wbc.axes import N_AXES
+
+__all__ = ["LIMITS_C", "CompiledBounds", "compiled_bounds"]
+
+_log = logging.getLogger(__name__)
+
+LIMITS_C = r"""
+#include <math.h>
+enum { NA = 9 };
+/* numpy's maximum and minimum: NaN in either gives NaN; equal values give the first. */
+static double np_max(double a, double b) { return (a >= b || isnan(a)) ? a : b; }
+static double np_min(double a, double b) { return (a <= b || isnan(a)) ? a : b; }
+
+/* `PositionLimit.compute`: in = q, qd, brake, q_hi, q_lo, -b dt (18), (b dt)^2 (18),
+   2 b (18), then T, T^2, dt; out = lower (9), upper (9) of the step's accelerations. */
+int position_bounds(const double* in, double* out) {
+  const double *q = in, *qd = in + NA, *brake = in + 2 * NA, *hi = in + 3 * NA;
+  const double *lo = in + 4 * NA, *neg_bdt = in + 5 * NA, *bdt2 = in + 7 * NA;
+  const double *two_b = in + 9 * NA;
+  const double T = in[11 * NA], T2 = in[11 * NA + 1], dt = in[11 * NA + 2];
+  double bound[2 * NA];
+  int i;
+  for (i = 0; i < 2 * NA; ++i) {
+    /* the upper side: distance d = q_hi - q, speed v = qd; the lower side mirrored */
+    double d = i < NA ? hi[i] - q[i] : q[i - NA] - lo[i - NA];
+    double v = i < NA ? qd[i] : -qd[i - NA];
+    double x = v * 0.5;
+    x *= dt;
+    x = d - x;
+    x = np_max(x, 0.0);
+    x = two_b[i] * x;
+    x += bdt2[i];
+    x = sqrt(x);
+    x += neg_bdt[i];
+    x -= v;
+    x /= dt;
+    v = v * T;
+    d = d - v;
+    d *= 2.0;
+    d /= T2;
+    bound[i] = np_min(d, x);
+  }
+  for (i = 0; i < NA; ++i) {
+    out[i] = np_min(-bound[NA + i], brake[i]);
+    out[NA + i] = np_max(bound[i], brake[i]);
+  }
+  return 0;
+}
+
+/* `VelocityLimit.compute`: in = qd, brake, v_hi, v_lo, then dt; out = lower, upper. */
+int velocity_bounds(const double* in, double* out) {
+  const double *qd = in, *brake = in + NA, *hi = in + 2 * NA, *lo = in + 3 * NA;
+  const double dt = in[4 * NA];
+  int i;
+  for (i = 0; i < NA; ++i) {
+    double lower = lo[i] - qd[i], upper = hi[i] - qd[i];
+    lower /= dt;
+    upper /= dt;
+    out[i] = np_min(lower, brake[i]);
+    out[NA + i] = np_max(upper, brake[i]);
+  }
+  return 0;
+}
+"""
+
+
+class CompiledBounds:
+    """One of `LIMITS_C`'s functions with its own input and output buffers.
+
+    ``inp`` (the function's input layout), ``out`` (lower, upper: (2, 9)); `call` evaluates
+    the one on the other. Not shared between threads (each constraint makes its own).
+    """
+
+    def __init__(self, fun, n_in: int):
+        self.inp = np.zeros(n_in)
+        self.out = np.zeros((2, N_AXES))
+        self.call = functools.partial(fun, self.inp.ctypes.data, self.out.ctypes.data)
+
+
+_LIB: list = []  # [the library] or [None] (no compiler), once per process
+
+
+def compiled_bounds(name: str) -> CompiledBounds | None:
+    """A new `CompiledBounds` of ``position_bounds`` or ``velocity_bounds``; None without a
+    working C compiler."""
+    if not _LIB:
+        try:
+            lib = ctypes.CDLL(str(compile_shared(LIMITS_C, "axis_limits")))
+            for fun in (lib.position_bounds, lib.velocity_bounds):
+                fun.argtypes = [ctypes.c_void_p, ctypes.c_void_p]
+                fun.restype = ctypes.c_int
+            _LIB.append(lib)
+        except (OSError, subprocess.SubprocessError) as exc:
+            _log.warning("axis limits not compiled (%s); using numpy", exc)
+            _LIB.append(None)
+    if _LIB[0] is None:
+        return None
+    n_in = {"position_bounds": 11 * N_AXES + 3, "velocity_bounds": 4 * N_AXES + 1}[name]
+    return CompiledBounds(getattr(_LIB[0], name), n_in)
