@@ -102,8 +102,10 @@ _LIB: list = []  # [the library] or [None] (no compiler), once per process
 
 
 def compiled_bounds(name: str) -> CompiledBounds | None:
-    """A new `CompiledBounds` of ``position_bounds`` or ``velocity_bounds``; None without a
-    working C compiler."""
+    """A new `CompiledBounds` of ``position_bounds`` or ``velocity_bounds``.
+
+    None without a working C compiler (the library is built once per process).
+    """
     if not _LIB:
         try:
             lib = ctypes.CDLL(str(compile_shared(LIMITS_C, "axis_limits")))
