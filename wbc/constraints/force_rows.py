@@ -112,25 +112,29 @@ class ForceRowsConstraint(Constraint):
     def _rows(self, ctx, flags: np.ndarray, n_nodes: int) -> tuple:
         """``(rows of A, their thresholds [N], slack entries of G)`` for these contact flags.
 
-        None rows without a wheel in contact. Kept while the flags, the thresholds, the
-        constrained nodes and the slacks stay the same (they change when a wheel lifts).
+        None rows without a wheel in contact. The rows and slack entries are kept while the
+        flags, the constrained nodes and the slacks stay the same (they change when a wheel
+        lifts); the thresholds, which the MPC's margin moves every tick, are made each call.
         """
         nodes, later = self._constrained_nodes(ctx, n_nodes)
         lay = ctx.layout
-        key = (flags.tobytes(), self.thresholds.tobytes(), nodes.tobytes(), later.tobytes(),
+        key = (flags.tobytes(), nodes.tobytes(), later.tobytes(),
                None if lay.slack is None else lay.slack.start, lay.n_slack)
         if self._rows_cache is None or self._rows_cache[0] != key:
             wheels = np.flatnonzero(flags)
             if wheels.size == 0:
-                self._rows_cache = (key, (None, None, None))
-                return self._rows_cache[1]
-            thresholds = lifted_wheel_thresholds(self.thresholds, flags)
-            rows = (4 * nodes[:, None] + wheels[None, :]).ravel()
-            slack = None
-            if lay.slack is not None:
-                col = lay.slack.start + np.tile(wheels, nodes.size)
-                if lay.n_slack == 8:  # the later nodes' own slacks
-                    col = col + 4 * np.repeat(later, wheels.size)
-                slack = (np.arange(rows.size), col)
-            self._rows_cache = (key, (rows, np.tile(thresholds[wheels], nodes.size), slack))
-        return self._rows_cache[1]
+                self._rows_cache = (key, (None, wheels, None))
+            else:
+                rows = (4 * nodes[:, None] + wheels[None, :]).ravel()
+                slack = None
+                if lay.slack is not None:
+                    col = lay.slack.start + np.tile(wheels, nodes.size)
+                    if lay.n_slack == 8:  # the later nodes' own slacks
+                        col = col + 4 * np.repeat(later, wheels.size)
+                    slack = (np.arange(rows.size), col)
+                self._rows_cache = (key, (rows, wheels, slack))
+        rows, wheels, slack = self._rows_cache[1]
+        if rows is None:
+            return None, None, None
+        thresholds = lifted_wheel_thresholds(self.thresholds, flags)
+        return rows, np.tile(thresholds[wheels], nodes.size), slack
