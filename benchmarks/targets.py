@@ -18,8 +18,15 @@ TARGETS = {
     "qp_step_over_solver": ("whole-body QP step / its solver time, median", 3.0, "<="),
     "qp_step_median_ms": ("whole-body QP step median [ms]", 0.1, "<="),
     "mpc_step_over_solver": ("MPC step / its solver time, median", 1.5, "<="),
-    "mpc_step_median_ms": ("MPC step median [ms] (>= 1 s horizon)", 1.0, "<="),
-    "mpc_step_p99_ms": ("MPC step p99 [ms]", 2.0, "<="),
+    "mpc_step_median_ms": ("MPC step alone median [ms] (>= 1 s horizon; kinematic plant)",
+                           1.0, "<="),
+    "mpc_step_p99_ms": ("MPC step alone p99 [ms]", 2.0, "<="),
+    # The definition: the tick with the estimator, the load-split feedback, the
+    # observer and the margin in it (the closed-loop run's control ticks, realistic sensors).
+    "closed_loop_tick_median_ms": ("closed-loop tick median [ms]: observer, margin, MPC", 1.0,
+                                   "<="),
+    "closed_loop_tick_p99_ms": ("closed-loop tick p99 [ms]: observer, margin, MPC", 2.0,
+                                "<="),
     "mpc_first_tick_over_median": ("MPC first tick / median tick", 10.0, "<="),
     "closed_loop_rtf_over_bare": ("closed-loop RTF (mpc-full) / bare simulation RTF", 0.2,
                                   ">="),
@@ -90,6 +97,10 @@ def targets(results: dict) -> dict:
     rows["closed_loop_rtf_over_bare"] = _row(
         "closed_loop_rtf_over_bare", _ratio(loop.get("real_time_factor"), bare),
         "bare_stepping_real_time_factor", bare)
+    ticks = loop.get("control_step_ms") or {}
+    rows["closed_loop_tick_median_ms"] = _row("closed_loop_tick_median_ms",
+                                              ticks.get("median"))
+    rows["closed_loop_tick_p99_ms"] = _row("closed_loop_tick_p99_ms", ticks.get("p99"))
     rows["closed_loop_max_tick_ms"] = _row("closed_loop_max_tick_ms",
                                            loop.get("max_tick_after_first_ms"))
     rows["closed_loop_peak_memory_mb"] = _row("closed_loop_peak_memory_mb",

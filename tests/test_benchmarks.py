@@ -42,7 +42,8 @@ def test_targets_are_ratios_to_anchors_of_the_same_run():
                                     "solver_call_median_ms": 0.2,
                                     "p99_ms": 4.0, "first_ms": 30.0},
                        "closed_loop": {"real_time_factor": 1.6, "peak_memory_mb": 250.0,
-                                       "max_tick_after_first_ms": 9.0}},
+                                       "max_tick_after_first_ms": 9.0,
+                                       "control_step_ms": {"median": 2.4, "p99": 1.9}}},
         "simulator": {"bare_stepping_real_time_factor": 40.0},
     }
     rows = targets(results)
@@ -58,6 +59,8 @@ def test_targets_are_ratios_to_anchors_of_the_same_run():
     assert rows["mpc_first_tick_over_median"]["value"] == 12.0
     assert rows["closed_loop_rtf_over_bare"]["value"] == 0.04
     assert rows["closed_loop_peak_memory_mb"]["met"] and rows["closed_loop_max_tick_ms"]["met"]
+    assert rows["closed_loop_tick_median_ms"]["value"] == 2.4
+    assert not rows["closed_loop_tick_median_ms"]["met"] and rows["closed_loop_tick_p99_ms"]["met"]
     assert len(format_table(rows)) == len(TARGETS)
     partial = targets({"estimator": results["estimator"]})
     assert partial["mpc_step_median_ms"]["value"] is None
