@@ -30,6 +30,7 @@ import math
 import numpy as np
 
 from estimators.errors import EstimatorError
+from estimators.observer import filters_c
 from estimators.observer._vec3 import cross, norm
 from models.rotations import cross3
 
@@ -65,9 +66,12 @@ class BaseFilter:
         imu_position: Lever arm ``p`` of the IMU in fb [m], (3,).
         gravity: [m/s^2].
         wheel_radius: [m].
+        compiled: Run the tick's arithmetic in C (`filters_c`, the same results to
+            round-off) when a C compiler is there; False: Python.
     """
 
-    def __init__(self, imu_position, gravity: float, wheel_radius: float):
+    def __init__(self, imu_position, gravity: float, wheel_radius: float,
+                 compiled: bool = True):
         self.p = np.asarray(imu_position, float)
         self.g = float(gravity)
         self.r_wheel = float(wheel_radius)
@@ -84,6 +88,16 @@ class BaseFilter:
         # The float copies of the public arrays (the filter's own arithmetic).
         self._w = self._alpha = self._v = (0.0, 0.0, 0.0)
         self._f = (0.0, 0.0, self.g)
+        lib = filters_c.compiled_filters() if compiled else None
+        self._c = None
+        if lib is not None:  # the state in C's buffer (`filters_c.BASE_STATE`)
+            self._state = np.zeros(filters_c.BASE_STATE_SIZE)
+            self._consts = np.array([*self.p, self.g, self.r_wheel,
+                                     ANGULAR_ACCELERATION_TIME_CONSTANT,
+                                     ODOMETRY_ACCELERATION_TIME_CONSTANT,
+                                     ATTITUDE_TIME_CONSTANT])
+            self._in = np.zeros(10)
+            self._c = filters_c.bound(lib.base_step, self._state, self._consts, self._in)
 
     def update(self, time: float, rates: np.ndarray, forces: np.ndarray,
                wheel_speeds: np.ndarray | None) -> None:
@@ -102,6 +116,12 @@ class BaseFilter:
         if not self._levelled:  # first tick: level the attitude on gravity at once
             self._levelled = True
             self.rotation = _level(f_arr)
+            if self._c is not None:
+                self._state[filters_c.BASE_STATE["rotation"]] = self.rotation.reshape(-1)
+        if self._c is not None:
+            self._update_c(time, dt, w, f_p, wheel_speeds)
+            self.rate = w_arr
+            return
         alpha = self._alpha
         if dt > 0:
             self.rotation = self.rotation @ _exp(wx * dt, wy * dt, wz * dt)
@@ -145,6 +165,32 @@ class BaseFilter:
         if velocity is not self._v:
             self._v = velocity
             self.velocity = np.array(velocity)
+        self._last_time = time
+
+    def _update_c(self, time: float, dt: float, w: list, f_p: list,
+                  wheel_speeds: np.ndarray | None) -> None:
+        """`update`'s arithmetic after its checks, in C (`filters_c.base_step`)."""
+        inp, st, at = self._in, self._state, filters_c.BASE_STATE
+        wheel = (0.0, 0.0, 0.0)
+        if wheel_speeds is not None:
+            left, right = wheel_speeds.tolist()
+            if math.isfinite(left) and math.isfinite(right):
+                wheel = (1.0, left, right)
+        inp[:] = (dt, *w, *f_p, *wheel)
+        self._c()
+        self.rotation = st[at["rotation"]].reshape(3, 3).copy()
+        values = st.tolist()
+        self._alpha = tuple(values[at["alpha"]])
+        if dt > 0:
+            self.angular_acceleration = np.array(self._alpha)
+        self._w = self._last_rate = w
+        self._f = tuple(values[at["f"]])
+        self.specific_force = np.array(self._f)
+        velocity = tuple(values[at["v"]])
+        if velocity != self._v:
+            self.velocity = np.array(velocity)
+        self._v = velocity
+        self._age = values[at["age"]]
         self._last_time = time
 
     @property

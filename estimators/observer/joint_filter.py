@@ -21,6 +21,7 @@ import numpy as np
 from scipy.linalg import solve_discrete_are
 
 from estimators.errors import EstimatorError
+from estimators.observer import filters_c
 
 __all__ = ["JOINT_JERK_DENSITY", "JointFilter"]
 
@@ -36,9 +37,12 @@ class JointFilter:
         noise_std: Position noise std per axis [unit], shape (n,) or scalar (> 0; a floor
             of 1e-9 is used for exact sensors).
         jerk_density: ``sqrt(q)`` [unit/s^3/sqrt(Hz)], scalar or (n,).
+        compiled: Run the samples through the filter in C (`filters_c`, the same results
+            to round-off) when a C compiler is there; False: numpy.
     """
 
-    def __init__(self, n: int, dt: float, noise_std, jerk_density=JOINT_JERK_DENSITY):
+    def __init__(self, n: int, dt: float, noise_std, jerk_density=JOINT_JERK_DENSITY,
+                 compiled: bool = True):
         if not (n >= 1 and dt > 0):
             raise EstimatorError(f"need n >= 1 axes and dt > 0, got {n}, {dt}")
         r = np.maximum(np.broadcast_to(np.asarray(noise_std, float), (n,)), 1e-9)
@@ -58,6 +62,12 @@ class JointFilter:
             self.P[i] = (np.eye(3) - k @ h) @ p
         self.x = np.zeros((n, 3))
         self.initialized = False
+        lib = filters_c.compiled_filters() if compiled else None
+        self._c = None
+        if lib is not None:  # the state in C's buffer: `x` is updated in place
+            self._f_c = np.ascontiguousarray(self.F, float)
+            self._c = (lib.joint_step, self.x.ctypes.data, self._f_c.ctypes.data,
+                       self.K.ctypes.data)
 
     def update(self, samples: np.ndarray) -> np.ndarray:
         """Run the filter over position samples (k, n), oldest first; returns ``x`` (n, 3)."""
@@ -72,6 +82,11 @@ class JointFilter:
         if not self.initialized:
             self.x[:, 0] = z[0]
             self.initialized = True
+        if self._c is not None:
+            fun, x_at, f_at, k_at = self._c
+            z = np.ascontiguousarray(z)
+            fun(x_at, z.shape[1], f_at, k_at, z.ctypes.data, z.shape[0])
+            return self.x.copy()  # as numpy's path, an array the next update leaves alone
         ft, k = self.F.T, self.K
         x = self.x
         for row in z:

@@ -1,0 +1,176 @@
+"""The observer's chassis and joint filters in C: one call each per control tick.
+
+`base_filter.BaseFilter` and `joint_filter.JointFilter` are a few hundred floating-point
+operations a tick, which Python spends ~70 us on (float arithmetic and numpy calls on
+3-vectors and 9x3 arrays). `FILTERS_C` is the same arithmetic in the same order, compiled
+once with the system compiler (`models.cbuild`, no contraction into fused multiply-adds) and
+called through ctypes on the filters' own state buffers. The element-wise operations are
+the Python code's, bit for bit; the 3x3 and 9x3 matrix products sum left to right, where
+numpy's BLAS may fuse multiply-adds: the results agree to round-off
+(`tests/test_observer_filters_c.py`). Without a compiler the Python code runs.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import functools
+import logging
+import subprocess
+
+import numpy as np
+
+from models.cbuild import compile_shared
+
+__all__ = ["BASE_STATE", "FILTERS_C", "compiled_filters"]
+
+_log = logging.getLogger(__name__)
+
+# The chassis filter's state buffer: places of its fields.
+BASE_STATE = {"rotation": slice(0, 9), "alpha": slice(9, 12), "last_rate": slice(12, 15),
+              "odometry": slice(15, 18), "v": slice(18, 21), "w": slice(21, 24),
+              "f": slice(24, 27), "age": 27}
+BASE_STATE_SIZE = 28
+# Its constants: lever arm p (3), g, wheel radius, the three time constants.
+BASE_CONSTANTS_SIZE = 8
+
+FILTERS_C = r"""
+#include <math.h>
+#include <string.h>
+
+static void mat3_mul(const double* a, const double* b, double* out) {
+  double t[9];
+  int i, j;
+  for (i = 0; i < 3; ++i)
+    for (j = 0; j < 3; ++j)
+      t[3 * i + j] = a[3 * i] * b[j] + a[3 * i + 1] * b[3 + j] + a[3 * i + 2] * b[6 + j];
+  memcpy(out, t, sizeof t);
+}
+
+static double norm3(double x, double y, double z) { return sqrt(x * x + y * y + z * z); }
+
+/* base_filter._exp: Rodrigues of the rotation vector (x, y, z). */
+static void rot_exp(double x, double y, double z, double* out) {
+  double angle = norm3(x, y, z), ax, ay, az, n, s, c, kk[9];
+  int i;
+  if (angle < 1e-12) {
+    for (i = 0; i < 9; ++i) out[i] = (i % 4 == 0) ? 1.0 : 0.0;
+    return;
+  }
+  ax = x / angle; ay = y / angle; az = z / angle;
+  n = norm3(ax, ay, az);
+  ax = ax / n; ay = ay / n; az = az / n;
+  {
+    double k[9] = {0.0, -az, ay, az, 0.0, -ax, -ay, ax, 0.0};
+    mat3_mul(k, k, kk);
+    s = sin(angle);
+    c = 1.0 - cos(angle);
+    for (i = 0; i < 9; ++i) out[i] = ((i % 4 == 0 ? 1.0 : 0.0) + s * k[i]) + c * kk[i];
+  }
+}
+
+/* base_filter._orthonormal: rows re-orthonormalised (Gram-Schmidt from the third). */
+static void orthonormal(double* r) {
+  double n = norm3(r[6], r[7], r[8]);
+  double z0 = r[6] / n, z1 = r[7] / n, z2 = r[8] / n;
+  double d = r[0] * z0 + r[1] * z1 + r[2] * z2;
+  double x0 = r[0] - d * z0, x1 = r[1] - d * z1, x2 = r[2] - d * z2;
+  n = norm3(x0, x1, x2);
+  x0 = x0 / n; x1 = x1 / n; x2 = x2 / n;
+  r[0] = x0; r[1] = x1; r[2] = x2;
+  r[3] = z1 * x2 - z2 * x1; r[4] = z2 * x0 - z0 * x2; r[5] = z0 * x1 - z1 * x0;
+  r[6] = z0; r[7] = z1; r[8] = z2;
+}
+
+/* BaseFilter.update after its input checks: s the state (BASE_STATE), c the constants
+   (p, g, wheel radius, tau_alpha, tau_odometry, attitude time constant), in = dt, the
+   tick's mean rate (3) and specific force (3), wheel flag, left, right. */
+int base_step(double* s, const double* c, const double* in) {
+  double *R = s, *al = s + 9, *lr = s + 12, *od = s + 15, *v = s + 18, *w = s + 21;
+  double *f = s + 24;
+  const double *p = c;
+  const double dt = in[0], wx = in[1], wy = in[2], wz = in[3];
+  const double fx = in[4], fy = in[5], fz = in[6];
+  double e[9], c1x, c1y, c1z, cx, cy, cz, c2x, c2y, c2z, vx, vy, vz;
+  if (dt > 0) {
+    double a;
+    rot_exp(wx * dt, wy * dt, wz * dt, e);
+    mat3_mul(R, e, R);
+    a = dt / (c[5] + dt);
+    al[0] = al[0] + a * ((wx - lr[0]) / dt - al[0]);
+    al[1] = al[1] + a * ((wy - lr[1]) / dt - al[1]);
+    al[2] = al[2] + a * ((wz - lr[2]) / dt - al[2]);
+  }
+  w[0] = lr[0] = wx; w[1] = lr[1] = wy; w[2] = lr[2] = wz;
+  /* f_o = f_p - alpha x p - w x (w x p) */
+  c1x = al[1] * p[2] - al[2] * p[1]; c1y = al[2] * p[0] - al[0] * p[2];
+  c1z = al[0] * p[1] - al[1] * p[0];
+  cx = wy * p[2] - wz * p[1]; cy = wz * p[0] - wx * p[2]; cz = wx * p[1] - wy * p[0];
+  c2x = wy * cz - wz * cy; c2y = wz * cx - wx * cz; c2z = wx * cy - wy * cx;
+  f[0] = fx - c1x - c2x; f[1] = fy - c1y - c2y; f[2] = fz - c1z - c2z;
+  vx = v[0]; vy = v[1]; vz = v[2];
+  if (in[7] != 0.0) { vx = c[4] * 0.5 * (in[8] + in[9]); vy = 0.0; vz = 0.0; }
+  if (dt > 0) {
+    double cc = dt / (c[6] + dt), gx, gy, gz, b, n, ux, uy, uz, x, y, z, t;
+    od[0] = od[0] + cc * ((vx - v[0]) / dt - od[0]);
+    od[1] = od[1] + cc * ((vy - v[1]) / dt - od[1]);
+    od[2] = od[2] + cc * ((vz - v[2]) / dt - od[2]);
+    cx = wy * vz - wz * vy; cy = wz * vx - wx * vz; cz = wx * vy - wy * vx;
+    gx = f[0] - od[0] - cx; gy = f[1] - od[1] - cy; gz = f[2] - od[2] - cz;
+    s[27] += dt;
+    t = 0.05 + s[27];
+    b = dt / ((t < c[7] ? t : c[7]) + dt);
+    n = norm3(gx, gy, gz);
+    ux = gx / n; uy = gy / n; uz = gz / n;
+    x = uy * R[8] - uz * R[7]; y = uz * R[6] - ux * R[8]; z = ux * R[7] - uy * R[6];
+    rot_exp(b * x, b * y, b * z, e);
+    mat3_mul(R, e, R);
+    orthonormal(R);
+  }
+  v[0] = vx; v[1] = vy; v[2] = vz;
+  return 0;
+}
+
+/* JointFilter.update's loop: x (n, 3) through k samples z (k, n); F (3, 3), K (n, 3). */
+int joint_step(double* x, long n, const double* F, const double* K, const double* z,
+               long k) {
+  long i, j;
+  for (j = 0; j < k; ++j) {
+    const double* zj = z + j * n;
+    for (i = 0; i < n; ++i) {
+      double* xi = x + 3 * i;
+      double p = xi[0] * F[0] + xi[1] * F[1] + xi[2] * F[2];
+      double v = xi[0] * F[3] + xi[1] * F[4] + xi[2] * F[5];
+      double a = xi[0] * F[6] + xi[1] * F[7] + xi[2] * F[8];
+      double e = zj[i] - p;
+      xi[0] = p + K[3 * i] * e;
+      xi[1] = v + K[3 * i + 1] * e;
+      xi[2] = a + K[3 * i + 2] * e;
+    }
+  }
+  return 0;
+}
+"""
+
+_LIB: list = []  # [the library] or [None] (no compiler), once per process
+
+
+def compiled_filters():
+    """The loaded `FILTERS_C` (``base_step``, ``joint_step``), or None without a compiler."""
+    if not _LIB:
+        try:
+            lib = ctypes.CDLL(str(compile_shared(FILTERS_C, "observer_filters")))
+            lib.base_step.argtypes = [ctypes.c_void_p] * 3
+            lib.base_step.restype = ctypes.c_int
+            lib.joint_step.argtypes = [ctypes.c_void_p, ctypes.c_long, ctypes.c_void_p,
+                                       ctypes.c_void_p, ctypes.c_void_p, ctypes.c_long]
+            lib.joint_step.restype = ctypes.c_int
+            _LIB.append(lib)
+        except (OSError, subprocess.SubprocessError) as exc:
+            _log.warning("observer filters not compiled (%s); using Python", exc)
+            _LIB.append(None)
+    return _LIB[0]
+
+
+def bound(fun, *arrays: np.ndarray):
+    """``fun`` with the addresses of ``arrays`` bound (kept alive by the caller)."""
+    return functools.partial(fun, *(a.ctypes.data for a in arrays))
