@@ -136,5 +136,9 @@ class ForceRowsConstraint(Constraint):
         rows, wheels, slack = self._rows_cache[1]
         if rows is None:
             return None, None, None
-        thresholds = lifted_wheel_thresholds(self.thresholds, flags)
-        return rows, np.tile(thresholds[wheels], nodes.size), slack
+        # `np.tile(thresholds[wheels], nodes.size)`, written into its array at once
+        per_node = (self.thresholds if wheels.size == 4
+                    else lifted_wheel_thresholds(self.thresholds, flags)[wheels])
+        thresholds = np.empty((nodes.size, wheels.size))
+        thresholds[:] = per_node
+        return rows, thresholds.reshape(-1), slack

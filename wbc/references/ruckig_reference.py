@@ -209,9 +209,13 @@ class RuckigReference:
 
     def sample_many(self, times) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Samples at several times [s]: three arrays of shape (len(times), n)."""
-        if not self._planned:
-            out = [self.sample(t) for t in times]
-            return tuple(np.array([o[k] for o in out]) for k in range(3))
+        if not self._planned:  # held (or not set: `sample` raises)
+            if self._hold is None:
+                return self.sample(0.0)
+            count = len(times)
+            p = np.empty((count, self.n))
+            p[:] = self._hold
+            return p, np.zeros((count, self.n)), np.zeros((count, self.n))
         at, t0 = self._traj.at_time, self.start_time
         # One flat list of Python floats: numpy converts it at a third of the cost of the
         # nested (times, 3, n) lists.
