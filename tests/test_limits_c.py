@@ -54,3 +54,30 @@ def test_compiled_bounds_are_numpys_to_the_bit(machine, make):
     a, b = compiled.compute(ctx), reference.compute(ctx)
     np.testing.assert_array_equal(a.lower, b.lower)
     np.testing.assert_array_equal(a.upper, b.upper)
+
+
+def test_brake_inputs_in_c_are_numpys_to_the_bit():
+    """Moving, at rest, exactly stoppable in one step, a NaN speed; uniform and long steps."""
+    from wbc.layout import VariableLayout
+    from wbc.mpc.prediction import CondensedPrediction
+
+    rng = np.random.default_rng(8)
+    for steps in (0.05, np.r_[0.01, np.full(11, 0.09)]):
+        lay = VariableLayout(n_steps=12)
+        compiled, reference = CondensedPrediction(lay, steps), CondensedPrediction(lay, steps)
+        reference._brake = [None]
+        a = rng.uniform(0.2, 2.0, 9)
+        for k in range(40):
+            qd = rng.normal(0.0, 0.5, 9) * (k % 4 != 0)  # every fourth at rest
+            if k == 5:
+                qd[3] = a[3] * 0.01  # stops within the first step
+            if k == 7:
+                qd[6] = np.nan
+            q = rng.normal(0.0, 1.0, 9)
+            out_c = compiled.brake_trajectory(q, qd, a)
+            out_r = reference.brake_trajectory(q, qd, a)
+            assert compiled._brake[0] is not None
+            for x, y in zip(out_c, out_r):
+                np.testing.assert_array_equal(x, y)
+                real = ~np.isnan(y)  # -0 too (a NaN's sign is not arithmetic's)
+                np.testing.assert_array_equal(np.signbit(x[real]), np.signbit(y[real]))

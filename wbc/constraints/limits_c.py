@@ -1,4 +1,4 @@
-"""The whole-body QP's stroke and speed bounds in C: one call each instead of ~20 ufuncs.
+"""Axis limits in C: the whole-body QP's stroke and speed bounds, the MPC's brake inputs.
 
 `PositionLimit` and `VelocityLimit` turn the nine axes' limits into bounds on the
 accelerations, element by element; in numpy that is one ufunc call per operation on
@@ -6,7 +6,9 @@ accelerations, element by element; in numpy that is one ufunc call per operation
 IEEE operations in the same order (numpy's ``minimum``/``maximum`` NaN rule included),
 compiled once with the system compiler (`models.cbuild`, no contraction into fused
 multiply-adds) and called through ctypes on kept buffers: the same bits
-(`tests/test_limits_c.py`). Without a compiler the numpy code runs.
+(`tests/test_limits_c.py`). Without a compiler the numpy code runs. The MPC's brake-to-rest
+inputs (`CondensedPrediction.brake_trajectory`, a loop over the steps of a few ufuncs each)
+are the same loop in C, the same bits.
 """
 
 from __future__ import annotations
@@ -21,7 +23,7 @@ import numpy as np
 from models.cbuild import compile_shared
 from wbc.axes import N_AXES
 
-__all__ = ["LIMITS_C", "CompiledBounds", "compiled_bounds"]
+__all__ = ["LIMITS_C", "CompiledBounds", "CompiledBrake", "compiled_bounds", "compiled_brake"]
 
 _log = logging.getLogger(__name__)
 
@@ -68,6 +70,31 @@ int position_bounds(const double* in, double* out) {
   return 0;
 }
 
+/* `CondensedPrediction.brake_trajectory`'s inputs: every axis braked to rest at its
+   acceleration limit a over the steps h (N), from the speeds v0 (n); u (N, n). */
+int brake_inputs(const double* v0, const double* a, const double* h, long N, long n,
+                 double* u) {
+  double v[64];
+  long i, j, k;
+  if (n > 64 || n < 0 || N < 0) return -1;
+  for (i = 0; i < n; ++i) v[i] = v0[i];
+  for (j = 0; j < N * n; ++j) u[j] = 0.0;
+  for (k = 0; k < N; ++k) {
+    int moving = 0;
+    for (i = 0; i < n; ++i) {
+      double t = np_min(np_max(v[i] / h[k], -a[i]), a[i]);
+      u[k * n + i] = -t;
+      v[i] = v[i] + h[k] * u[k * n + i];
+      if (v[i] != 0.0 || isnan(v[i])) moving = 1;  /* numpy's any(): NaN is true */
+    }
+    if (!moving) {  /* at rest: the later inputs are -0 */
+      for (j = (k + 1) * n; j < N * n; ++j) u[j] = -0.0;
+      break;
+    }
+  }
+  return 0;
+}
+
 /* `VelocityLimit.compute`: in = qd, brake, v_hi, v_lo, then dt; out = lower, upper. */
 int velocity_bounds(const double* in, double* out) {
   const double *qd = in, *brake = in + NA, *hi = in + 2 * NA, *lo = in + 3 * NA;
@@ -101,22 +128,60 @@ class CompiledBounds:
 _LIB: list = []  # [the library] or [None] (no compiler), once per process
 
 
+class CompiledBrake:
+    """``brake_inputs`` on kept buffers: steps of lengths ``steps``, ``n`` axes (<= 64).
+
+    `inputs` fills the buffers, calls, and returns a fresh ``u``.
+    """
+
+    def __init__(self, fun, steps: np.ndarray, n: int):
+        self.v0, self.a = np.zeros(n), np.zeros(n)
+        self.h = np.array(steps, float)
+        self.u = np.zeros((self.h.size, n))
+        self.call = functools.partial(fun, self.v0.ctypes.data, self.a.ctypes.data,
+                                      self.h.ctypes.data, self.h.size, n, self.u.ctypes.data)
+
+    def inputs(self, qd0, acceleration) -> np.ndarray:
+        """The brake inputs ``u`` (N, n) from the speeds ``qd0`` at limits ``acceleration``."""
+        self.v0[:] = qd0
+        self.a[:] = acceleration
+        if self.call() != 0:
+            raise ValueError(f"brake inputs: {self.v0.size} axes, at most 64")
+        return self.u.copy()
+
+
+def compiled_brake(steps, n: int) -> CompiledBrake | None:
+    """A new `CompiledBrake`; None without a working C compiler or for more than 64 axes."""
+    lib = _library()
+    return None if lib is None or not 0 <= n <= 64 else CompiledBrake(lib.brake_inputs,
+                                                                      steps, n)
+
+
 def compiled_bounds(name: str) -> CompiledBounds | None:
     """A new `CompiledBounds` of ``position_bounds`` or ``velocity_bounds``.
 
     None without a working C compiler (the library is built once per process).
     """
+    lib = _library()
+    if lib is None:
+        return None
+    n_in = {"position_bounds": 11 * N_AXES + 3, "velocity_bounds": 4 * N_AXES + 1}[name]
+    return CompiledBounds(getattr(lib, name), n_in)
+
+
+def _library():
+    """`LIMITS_C` compiled and loaded once per process; None without a compiler."""
     if not _LIB:
         try:
             lib = ctypes.CDLL(str(compile_shared(LIMITS_C, "axis_limits")))
             for fun in (lib.position_bounds, lib.velocity_bounds):
                 fun.argtypes = [ctypes.c_void_p, ctypes.c_void_p]
                 fun.restype = ctypes.c_int
+            lib.brake_inputs.argtypes = ([ctypes.c_void_p] * 3 + [ctypes.c_long] * 2
+                                         + [ctypes.c_void_p])
+            lib.brake_inputs.restype = ctypes.c_int
             _LIB.append(lib)
         except (OSError, subprocess.SubprocessError) as exc:
             _log.warning("axis limits not compiled (%s); using numpy", exc)
             _LIB.append(None)
-    if _LIB[0] is None:
-        return None
-    n_in = {"position_bounds": 11 * N_AXES + 3, "velocity_bounds": 4 * N_AXES + 1}[name]
-    return CompiledBounds(getattr(_LIB[0], name), n_in)
+    return _LIB[0]

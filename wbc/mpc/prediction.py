@@ -23,6 +23,7 @@ import pinocchio as pin
 from models.coordinates import N_INDEPENDENT, WHEELS
 from models.state import MachineState
 from wbc.axes import N_AXES
+from wbc.constraints.limits_c import compiled_brake
 from wbc.layout import VariableLayout
 
 __all__ = ["CondensedPrediction", "nominal_state", "predict_base_pose"]
@@ -71,6 +72,7 @@ class CondensedPrediction:
         self.step_lengths = h
         self.times = t
         self.start_times = t - h
+        self._brake: list | None = None  # `brake_trajectory`'s C loop (`limits_c`)
 
     @property
     def horizon(self) -> float:
@@ -106,6 +108,13 @@ class CondensedPrediction:
             (inputs, positions, velocities), shapes (N, n_axes); the inputs respect
             ``|u| <= acceleration`` and reach zero velocity exactly.
         """
+        if self._brake is None:  # made on first use: [its `CompiledBrake` or None]
+            self._brake = [compiled_brake(self.step_lengths, q0.size)]
+        c = self._brake[0]
+        if c is not None and c.v0.size == q0.size:
+            u = c.inputs(qd0, acceleration)
+            q, vel = self.trajectory(q0, qd0, u, free)
+            return u, q, vel
         u = np.zeros((self.layout.n_steps, q0.size))
         v = qd0.astype(float).copy()
         lower = -acceleration
