@@ -1,4 +1,4 @@
-"""The whole-body QP's stroke and speed bounds in C (`wbc.constraints.limits_c`) = numpy's."""
+"""Axis limits in C (`wbc.constraints.limits_c`): the bounds and brake inputs = numpy's."""
 
 import dataclasses
 
@@ -44,7 +44,7 @@ def test_compiled_bounds_are_numpys_to_the_bit(machine, make):
     reference.compiled = False
     for ctx in _contexts(machine, limits, 60, 3):
         a, b = compiled.compute(ctx), reference.compute(ctx)
-        assert compiled._c[0] is not None
+        assert compiled._c is not None
         np.testing.assert_array_equal(a.lower, b.lower)
         np.testing.assert_array_equal(a.upper, b.upper)
     # A second limits object (another machine's) reaches the C constants too.
@@ -65,7 +65,7 @@ def test_brake_inputs_in_c_are_numpys_to_the_bit():
     for steps in (0.05, np.r_[0.01, np.full(11, 0.09)]):
         lay = VariableLayout(n_steps=12)
         compiled, reference = CondensedPrediction(lay, steps), CondensedPrediction(lay, steps)
-        reference._brake = [None]
+        reference._brake = None
         a = rng.uniform(0.2, 2.0, 9)
         for k in range(40):
             qd = rng.normal(0.0, 0.5, 9) * (k % 4 != 0)  # every fourth at rest
@@ -76,7 +76,7 @@ def test_brake_inputs_in_c_are_numpys_to_the_bit():
             q = rng.normal(0.0, 1.0, 9)
             out_c = compiled.brake_trajectory(q, qd, a)
             out_r = reference.brake_trajectory(q, qd, a)
-            assert compiled._brake[0] is not None
+            assert compiled._brake is not None
             for x, y in zip(out_c, out_r):
                 np.testing.assert_array_equal(x, y)
                 real = ~np.isnan(y)  # -0 too (a NaN's sign is not arithmetic's)

@@ -120,7 +120,9 @@ class HorizonNormalForceConstraint(ForceRowsConstraint):
         super().__init__(model, thresholds, force_scale, drive_time_constant)
         self.n_linearizations = int(n_linearizations)
         self.compiled = True  # `forces_map` in C (`force_map_c`) when a compiler is there
-        self._compiled_map: list = []  # [its `CompiledForceMap` or None], made on first use
+        # Its `CompiledForceMap` (None without a compiler): built, or loaded from the cache,
+        # here, never inside a control tick.
+        self._compiled_map = compiled_force_map()
         self.linearization_steps: np.ndarray = np.zeros(0, dtype=int)
         self._structure_cache: tuple | None = None
         self._warp_cache: tuple | None = None
@@ -272,11 +274,7 @@ class HorizonNormalForceConstraint(ForceRowsConstraint):
 
     def _kernel(self):
         """This constraint's `CompiledForceMap` if `compiled` (None without a compiler)."""
-        if not self.compiled:
-            return None
-        if not self._compiled_map:
-            self._compiled_map.append(compiled_force_map())
-        return self._compiled_map[0]
+        return self._compiled_map if self.compiled else None
 
     def _warp_rows(self, warp: np.ndarray, Pq: np.ndarray) -> np.ndarray:
         """``warp @ Pq`` (n_eval - 1, 4, n), kept while the warp matrix stays the same."""

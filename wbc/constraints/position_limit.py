@@ -51,7 +51,7 @@ class PositionLimit(Constraint):
         self._key: tuple | None = None
         self._const: tuple = ()
         self.compiled = True
-        self._c: list = []  # [`CompiledBounds` or None], made on first use
+        self._c = compiled_bounds("position_bounds")  # None without a C compiler
         self._c_const: tuple | None = None  # the constants its input buffer holds
 
     def _constants(self, ctx) -> tuple:
@@ -73,11 +73,7 @@ class PositionLimit(Constraint):
 
     def _compiled(self, const: tuple, lim, dt: float):
         """The C evaluation with ``const`` in its input buffer, or None (numpy)."""
-        if not self.compiled:
-            return None
-        if not self._c:
-            self._c.append(compiled_bounds("position_bounds"))
-        c = self._c[0]
+        c = self._c if self.compiled else None
         if c is not None and self._c_const is not const:
             na = N_AXES
             inp = c.inp

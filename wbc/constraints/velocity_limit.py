@@ -26,7 +26,7 @@ class VelocityLimit(Constraint):
 
     def __init__(self):
         self.compiled = True
-        self._c: list = []  # [`CompiledBounds` or None], made on first use
+        self._c = compiled_bounds("velocity_bounds")  # None without a C compiler
         self._c_key: tuple | None = None  # (limits, dt) its input buffer holds
 
     def compute(self, ctx) -> Box:
@@ -35,9 +35,7 @@ class VelocityLimit(Constraint):
         brake = ctx.brake
         lb, ub = unbounded(ctx.layout.n)
         s = ctx.layout.step(0)
-        if self.compiled and not self._c:
-            self._c.append(compiled_bounds("velocity_bounds"))
-        c = self._c[0] if self.compiled else None
+        c = self._c if self.compiled else None
         if c is not None:
             inp, na = c.inp, N_AXES
             key = self._c_key

@@ -72,7 +72,9 @@ class CondensedPrediction:
         self.step_lengths = h
         self.times = t
         self.start_times = t - h
-        self._brake: list | None = None  # `brake_trajectory`'s C loop (`limits_c`)
+        # `brake_trajectory`'s loop in C (`limits_c`; None without a compiler), for the
+        # layout's axes: built, or loaded from the cache, here, not inside a control tick.
+        self._brake = compiled_brake(h, na)
 
     @property
     def horizon(self) -> float:
@@ -108,9 +110,7 @@ class CondensedPrediction:
             (inputs, positions, velocities), shapes (N, n_axes); the inputs respect
             ``|u| <= acceleration`` and reach zero velocity exactly.
         """
-        if self._brake is None:  # made on first use: [its `CompiledBrake` or None]
-            self._brake = [compiled_brake(self.step_lengths, q0.size)]
-        c = self._brake[0]
+        c = self._brake
         if c is not None and c.v0.size == q0.size:
             u = c.inputs(qd0, acceleration)
             q, vel = self.trajectory(q0, qd0, u, free)
