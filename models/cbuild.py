@@ -16,15 +16,19 @@ gets the portable build.
 
 from __future__ import annotations
 
+import ctypes
 import functools
 import hashlib
+import logging
 import os
 import platform
 import subprocess
 import tempfile
 from pathlib import Path
 
-__all__ = ["HOST_OPTIONS", "cache_dir", "compile_shared"]
+__all__ = ["HOST_OPTIONS", "cache_dir", "compile_shared", "load_shared"]
+
+_log = logging.getLogger(__name__)
 
 HOST_OPTIONS = ("-march=native", "-ffp-contract=off")
 _CPU_KEYS = ("model name", "flags", "Features", "CPU part")  # x86; arm
@@ -96,3 +100,35 @@ def _build(source: str, name: str, options: list[str], host_id: str) -> Path:
                         "-lm"], check=True, capture_output=True, timeout=600)
         os.replace(tmp_lib, lib)  # atomic: concurrent builders agree on the content
     return lib
+
+
+_LOADED: dict = {}  # (name, opt, source) -> the library or None, once per process
+
+
+def load_shared(source: str, name: str, functions: dict, fallback: str,
+                opt: str = "-O2") -> ctypes.CDLL | None:
+    """`compile_shared`'s library loaded once per process, its functions' signatures set.
+
+    Args:
+        source: The C source.
+        name: The library's base name.
+        functions: Function name -> ``(argtypes, restype)``.
+        fallback: What the caller runs instead, for the warning without a compiler.
+        opt: The optimisation option.
+
+    Returns:
+        The library, or None (logged once) when there is no working compiler or the source
+        does not compile: the caller then runs its own slower path.
+    """
+    key = (name, opt, source)
+    if key not in _LOADED:
+        try:
+            lib = ctypes.CDLL(str(compile_shared(source, name, opt)))
+            for fun_name, (argtypes, restype) in functions.items():
+                fun = getattr(lib, fun_name)
+                fun.argtypes, fun.restype = list(argtypes), restype
+        except (OSError, subprocess.SubprocessError) as exc:
+            _log.warning("%s not compiled (%s); using %s", name, exc, fallback)
+            lib = None
+        _LOADED[key] = lib
+    return _LOADED[key]

@@ -92,3 +92,21 @@ def test_compiler_without_host_options_gets_the_portable_build(cache):
     assert lib == portable
     x = np.linspace(-2.0, 3.0, 64)
     np.testing.assert_array_equal(_run(lib, x), _run(compile_shared(SOURCE, "fma_probe"), x))
+
+
+def test_load_shared_sets_signatures_loads_once_and_falls_back_without_a_compiler(
+        tmp_path, monkeypatch, caplog):
+    from models.cbuild import load_shared
+
+    monkeypatch.setenv("WBC_HDMM_CACHE", str(tmp_path / "cache"))
+    source = "double twice(double x) { return 2.0 * x; }\n"
+    signatures = {"twice": ([ctypes.c_double], ctypes.c_double)}
+    monkeypatch.setenv("CC", str(tmp_path / "no-such-compiler"))
+    assert load_shared(source + "/* a */", "probe", signatures, "Python") is None
+    assert "probe not compiled" in caplog.text and "using Python" in caplog.text
+    monkeypatch.delenv("CC")
+    if shutil.which("cc") is None:
+        pytest.skip("no C compiler")
+    lib = load_shared(source, "probe", signatures, "Python")
+    assert lib.twice(1.25) == 2.5  # the signature set: a double, not an int
+    assert load_shared(source, "probe", signatures, "Python") is lib

@@ -14,16 +14,12 @@ from __future__ import annotations
 
 import ctypes
 import functools
-import logging
-import subprocess
 
 import numpy as np
 
-from models.cbuild import compile_shared
+from models.cbuild import load_shared
 
 __all__ = ["BASE_STATE", "FILTERS_C", "compiled_filters"]
-
-_log = logging.getLogger(__name__)
 
 # The chassis filter's state buffer: places of its fields.
 BASE_STATE = {"rotation": slice(0, 9), "alpha": slice(9, 12), "last_rate": slice(12, 15),
@@ -151,24 +147,12 @@ int joint_step(double* x, long n, const double* F, const double* K, const double
 }
 """
 
-_LIB: list = []  # [the library] or [None] (no compiler), once per process
-
-
 def compiled_filters():
     """The loaded `FILTERS_C` (``base_step``, ``joint_step``), or None without a compiler."""
-    if not _LIB:
-        try:
-            lib = ctypes.CDLL(str(compile_shared(FILTERS_C, "observer_filters")))
-            lib.base_step.argtypes = [ctypes.c_void_p] * 3
-            lib.base_step.restype = ctypes.c_int
-            lib.joint_step.argtypes = [ctypes.c_void_p, ctypes.c_long, ctypes.c_void_p,
-                                       ctypes.c_void_p, ctypes.c_void_p, ctypes.c_long]
-            lib.joint_step.restype = ctypes.c_int
-            _LIB.append(lib)
-        except (OSError, subprocess.SubprocessError) as exc:
-            _log.warning("observer filters not compiled (%s); using Python", exc)
-            _LIB.append(None)
-    return _LIB[0]
+    return load_shared(FILTERS_C, "observer_filters", {
+        "base_step": ([ctypes.c_void_p] * 3, ctypes.c_int),
+        "joint_step": ([ctypes.c_void_p, ctypes.c_long, ctypes.c_void_p, ctypes.c_void_p,
+                        ctypes.c_void_p, ctypes.c_long], ctypes.c_int)}, "Python")
 
 
 def bound(fun, *arrays: np.ndarray):

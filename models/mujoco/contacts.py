@@ -31,19 +31,15 @@ one point of the paper's wheel model on each face.
 from __future__ import annotations
 
 import ctypes
-import logging
 import math
-import subprocess
 
 import mujoco
 import numpy as np
 
-from models.cbuild import compile_shared
+from models.cbuild import load_shared
 from models.errors import ModelError
 
 __all__ = ["MERGE_ANGLE", "MERGE_DISTANCE", "MERGE_C", "ContactMerge"]
-
-_log = logging.getLogger(__name__)
 
 MERGE_ANGLE = math.radians(3.0)  # [rad] normals closer than this: the same face
 MERGE_DISTANCE = 0.05  # [m] points closer than this: the same contact (a few cm of patch)
@@ -218,21 +214,10 @@ class ContactMerge:
         mujoco.mj_referenceConstraint(m, data)
 
 
-_MERGE_FUNCTION: list = []  # the loaded function, once per process ([None]: no compiler)
-
-
 def _compiled_merge():
     """`MERGE_C` compiled and loaded (cached), or None without a working compiler."""
-    if not _MERGE_FUNCTION:
-        try:
-            lib = ctypes.CDLL(str(compile_shared(MERGE_C, "contact_merge")))
-            fun = lib.merge
-            fun.argtypes = ([ctypes.c_void_p, ctypes.c_int] + [ctypes.c_long] * 7
-                            + [ctypes.c_void_p, ctypes.c_int, ctypes.c_double,
-                               ctypes.c_double, ctypes.c_void_p, ctypes.c_void_p])
-            fun.restype = ctypes.c_int
-            _MERGE_FUNCTION.append(fun)
-        except (OSError, subprocess.SubprocessError) as exc:
-            _log.warning("contact merge not compiled (%s); using numpy", exc)
-            _MERGE_FUNCTION.append(None)
-    return _MERGE_FUNCTION[0]
+    lib = load_shared(MERGE_C, "contact_merge", {"merge": (
+        [ctypes.c_void_p, ctypes.c_int] + [ctypes.c_long] * 7
+        + [ctypes.c_void_p, ctypes.c_int, ctypes.c_double, ctypes.c_double, ctypes.c_void_p,
+           ctypes.c_void_p], ctypes.c_int)}, "numpy")
+    return None if lib is None else lib.merge

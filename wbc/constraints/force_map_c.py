@@ -16,19 +16,15 @@ nonzero term, ``b`` to round-off).
 from __future__ import annotations
 
 import ctypes
-import logging
-import subprocess
 
 import numpy as np
 
-from models.cbuild import compile_shared
+from models.cbuild import load_shared
 from models.coordinates import N_INDEPENDENT, SUSPENSION
 from wbc.axes import N_AXES
 from wbc.force_models.feedback import DIAGONAL
 
 __all__ = ["FORCE_MAP_C", "CompiledForceMap", "compiled_force_map"]
-
-_log = logging.getLogger(__name__)
 
 # Integer header `iv` (then `which` and `j` of every node), double header `dv`, pointers `p`.
 _I_NAMES = ("n_eval", "n_steps", "n", "row_len", "off_g", "off_dq", "off_dqd", "off_g0",
@@ -262,22 +258,11 @@ _OWN_FIELDS = {"G": (0, NW * NG), "d_q": (NW * NG, NW * (NG + NQ)),
 _OWN_ROW = NW * (NG + 2 * NQ + 1)
 
 
-_LOADED: list = []  # [the C function] or [None] (no compiler), once per process
-
-
 def compiled_force_map() -> CompiledForceMap | None:
     """A new `CompiledForceMap` (its own buffers), or None without a working compiler.
 
     The library is compiled (or found in the cache) and loaded once per process.
     """
-    if not _LOADED:
-        try:
-            lib = ctypes.CDLL(str(compile_shared(FORCE_MAP_C, "force_map", "-O3")))
-            fun = lib.force_map
-            fun.argtypes = [ctypes.c_void_p] * 5
-            fun.restype = ctypes.c_int
-            _LOADED.append(fun)
-        except (OSError, subprocess.SubprocessError) as exc:
-            _log.warning("force map not compiled (%s); using numpy", exc)
-            _LOADED.append(None)
-    return None if _LOADED[0] is None else CompiledForceMap(_LOADED[0])
+    lib = load_shared(FORCE_MAP_C, "force_map",
+                      {"force_map": ([ctypes.c_void_p] * 5, ctypes.c_int)}, "numpy", "-O3")
+    return None if lib is None else CompiledForceMap(lib.force_map)

@@ -15,17 +15,13 @@ from __future__ import annotations
 
 import ctypes
 import functools
-import logging
-import subprocess
 
 import numpy as np
 
-from models.cbuild import compile_shared
+from models.cbuild import load_shared
 from wbc.axes import N_AXES
 
 __all__ = ["LIMITS_C", "CompiledBounds", "CompiledBrake", "compiled_bounds", "compiled_brake"]
-
-_log = logging.getLogger(__name__)
 
 LIMITS_C = r"""
 #include <math.h>
@@ -125,9 +121,6 @@ class CompiledBounds:
         self.call = functools.partial(fun, self.inp.ctypes.data, self.out.ctypes.data)
 
 
-_LIB: list = []  # [the library] or [None] (no compiler), once per process
-
-
 class CompiledBrake:
     """``brake_inputs`` on kept buffers: steps of lengths ``steps``, ``n`` axes (<= 64).
 
@@ -171,17 +164,8 @@ def compiled_bounds(name: str) -> CompiledBounds | None:
 
 def _library():
     """`LIMITS_C` compiled and loaded once per process; None without a compiler."""
-    if not _LIB:
-        try:
-            lib = ctypes.CDLL(str(compile_shared(LIMITS_C, "axis_limits")))
-            for fun in (lib.position_bounds, lib.velocity_bounds):
-                fun.argtypes = [ctypes.c_void_p, ctypes.c_void_p]
-                fun.restype = ctypes.c_int
-            lib.brake_inputs.argtypes = ([ctypes.c_void_p] * 3 + [ctypes.c_long] * 2
-                                         + [ctypes.c_void_p])
-            lib.brake_inputs.restype = ctypes.c_int
-            _LIB.append(lib)
-        except (OSError, subprocess.SubprocessError) as exc:
-            _log.warning("axis limits not compiled (%s); using numpy", exc)
-            _LIB.append(None)
-    return _LIB[0]
+    return load_shared(LIMITS_C, "axis_limits", {
+        "position_bounds": ([ctypes.c_void_p] * 2, ctypes.c_int),
+        "velocity_bounds": ([ctypes.c_void_p] * 2, ctypes.c_int),
+        "brake_inputs": ([ctypes.c_void_p] * 3 + [ctypes.c_long] * 2 + [ctypes.c_void_p],
+                         ctypes.c_int)}, "numpy")
