@@ -129,7 +129,7 @@ class ForceRowsConstraint(Constraint):
             slack = None
             if lay.slack is not None:
                 col = lay.slack.start + np.tile(wheels, nodes.size)
-                if lay.n_slack == 8:  # the later nodes' own slacks
+                if lay.n_slack >= 8:  # the later nodes' own slacks
                     col = col + 4 * np.repeat(later, wheels.size)
                 slack = (np.arange(rows.size), col)
             self._rows_cache = (key, (rows, np.tile(thresholds[wheels], nodes.size), slack))
