@@ -1,6 +1,5 @@
 """The side pairs' reserve: the swing of each side pair's load sum and the MPC's late rows."""
 
-import dataclasses
 
 import numpy as np
 import pytest
@@ -9,7 +8,7 @@ from testkit.force_models import AffineForceModel
 from testkit.plant import KinematicPlant, make_state
 from wbc import ConfigurationError, ControllerConfig, ForceConfig, MpcController
 from wbc.constraints import SideReserveConstraint
-from wbc.force_models.feedback import DIAGONAL, ClosureFeedback
+from wbc.force_models.feedback import DIAGONAL
 from wbc.force_models.fluctuation import SideLoadFluctuation
 
 DT = 0.01
