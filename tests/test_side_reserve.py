@@ -1,6 +1,8 @@
 """The side pairs' reserve: the swing of each side pair's load sum and the MPC's late rows."""
 
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -8,7 +10,7 @@ from testkit.force_models import AffineForceModel
 from testkit.plant import KinematicPlant, make_state
 from wbc import ConfigurationError, ControllerConfig, ForceConfig, MpcController
 from wbc.constraints import SideReserveConstraint
-from wbc.force_models.feedback import DIAGONAL
+from wbc.force_models.feedback import DIAGONAL, ClosureFeedback
 from wbc.force_models.fluctuation import SideLoadFluctuation
 
 DT = 0.01
@@ -79,7 +81,7 @@ def test_rows_close_the_nominal_plans_shortfall_at_every_later_node(machine):
     f_nom = (A @ res.nominal(ctx) + b).reshape(-1, 4)[nodes]
     short = need - f_nom[:, 2] - f_nom[:, 3]
     np.testing.assert_allclose(short, 1500.0, atol=1e-6)  # the machine stands still
-    wanted = need - short * np.exp(-times / 0.5)
+    wanted = need - short * np.exp(-times / res.time_constant)
     rng = np.random.default_rng(0)
     x = rng.normal(size=ctrl.layout.n)
     x[ctrl.layout.slack] = 0.0
@@ -103,11 +105,11 @@ def test_the_crane_slews_load_back_to_the_side_that_needs_room(machine):
     # 600 N more on the right pair means 0.1 m less slew stroke.
     reserve = 2 * w + 600.0 - ctrl.force_constraint.thresholds[2:].sum()
     plant = KinematicPlant(st, DT)
-    for _ in range(300):
+    for _ in range(500):
         ctrl.side_reserve.set_reserve([0.0, reserve])
         plant.apply(ctrl.step(plant.measure()))
     slew = plant.measure().q[2] - st.q[2]
-    assert -0.11 < slew < -0.09  # in about T = 0.5 s and held (3 s here)
+    assert -0.11 < slew < -0.09  # in about T = 1 s and held (5 s here)
     f_now = model.estimate(plant.measure()).normal_forces
     assert f_now[2] + f_now[3] == pytest.approx(2 * w + 600.0, abs=60.0)
     assert np.all(ctrl.last_plan.slack[8:] < 1e-6)
@@ -116,11 +118,40 @@ def test_the_crane_slews_load_back_to_the_side_that_needs_room(machine):
     assert off.side_reserve is None and off.layout.n_slack == 8
 
 
+def test_the_reserve_is_the_floor_or_the_measured_swing_while_driving(machine):
+    st0 = make_state(machine)
+    model = AffineForceModel(MEAN, st0.q)
+    cfg = ControllerConfig(force=ForceConfig(side_reserve=3000.0, side_reserve_z=2.0))
+    ctrl = MpcController(machine, cfg, force_model=model, feedback=ClosureFeedback(model))
+    assert ctrl.layout.n_slack == 10
+    ctrl.step(st0)
+    np.testing.assert_array_equal(ctrl.side_reserve.reserve, 0.0)  # standing: none
+    for i in range(300):  # driving at 0.1 m/s; the right pair's load swings by 4 kN
+        # The model's own sums swing (the closure measures the diagonal split only).
+        swung = AffineForceModel(MEAN + 4000.0 * ROLL * np.sin(2 * np.pi * 2.0 * i * DT),
+                                 st0.q)
+        ctrl.force_model = ctrl.force_constraint.model = swung
+        ctrl.feedback = ClosureFeedback(swung)
+        ctrl.step(dataclasses.replace(st0, time=i * DT,
+                                      base_twist=np.array([0.1, 0, 0, 0, 0, 0])))
+    sigma = ctrl.side_swing.sigma
+    assert np.all(2.0 * sigma > 3000.0)  # ~2.4 kN RMS: the measure is above the floor
+    np.testing.assert_allclose(ctrl.side_reserve.reserve, 2.0 * sigma)
+    off = MpcController(machine, ControllerConfig(force=ForceConfig(side_reserve=3000.0)),
+                        force_model=model, feedback=ClosureFeedback(model))
+    for i in range(150):
+        off.step(dataclasses.replace(st0, time=i * DT,
+                                     base_twist=np.array([0.1, 0, 0, 0, 0, 0])))
+    np.testing.assert_array_equal(off.side_reserve.reserve, 3000.0)  # z = 0: the floor
+
+
 def test_side_reserve_settings_are_checked():
     with pytest.raises(ConfigurationError, match="side_reserve_z"):
         ForceConfig(side_reserve_z=-1.0)
     with pytest.raises(ConfigurationError, match="soft"):
         ForceConfig(side_reserve_z=2.0, soft=False)
+    with pytest.raises(ConfigurationError, match="soft"):
+        ForceConfig(side_reserve=1000.0, soft=False)
     res = SideReserveConstraint(None)
     with pytest.raises(ConfigurationError, match="side reserve"):
         res.set_reserve([1.0, -1.0])

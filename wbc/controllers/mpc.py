@@ -99,7 +99,7 @@ class MpcController(Controller):
         self.feedback: ClosureFeedback | None = None
         self.warp: np.ndarray | None = None
         self._set_feedback(feedback)
-        side = fc.side_reserve_z > 0  # two more slacks, the side pairs' (config: soft)
+        side = fc.side_reserve > 0 or fc.side_reserve_z > 0  # two more slacks (config: soft)
         layout = VariableLayout(9, mc.n_steps, speed_scale=fc.speed_scale,
                                 n_slack=(10 if side else 8) if fc.soft else 0)
         factors = np.asarray(mc.crane_axis_factors, float)
@@ -208,7 +208,9 @@ class MpcController(Controller):
         self.side_swing = (SideLoadFluctuation(fc.side_reserve_high_pass,
                                                fc.side_reserve_window,
                                                fc.side_reserve_min_speed)
-                           if self.feedback is not None and fc.side_reserve_z > 0 else None)
+                           if self.feedback is not None and (fc.side_reserve > 0
+                                                             or fc.side_reserve_z > 0)
+                           else None)
 
     def _init_loop_state(self) -> None:
         super()._init_loop_state()
@@ -284,11 +286,12 @@ class MpcController(Controller):
                                                  fb.in_contact)
 
     def _side_reserve(self, fb: ForceFeedback, state: MachineState) -> None:
-        """The side pairs' reserve ``z sigma_j`` while driving, none standing."""
+        """The side pairs' reserve ``max(r_0, z sigma_j)`` while driving, none standing."""
+        fc = self.config.force
         speed = float(np.hypot(state.base_twist[0], state.base_twist[1]))
         self.side_swing.update(fb.forces, fb.in_contact, fb.time, speed)
-        self.side_reserve.set_reserve(self.config.force.side_reserve_z * self.side_swing.sigma
-                                      if self.side_swing.driving else np.zeros(2))
+        reserve = np.maximum(fc.side_reserve, fc.side_reserve_z * self.side_swing.sigma)
+        self.side_reserve.set_reserve(reserve if self.side_swing.driving else np.zeros(2))
 
     def _build(self, ctx: HorizonContext) -> qpsolvers.Problem:
         return self.planner.build(ctx)
