@@ -18,9 +18,9 @@ class SideReserveConstraint(Constraint):
 
     A side pair's load sum is what the warp does not move (it moves load *within* each
     pair, `wbc.force_models.feedback.DIAGONAL`): only the crane's pose and the ground's roll
-    move it, so a reserve ``r_j`` on it, the swing measured on that side
-    (`wbc.force_models.fluctuation.SideLoadFluctuation`, ``z sigma_j``), cannot be bought
-    with the suspension. With ``S_k`` a side pair's predicted sum at node k,
+    move it, so a reserve ``r_j`` on it (a floor while driving, or ``z sigma_j`` from the
+    swing measured on that side, `wbc.force_models.fluctuation.SideLoadFluctuation`) cannot
+    be bought with the suspension. With ``S_k`` a side pair's predicted sum at node k,
     ``n = f_min,a + f_min,b + r_j`` and ``S_k^0`` the sum the nominal plan (the previous
     plan shifted, at the last speed scale) predicts there, the rows at the nodes after now
     (k >= 1 and the terminal node) are
@@ -28,7 +28,7 @@ class SideReserveConstraint(Constraint):
     .. math:: S_k \ge n - \max(n - S_k^0, 0)\, e^{-t_k / T},
 
     a contraction: the plan must close the shortfall the previous plan left at node k by the
-    fraction ``1 - exp(-t_k / T)`` (2 % one period ahead, most of it by the horizon's end),
+    fraction ``1 - exp(-t_k / T)`` (1 % one period ahead with T = 1 s, 63 % a second ahead),
     so the crane takes the load inward or uphill over about ``T`` instead of at once with
     accelerations (the per-wheel margin for the same swing, in every row, rang the chassis
     at 2-3 Hz, `wbc/DESIGN.md`, pitfalls). Rows only at the late nodes would not do: the
@@ -51,7 +51,7 @@ class SideReserveConstraint(Constraint):
     """
 
     def __init__(self, force_constraint: HorizonNormalForceConstraint,
-                 time_constant: float = 0.5):
+                 time_constant: float = 1.0):
         if not time_constant > 0:
             raise ConfigurationError(f"time_constant must be > 0 s, got {time_constant}")
         self.force_constraint = force_constraint
