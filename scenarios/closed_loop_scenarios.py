@@ -42,7 +42,7 @@ from scenarios.scenario import ClosedLoopScenario, CranePose
 from scenarios.scenario_file import DATA_DIR, load_scenario_file
 from wbc import ControllerConfig, ForceConfig, ReferenceConfig
 
-__all__ = ["CONTROL_PERIOD", "DEFAULT_SCENARIO", "SCENARIOS", "TASK_TOLERANCE",
+__all__ = ["CONTROL_PERIOD", "DEFAULT_SCENARIO", "SCENARIOS", "SIDE_RESERVE", "TASK_TOLERANCE",
            "ClosedLoopScenario", "CranePose", "controller_config", "scenario_terrain",
            "threshold"]
 
@@ -50,6 +50,9 @@ CONTROL_PERIOD = 0.01  # [s] 100 Hz
 TASK_TOLERANCE = 0.05  # [m] tool point within this of its goal
 THRESHOLD_FRACTION = 0.1  # of the reference machine's static wheel load
 DEFAULT_SCENARIO = "swing-out"
+# [N] each side pair's load sum keeps this above its thresholds while driving (the uphill
+# pair's sum swung by +-2.5 kN on rough ground with the crane parked, `wbc/DESIGN.md`)
+SIDE_RESERVE = 3000.0
 
 
 # The built-in scenarios, in the file format a user's scenario uses (scenarios/data/*.toml).
@@ -74,7 +77,8 @@ def controller_config(threshold_n: float | None = None,
     (the description's limits allow 3 rad/s^2 of slew). The MPC keeps no hand-set margin:
     the run adds ``z sigma`` per wheel from the observer's error model every tick
     (`scenarios.closed_loop.uncertainty_margin`; zero for the oracle), and it levels the
-    chassis through the suspension with weight 10.
+    chassis through the suspension with weight 10. While driving, each side pair's load
+    sum keeps `SIDE_RESERVE` above the pair's thresholds (`ForceConfig.side_reserve`).
 
     Args:
         threshold_n: Normal-force threshold of every wheel [N]; `threshold` if None.
@@ -88,7 +92,7 @@ def controller_config(threshold_n: float | None = None,
         reference=ReferenceConfig(velocity_fraction=crane_speed[0],
                                   acceleration_fraction=crane_speed[1]),
         force=ForceConfig(thresholds=(thr, thr, thr, thr), margin=0.0,
-                          leveling_weight=10.0))
+                          leveling_weight=10.0, side_reserve=SIDE_RESERVE))
 
 
 def scenario_terrain(scenario: ClosedLoopScenario, seed: int = 0) -> Terrain:

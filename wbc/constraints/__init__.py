@@ -11,6 +11,7 @@ from wbc.constraints.horizon_limits import (
 from wbc.constraints.horizon_normal_force import HorizonNormalForceConstraint
 from wbc.constraints.normal_force import NormalForceConstraint
 from wbc.constraints.position_limit import PositionLimit
+from wbc.constraints.side_reserve import SideReserveConstraint
 from wbc.constraints.speed_scale_limit import SpeedScaleLimit
 from wbc.constraints.velocity_limit import VelocityLimit
 
@@ -19,5 +20,5 @@ __all__ = [
     "HorizonLimit",
     "HorizonNormalForceConstraint",
     "HorizonPositionLimit", "HorizonVelocityLimit", "Inequality", "NormalForceConstraint",
-    "PositionLimit", "SpeedScaleLimit", "VelocityLimit",
+    "PositionLimit", "SideReserveConstraint", "SpeedScaleLimit", "VelocityLimit",
 ]

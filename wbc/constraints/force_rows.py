@@ -48,7 +48,8 @@ class ForceRowsConstraint(Constraint):
     (`forces_map`), and says which nodes get rows (`_constrained_nodes`). The rows are
     scaled by ``1 / force_scale``: ``-(A x + b) / f_s - eps <= -f_min / f_s``, with
     ``eps`` the wheel's slack when the layout has slacks (else no ``eps``): one per wheel,
-    or with eight slacks one per wheel for the node now and another for the later nodes.
+    or with eight slacks or more one per wheel for the node now and another for the later
+    nodes (the side reserve's two come after them, `SideReserveConstraint`).
 
     Args:
         model: The normal-force model.
@@ -129,7 +130,7 @@ class ForceRowsConstraint(Constraint):
                 slack = None
                 if lay.slack is not None:
                     col = lay.slack.start + np.tile(wheels, nodes.size)
-                    if lay.n_slack == 8:  # the later nodes' own slacks
+                    if lay.n_slack >= 8:  # the later nodes' own slacks
                         col = col + 4 * np.repeat(later, wheels.size)
                     slack = (np.arange(rows.size), col)
                 self._rows_cache = (key, (rows, wheels, slack))

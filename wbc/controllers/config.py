@@ -276,6 +276,20 @@ class ForceConfig:
             keeps every wheel's slow load this many RMS load fluctuations (measured per
             unit driving speed, at the commanded speed) above its threshold; 0: off.
         governor_high_pass, governor_window: Its filters' time constants [s].
+        side_reserve: MPC only (soft rows): while the machine drives, each side pair's load
+            sum (FL + RL, FR + RR), which the warp does not move, keeps this much [N] above
+            the pair's thresholds along the horizon (`wbc.constraints.SideReserveConstraint`,
+            a contraction in ``side_reserve_time``); 0: off (unless ``side_reserve_z``).
+        side_reserve_z: MPC only: the same, with the reserve ``z sigma_j`` from the swing of
+            each side sum measured while driving
+            (`wbc.force_models.fluctuation.SideLoadFluctuation`) where it exceeds
+            ``side_reserve``; 0: off.
+        side_reserve_time: Time constant [s] in which the side rows ask the plan to close a
+            side's shortfall.
+        side_reserve_high_pass, side_reserve_window: The measure's filters' time constants
+            [s].
+        side_reserve_min_speed: Below this horizontal speed [m/s] the measure is kept and
+            the side rows are off.
     """
 
     thresholds: tuple[float, float, float, float] | None = None
@@ -298,13 +312,23 @@ class ForceConfig:
     governor_z: float = 2.33
     governor_high_pass: float = 0.2
     governor_window: float = 1.0
+    side_reserve: float = 0.0
+    side_reserve_z: float = 0.0
+    side_reserve_time: float = 1.0
+    side_reserve_high_pass: float = 0.2
+    side_reserve_window: float = 1.0
+    side_reserve_min_speed: float = 0.02
 
     def __post_init__(self):
         _positive(self, "slack_linear", "slack_quadratic",
                   "speed_scale_rate", "speed_scale_weight", "drive_time_constant",
                   "leveling_limit")
         _positive(self, "margin", "leveling_weight", "drift_horizon", "governor_z",
-                  allow_zero=True)
+                  "side_reserve", "side_reserve_z", "side_reserve_min_speed", allow_zero=True)
+        _positive(self, "side_reserve_high_pass", "side_reserve_window", "side_reserve_time")
+        if (self.side_reserve > 0 or self.side_reserve_z > 0) and not self.soft:
+            raise ConfigurationError("side_reserve or side_reserve_z > 0 needs soft force rows "
+                                     "(soft=True)")
         if self.warp_stiffness is not None:
             _positive(self, "warp_stiffness", allow_zero=True)
         _positive(self, "drift_time_constant", "governor_high_pass", "governor_window")

@@ -17,6 +17,7 @@ from wbc.constraints import (
     HorizonNormalForceConstraint,
     HorizonPositionLimit,
     HorizonVelocityLimit,
+    SideReserveConstraint,
     SpeedScaleLimit,
 )
 from wbc.controllers.config import ControllerConfig
@@ -30,7 +31,7 @@ from wbc.force_models.feedback import (
     leveling_offset,
     warp_matrix,
 )
-from wbc.force_models.fluctuation import SpeedGovernor
+from wbc.force_models.fluctuation import SideLoadFluctuation, SpeedGovernor
 from wbc.force_models.protocol import NormalForceModel
 from wbc.kinematics.tcp_kinematics import TcpKinematics
 from wbc.layout import VariableLayout
@@ -98,8 +99,9 @@ class MpcController(Controller):
         self.feedback: ClosureFeedback | None = None
         self.warp: np.ndarray | None = None
         self._set_feedback(feedback)
+        side = fc.side_reserve > 0 or fc.side_reserve_z > 0  # two more slacks (config: soft)
         layout = VariableLayout(9, mc.n_steps, speed_scale=fc.speed_scale,
-                                n_slack=8 if fc.soft else 0)
+                                n_slack=(10 if side else 8) if fc.soft else 0)
         factors = np.asarray(mc.crane_axis_factors, float)
         tasks = [
             HorizonTrackingTask(CRANE_AXES, mc.crane_position_weight * factors,
@@ -118,8 +120,12 @@ class MpcController(Controller):
             self.static_wheel_load, fc.drive_time_constant, mc.terminal_brake_time,
             mc.force_constraint_start)
         self.speed_limit = SpeedScaleLimit(fc.speed_scale_min, fc.speed_scale_rate)
+        self.side_reserve = (SideReserveConstraint(self.force_constraint,
+                                                   fc.side_reserve_time) if side else None)
         constraints = [AccelerationLimit(), HorizonVelocityLimit(), HorizonPositionLimit(),
                        self.force_constraint, self.speed_limit]
+        if self.side_reserve is not None:  # after the force rows: it reads their forces
+            constraints.insert(4, self.side_reserve)
         self.effort_limit = (HorizonEffortLimit(ActuatorEfforts(machine), mc.effort_margin)
                              if mc.effort_limits else None)
         if self.effort_limit is not None:
@@ -199,15 +205,23 @@ class MpcController(Controller):
         self.governor = (SpeedGovernor(fc.governor_z, fc.governor_high_pass,
                                        fc.governor_window, fc.drive_time_constant)
                          if self.feedback is not None and fc.governor_z > 0 else None)
+        self.side_swing = (SideLoadFluctuation(fc.side_reserve_high_pass,
+                                               fc.side_reserve_window,
+                                               fc.side_reserve_min_speed)
+                           if self.feedback is not None and (fc.side_reserve > 0
+                                                             or fc.side_reserve_z > 0)
+                           else None)
 
     def _init_loop_state(self) -> None:
         super()._init_loop_state()
         self.last_feedback: ForceFeedback | None = None
-        for part in ("servo", "warp_drift", "governor"):
+        for part in ("servo", "warp_drift", "governor", "side_swing"):
             if getattr(self, part, None) is not None:
                 getattr(self, part).reset()
         if getattr(self, "speed_limit", None) is not None:
             self.speed_limit.cap = 1.0
+        if getattr(self, "side_reserve", None) is not None:
+            self.side_reserve.set_reserve(np.zeros(2))
 
     def _rate_basis(self, state: MachineState) -> np.ndarray:
         """The rates commanded last tick (with `MpcConfig.setpoint_state`), else measured."""
@@ -258,6 +272,8 @@ class MpcController(Controller):
                     drift = self.warp_drift.drift(np.append(pred.start_times, pred.horizon))
             if self.governor is not None:
                 self._govern(fb, state)
+            if self.side_swing is not None and self.side_reserve is not None:
+                self._side_reserve(fb, state)
         return self.planner.context(state, ref, self._last_qdd, self._speed_scale, q=q,
                                     qd=qd, feedback=fb, warp=self.warp,
                                     leveling_offset=offset, warp_drift=drift)
@@ -268,6 +284,14 @@ class MpcController(Controller):
         self.governor.update(fb.forces, fb.in_contact, fb.time, speed, self._speed_scale)
         self.speed_limit.cap = self.governor.cap(self.force_constraint.thresholds, speed,
                                                  fb.in_contact)
+
+    def _side_reserve(self, fb: ForceFeedback, state: MachineState) -> None:
+        """The side pairs' reserve ``max(r_0, z sigma_j)`` while driving, none standing."""
+        fc = self.config.force
+        speed = float(np.hypot(state.base_twist[0], state.base_twist[1]))
+        self.side_swing.update(fb.forces, fb.in_contact, fb.time, speed)
+        reserve = np.maximum(fc.side_reserve, fc.side_reserve_z * self.side_swing.sigma)
+        self.side_reserve.set_reserve(reserve if self.side_swing.driving else np.zeros(2))
 
     def _build(self, ctx: HorizonContext) -> qpsolvers.Problem:
         return self.planner.build(ctx)

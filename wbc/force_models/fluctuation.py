@@ -46,7 +46,7 @@ import numpy as np
 
 from models.numeric import clip
 
-__all__ = ["SpeedGovernor"]
+__all__ = ["SideLoadFluctuation", "SpeedGovernor"]
 
 _MIN_SCALE = 0.05  # below this the commanded speed cannot be inferred from the measured one
 
@@ -132,3 +132,78 @@ class SpeedGovernor:
             return 1.0
         headroom = self.mean - np.asarray(thresholds, float)
         return float(clip(np.min(headroom[wheels] / need[wheels]), 0.0, 1.0))
+
+
+class SideLoadFluctuation:
+    r"""How much each side pair's load swings while driving: the roll reserve's measure.
+
+    The warp (`wbc.force_models.feedback.DIAGONAL`) moves load within each side pair, and
+    the leveling sets that split; the sum of a side pair's loads, ``S_L = f_FL + f_RL`` and
+    ``S_R = f_FR + f_RR``, only the crane's pose (and the ground's roll) moves. On rough
+    ground the side sums swing while the machine drives, with the crane and the suspension
+    still (development draw 17 of `fast-swing-steep`, master seed 1: the uphill pair's sum
+    between 0.3 and 5.3 kN at about 2 Hz while creeping at 0.04-0.13 m/s, its RMS 1.8 kN,
+    the diagonal's 0.6 kN). From the measured loads:
+
+    .. math:: \bar S_j = \mathrm{LP}_{\tau_h}(S_j), \qquad
+              \sigma_j^2 = \mathrm{LP}_{\tau_w}\big((S_j - \bar S_j)^2\big),
+
+    updated only while the machine drives (horizontal speed >= ``min_speed``) on four
+    wheels and kept otherwise. Unlike `SpeedGovernor`'s measure it is not per unit speed:
+    slowing down did not shrink it (the governor's cap took draw 17 to 0.04 m/s).
+    `driving`: the speed low-pass filtered over ``tau_w`` is at least ``min_speed`` (the
+    measured speed of a creeping machine dips below it for moments).
+
+    Args:
+        high_pass: tau_h [s].
+        window: tau_w [s].
+        min_speed: Below this horizontal speed [m/s] ``sigma`` is not updated.
+    """
+
+    def __init__(self, high_pass: float = 0.2, window: float = 1.0, min_speed: float = 0.02):
+        self.high_pass = float(high_pass)
+        self.window = float(window)
+        self.min_speed = float(min_speed)
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the history (no estimate: sigma zero)."""
+        self.mean: np.ndarray | None = None  # slow side sums (2,) [N], order left, right
+        self.sigma = np.zeros(2)  # RMS swing of the side sums (2,) [N]
+        self._square = np.zeros(2)
+        self._time: float | None = None
+        self.speed = 0.0  # the horizontal speed low-pass filtered over tau_w [m/s]
+
+    @property
+    def driving(self) -> bool:
+        """Whether the filtered speed is at least ``min_speed``."""
+        return self.speed >= self.min_speed
+
+    def update(self, forces, in_contact, time: float, speed: float) -> None:
+        """Take one tick's measurements.
+
+        Args:
+            forces: The wheels' measured loads [N], (4,), order FL, RL, FR, RR.
+            in_contact: Contact flags (4,).
+            time: Their time [s].
+            speed: The base's horizontal speed [m/s].
+        """
+        dt = 0.0 if self._time is None else time - self._time
+        self._time = float(time)
+        if dt > 0 and np.isfinite(speed):
+            self.speed += dt / (self.window + dt) * (speed - self.speed)
+        f = np.asarray(forces, float)
+        if not (np.all(in_contact) and np.all(np.isfinite(f)) and np.isfinite(speed)):
+            return
+        side = f[[0, 2]] + f[[1, 3]]
+        if self.mean is None:
+            self.mean = side
+            return
+        if not dt > 0:
+            return
+        self.mean += dt / (self.high_pass + dt) * (side - self.mean)
+        if speed < self.min_speed:
+            return
+        h = side - self.mean
+        self._square += dt / (self.window + dt) * (h * h - self._square)
+        self.sigma = np.sqrt(self._square)

@@ -31,7 +31,8 @@ class MpcPlan:
         inputs: Accelerations of the steps, (N, 9); ``inputs[0]`` is applied now.
         positions, velocities: Predicted node states, (N, 9), nodes 1..N.
         speed_scale: Wheel-speed scale (1.0 without the variable).
-        slack: Force slacks (4,) [scaled], zeros without them.
+        slack: Force slacks (n_slack,) [scaled]: per wheel now, per wheel later, and with
+            the side reserve the left and the right pair's; zeros (4,) without them.
         solution: The solver's result.
     """
 

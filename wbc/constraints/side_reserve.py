@@ -1,0 +1,111 @@
+"""MPC: room in each side pair's load for the swing measured while driving (late nodes)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from wbc.constraints.constraint import Constraint, Inequality
+from wbc.constraints.horizon_normal_force import HorizonNormalForceConstraint
+from wbc.errors import ConfigurationError
+
+__all__ = ["SIDE_PAIRS", "SideReserveConstraint"]
+
+SIDE_PAIRS = np.array([[0, 1], [2, 3]])  # left (FL, RL), right (FR, RR) in the wheel order
+
+
+class SideReserveConstraint(Constraint):
+    r"""Each side pair's load sum closes its shortfall to ``f_min,a + f_min,b + r_j``.
+
+    A side pair's load sum is what the warp does not move (it moves load *within* each
+    pair, `wbc.force_models.feedback.DIAGONAL`): only the crane's pose and the ground's roll
+    move it, so a reserve ``r_j`` on it (a floor while driving, or ``z sigma_j`` from the
+    swing measured on that side, `wbc.force_models.fluctuation.SideLoadFluctuation`) cannot
+    be bought with the suspension. With ``S_k`` a side pair's predicted sum at node k,
+    ``n = f_min,a + f_min,b + r_j`` and ``S_k^0`` the sum the nominal plan (the previous
+    plan shifted, at the last speed scale) predicts there, the rows at the nodes after now
+    (k >= 1 and the terminal node) are
+
+    .. math:: S_k \ge n - \max(n - S_k^0, 0)\, e^{-t_k / T},
+
+    a contraction: the plan must close the shortfall the previous plan left at node k by the
+    fraction ``1 - exp(-t_k / T)`` (1 % one period ahead with T = 1 s, 63 % a second ahead),
+    so the crane takes the load inward or uphill over about ``T`` instead of at once with
+    accelerations (the per-wheel margin for the same swing, in every row, rang the chassis
+    at 2-3 Hz, `wbc/DESIGN.md`, pitfalls). Rows only at the late nodes would not do: the
+    plan keeps promising the move for later and never makes it (development draw 17,
+    master seed 1: the terminal sum met, the measured one 3 kN short).
+
+    The forces are those `HorizonNormalForceConstraint` predicted at this tick
+    (``last_forces_map``: this constraint must come after it in the list), its thresholds
+    (with the uncertainty margin) included. Rows only with all four wheels on the ground
+    and for sides with ``r_j > 0``; each side has its own slack (layout slacks 8 and 9), so
+    a reserve out of reach never relaxes the per-wheel rows:
+    ``-(A_a + A_b) x / f_s - eps_j <= (b_a + b_b - n + max(n - S_k^0, 0) e_k) / f_s``.
+
+    Args:
+        force_constraint: The per-wheel rows whose predicted forces and thresholds it uses.
+        time_constant: T [s].
+
+    Attributes:
+        reserve: ``r`` [N], shape (2,), order left, right; zeros: inactive.
+    """
+
+    def __init__(self, force_constraint: HorizonNormalForceConstraint,
+                 time_constant: float = 1.0):
+        if not time_constant > 0:
+            raise ConfigurationError(f"time_constant must be > 0 s, got {time_constant}")
+        self.force_constraint = force_constraint
+        self.time_constant = float(time_constant)
+        self.reserve = np.zeros(2)
+
+    def set_reserve(self, reserve) -> None:
+        """Set ``r`` [N] (2,), order left, right.
+
+        Raises:
+            ConfigurationError: Not two finite numbers >= 0.
+        """
+        r = np.asarray(reserve, float)
+        if r.shape != (2,) or not np.all(np.isfinite(r)) or np.any(r < 0):
+            raise ConfigurationError(f"side reserve must be 2 finite forces >= 0 [N], got "
+                                     f"{reserve!r}")
+        self.reserve = r
+
+    @staticmethod
+    def nodes(ctx, n_nodes: int) -> tuple[np.ndarray, np.ndarray]:
+        """``(nodes, times [s])``: every node after now (k >= 1), the terminal one last."""
+        times = np.append(ctx.prediction.start_times, ctx.prediction.horizon)[:n_nodes]
+        nodes = np.flatnonzero(times > ctx.dt / 2)
+        return nodes, times[nodes]
+
+    @staticmethod
+    def nominal(ctx) -> np.ndarray:
+        """The decision vector of the nominal plan: its inputs, the last scale, no slack."""
+        lay = ctx.layout
+        x = np.zeros(lay.n)
+        x[lay.accelerations] = np.asarray(ctx.nominal_inputs, float).reshape(-1)
+        if lay.scale is not None:
+            x[lay.scale] = ctx.speed_scale
+        return x
+
+    def compute(self, ctx) -> Inequality | None:
+        """The rows of the sides with a reserve, after now; None: inactive."""
+        fc = self.force_constraint
+        lay = ctx.layout
+        sides = np.flatnonzero(self.reserve > 0)
+        if (sides.size == 0 or fc.last_forces_map is None or fc.last_in_contact is None
+                or not np.all(fc.last_in_contact)):
+            return None
+        if lay.slack is None or lay.n_slack < 10:
+            raise ConfigurationError("SideReserveConstraint needs a layout with 10 slacks")
+        A, b = fc.last_forces_map
+        nodes, times = self.nodes(ctx, A.shape[0] // 4)
+        pairs = SIDE_PAIRS[sides]  # (m, 2)
+        rows = 4 * nodes[:, None, None] + pairs[None, :, :]  # (k, m, 2)
+        A_sum = (A[rows[..., 0]] + A[rows[..., 1]]).reshape(-1, lay.n)
+        b_sum = (b[rows[..., 0]] + b[rows[..., 1]]).reshape(-1)
+        need = np.tile(fc.thresholds[pairs].sum(axis=1) + self.reserve[sides], nodes.size)
+        short = np.maximum(need - (A_sum @ self.nominal(ctx) + b_sum), 0.0)
+        wanted = need - short * np.repeat(np.exp(-times / self.time_constant), sides.size)
+        G = A_sum / -fc.force_scale
+        G[np.arange(G.shape[0]), lay.slack.start + 8 + np.tile(sides, nodes.size)] = -1.0
+        return Inequality(G, (b_sum - wanted) / fc.force_scale)
