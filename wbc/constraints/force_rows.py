@@ -11,7 +11,8 @@ from wbc.errors import ConfigurationError
 from wbc.force_models.feedback import DIAGONAL
 from wbc.force_models.protocol import NormalForceModel, contact_flags
 
-__all__ = ["ForceRowsConstraint", "check_thresholds", "lifted_wheel_thresholds"]
+__all__ = ["ForceRowsConstraint", "check_margins", "check_thresholds",
+           "lifted_wheel_thresholds"]
 
 
 def check_thresholds(thresholds) -> np.ndarray:
@@ -20,6 +21,18 @@ def check_thresholds(thresholds) -> np.ndarray:
     if not np.all(np.isfinite(t)):
         raise ConfigurationError(f"force thresholds must be finite, got {thresholds}")
     return t
+
+
+def check_margins(value, n: int, what: str) -> np.ndarray:
+    """``n`` finite forces >= 0 [N] as an array of shape (n,) (margins, reserves).
+
+    Raises:
+        ConfigurationError: Anything else; the message names ``what``.
+    """
+    m = np.asarray(value, float)
+    if m.shape != (n,) or not np.all(np.isfinite(m)) or np.any(m < 0):
+        raise ConfigurationError(f"{what} must be {n} finite forces >= 0 [N], got {value!r}")
+    return m
 
 
 def lifted_wheel_thresholds(thresholds: np.ndarray, in_contact) -> np.ndarray:

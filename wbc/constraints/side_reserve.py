@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from wbc.constraints.constraint import Constraint, Inequality
+from wbc.constraints.force_rows import check_margins
 from wbc.constraints.horizon_normal_force import HorizonNormalForceConstraint
 from wbc.errors import ConfigurationError
 
@@ -64,11 +65,7 @@ class SideReserveConstraint(Constraint):
         Raises:
             ConfigurationError: Not two finite numbers >= 0.
         """
-        r = np.asarray(reserve, float)
-        if r.shape != (2,) or not np.all(np.isfinite(r)) or np.any(r < 0):
-            raise ConfigurationError(f"side reserve must be 2 finite forces >= 0 [N], got "
-                                     f"{reserve!r}")
-        self.reserve = r
+        self.reserve = check_margins(reserve, 2, "side reserve")
 
     @staticmethod
     def nodes(ctx, n_nodes: int) -> tuple[np.ndarray, np.ndarray]:

@@ -20,6 +20,7 @@ from wbc.constraints import (
     SideReserveConstraint,
     SpeedScaleLimit,
 )
+from wbc.constraints.force_rows import check_margins
 from wbc.controllers.config import ControllerConfig
 from wbc.controllers.controller import Controller
 from wbc.controllers.servo_state import ServoState
@@ -186,10 +187,7 @@ class MpcController(Controller):
         Raises:
             ConfigurationError: Not four finite margins >= 0.
         """
-        m = np.asarray(margin, float)
-        if m.shape != (4,) or not np.all(np.isfinite(m)) or np.any(m < 0):
-            raise ConfigurationError(f"force margin must be 4 finite forces >= 0 [N], got "
-                                     f"{margin!r}")
+        m = check_margins(margin, 4, "force margin")
         self.force_constraint.thresholds = self.force_thresholds + self.config.force.margin + m
         self.force_margin = m
 
