@@ -58,6 +58,7 @@ class SideReserveConstraint(Constraint):
         self.force_constraint = force_constraint
         self.time_constant = float(time_constant)
         self.reserve = np.zeros(2)
+        self._cache: tuple | None = None  # (key, `_structure`)
 
     def set_reserve(self, reserve) -> None:
         """Set ``r`` [N] (2,), order left, right.
@@ -95,14 +96,32 @@ class SideReserveConstraint(Constraint):
         if lay.slack is None or lay.n_slack < 10:
             raise ConfigurationError("SideReserveConstraint needs a layout with 10 slacks")
         A, b = fc.last_forces_map
-        nodes, times = self.nodes(ctx, A.shape[0] // 4)
-        pairs = SIDE_PAIRS[sides]  # (m, 2)
-        rows = 4 * nodes[:, None, None] + pairs[None, :, :]  # (k, m, 2)
-        A_sum = (A[rows[..., 0]] + A[rows[..., 1]]).reshape(-1, lay.n)
-        b_sum = (b[rows[..., 0]] + b[rows[..., 1]]).reshape(-1)
-        need = np.tile(fc.thresholds[pairs].sum(axis=1) + self.reserve[sides], nodes.size)
+        first, second, pairs, n_nodes, decay, slack = self._structure(ctx, A.shape[0] // 4,
+                                                                      sides)
+        A_sum = A[first] + A[second]  # node-major, then side
+        b_sum = b[first] + b[second]
+        need = np.tile(fc.thresholds[pairs].sum(axis=1) + self.reserve[sides], n_nodes)
         short = np.maximum(need - (A_sum @ self.nominal(ctx) + b_sum), 0.0)
-        wanted = need - short * np.repeat(np.exp(-times / self.time_constant), sides.size)
-        G = A_sum / -fc.force_scale
-        G[np.arange(G.shape[0]), lay.slack.start + 8 + np.tile(sides, nodes.size)] = -1.0
+        wanted = need - short * decay
+        G = np.divide(A_sum, -fc.force_scale, out=A_sum)
+        G[slack] = -1.0
         return Inequality(G, (b_sum - wanted) / fc.force_scale)
+
+    def _structure(self, ctx, n_nodes: int, sides: np.ndarray) -> tuple:
+        """What the layout, the nodes and the sides fix, kept while they stay the same.
+
+        ``(first, second)``: the rows of each pair's two wheels in the force map, node-major;
+        the ``pairs`` (m, 2); the node count; ``decay``, ``exp(-t_k / T)`` per row; the
+        slack entries of G.
+        """
+        key = (ctx.structure_key, n_nodes, sides.tobytes(), ctx.dt, self.time_constant)
+        if self._cache is None or self._cache[0] != key:
+            nodes, times = self.nodes(ctx, n_nodes)
+            pairs = SIDE_PAIRS[sides]  # (m, 2)
+            rows = 4 * nodes[:, None, None] + pairs[None, :, :]  # (k, m, 2)
+            decay = np.repeat(np.exp(-times / self.time_constant), sides.size)
+            slack = (np.arange(rows.shape[0] * rows.shape[1]),
+                     ctx.layout.slack.start + 8 + np.tile(sides, nodes.size))
+            self._cache = (key, (rows[..., 0].reshape(-1), rows[..., 1].reshape(-1), pairs,
+                                 nodes.size, decay, slack))
+        return self._cache[1]

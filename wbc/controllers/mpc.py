@@ -287,7 +287,8 @@ class MpcController(Controller):
         """The side pairs' reserve ``max(r_0, z sigma_j)`` while driving, none standing."""
         fc = self.config.force
         speed = float(np.hypot(state.base_twist[0], state.base_twist[1]))
-        self.side_swing.update(fb.forces, fb.in_contact, fb.time, speed)
+        self.side_swing.update(fb.forces, fb.in_contact, fb.time, speed,
+                               swing=fc.side_reserve_z > 0)  # the floor needs the speed only
         reserve = np.maximum(fc.side_reserve, fc.side_reserve_z * self.side_swing.sigma)
         self.side_reserve.set_reserve(reserve if self.side_swing.driving else np.zeros(2))
 

@@ -42,6 +42,8 @@ overshoot) did not help either (two failing draws, both worse).
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from models.numeric import clip
@@ -179,7 +181,8 @@ class SideLoadFluctuation:
         """Whether the filtered speed is at least ``min_speed``."""
         return self.speed >= self.min_speed
 
-    def update(self, forces, in_contact, time: float, speed: float) -> None:
+    def update(self, forces, in_contact, time: float, speed: float,
+               swing: bool = True) -> None:
         """Take one tick's measurements.
 
         Args:
@@ -187,11 +190,15 @@ class SideLoadFluctuation:
             in_contact: Contact flags (4,).
             time: Their time [s].
             speed: The base's horizontal speed [m/s].
+            swing: Update ``mean`` and ``sigma``; False: only the speed (`driving`), for a
+                caller that does not read the swing.
         """
         dt = 0.0 if self._time is None else time - self._time
         self._time = float(time)
-        if dt > 0 and np.isfinite(speed):
+        if dt > 0 and math.isfinite(speed):
             self.speed += dt / (self.window + dt) * (speed - self.speed)
+        if not swing:
+            return
         f = np.asarray(forces, float)
         if not (np.all(in_contact) and np.all(np.isfinite(f)) and np.isfinite(speed)):
             return
