@@ -26,7 +26,9 @@ import subprocess
 import tempfile
 from pathlib import Path
 
-__all__ = ["HOST_OPTIONS", "cache_dir", "compile_shared", "load_shared"]
+import numpy as np
+
+__all__ = ["HOST_OPTIONS", "bind", "cache_dir", "compile_shared", "load_shared"]
 
 _log = logging.getLogger(__name__)
 
@@ -132,3 +134,13 @@ def load_shared(source: str, name: str, functions: dict, fallback: str,
             lib = None
         _LOADED[key] = lib
     return _LOADED[key]
+
+
+def bind(fun, *args):
+    """``fun`` with its arguments bound: an array by its data's address, anything else as is.
+
+    The cheapest per-tick call through ctypes (no argument conversion left); the arrays must
+    outlive the returned callable and keep their buffers (the caller holds them).
+    """
+    return functools.partial(fun, *(a.ctypes.data if isinstance(a, np.ndarray) else a
+                                    for a in args))

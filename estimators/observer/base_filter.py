@@ -32,6 +32,7 @@ import numpy as np
 from estimators.errors import EstimatorError
 from estimators.observer import filters_c
 from estimators.observer._vec3 import cross, norm
+from models.cbuild import bind
 from models.rotations import cross3
 
 __all__ = ["ANGULAR_ACCELERATION_TIME_CONSTANT", "ATTITUDE_TIME_CONSTANT", "BaseFilter",
@@ -97,7 +98,7 @@ class BaseFilter:
                                      ODOMETRY_ACCELERATION_TIME_CONSTANT,
                                      ATTITUDE_TIME_CONSTANT])
             self._in = np.zeros(10)
-            self._c = filters_c.bound(lib.base_step, self._state, self._consts, self._in)
+            self._c = bind(lib.base_step, self._state, self._consts, self._in)
 
     def update(self, time: float, rates: np.ndarray, forces: np.ndarray,
                wheel_speeds: np.ndarray | None) -> None:

@@ -13,9 +13,6 @@ numpy's BLAS may fuse multiply-adds: the results agree to round-off
 from __future__ import annotations
 
 import ctypes
-import functools
-
-import numpy as np
 
 from models.cbuild import load_shared
 
@@ -153,8 +150,3 @@ def compiled_filters():
         "base_step": ([ctypes.c_void_p] * 3, ctypes.c_int),
         "joint_step": ([ctypes.c_void_p, ctypes.c_long, ctypes.c_void_p, ctypes.c_void_p,
                         ctypes.c_void_p, ctypes.c_long], ctypes.c_int)}, "Python")
-
-
-def bound(fun, *arrays: np.ndarray):
-    """``fun`` with the addresses of ``arrays`` bound (kept alive by the caller)."""
-    return functools.partial(fun, *(a.ctypes.data for a in arrays))

@@ -14,11 +14,10 @@ are the same loop in C, the same bits.
 from __future__ import annotations
 
 import ctypes
-import functools
 
 import numpy as np
 
-from models.cbuild import load_shared
+from models.cbuild import bind, load_shared
 from wbc.axes import N_AXES
 
 __all__ = ["LIMITS_C", "CompiledBounds", "CompiledBrake", "compiled_bounds", "compiled_brake"]
@@ -118,7 +117,7 @@ class CompiledBounds:
     def __init__(self, fun, n_in: int):
         self.inp = np.zeros(n_in)
         self.out = np.zeros((2, N_AXES))
-        self.call = functools.partial(fun, self.inp.ctypes.data, self.out.ctypes.data)
+        self.call = bind(fun, self.inp, self.out)
 
 
 class CompiledBrake:
@@ -131,8 +130,7 @@ class CompiledBrake:
         self.v0, self.a = np.zeros(n), np.zeros(n)
         self.h = np.array(steps, float)
         self.u = np.zeros((self.h.size, n))
-        self.call = functools.partial(fun, self.v0.ctypes.data, self.a.ctypes.data,
-                                      self.h.ctypes.data, self.h.size, n, self.u.ctypes.data)
+        self.call = bind(fun, self.v0, self.a, self.h, self.h.size, n, self.u)
 
     def inputs(self, qd0, acceleration) -> np.ndarray:
         """The brake inputs ``u`` (N, n) from the speeds ``qd0`` at limits ``acceleration``."""

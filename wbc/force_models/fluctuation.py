@@ -99,21 +99,10 @@ class SpeedGovernor:
             self.scale_lag += dt / (self.drive_time_constant + dt) * (speed_scale
                                                                       - self.scale_lag)
         f = np.asarray(forces, float)
-        if not (np.all(in_contact) and np.all(np.isfinite(f)) and np.isfinite(speed)):
-            return
-        if self.mean is None:
-            self.mean = f.copy()
-            return
-        if not dt > 0:
-            return
-        self.mean += dt / (self.high_pass + dt) * (f - self.mean)
-        if speed < self.min_speed:
-            return
-        h = f - self.mean
-        a = dt / (self.window + dt)
-        self._square += a * (h * h - self._square)
-        self._speed_square += a * (speed * speed - self._speed_square)
-        self.per_speed = np.sqrt(self._square / self._speed_square)
+        if _usable(f, in_contact, speed) and _swing_step(self, f, dt, speed >= self.min_speed):
+            a = dt / (self.window + dt)
+            self._speed_square += a * (speed * speed - self._speed_square)
+            self.per_speed = np.sqrt(self._square / self._speed_square)
 
     def cap(self, thresholds, speed: float, in_contact) -> float:
         """Largest speed scale in [0, 1] that keeps ``z k_i v_nom s`` within the headroom.
@@ -200,17 +189,33 @@ class SideLoadFluctuation:
         if not swing:
             return
         f = np.asarray(forces, float)
-        if not (np.all(in_contact) and np.all(np.isfinite(f)) and np.isfinite(speed)):
+        if not _usable(f, in_contact, speed):
             return
         side = f[[0, 2]] + f[[1, 3]]
-        if self.mean is None:
-            self.mean = side
-            return
-        if not dt > 0:
-            return
-        self.mean += dt / (self.high_pass + dt) * (side - self.mean)
-        if speed < self.min_speed:
-            return
-        h = side - self.mean
-        self._square += dt / (self.window + dt) * (h * h - self._square)
-        self.sigma = np.sqrt(self._square)
+        if _swing_step(self, side, dt, speed >= self.min_speed):
+            self.sigma = np.sqrt(self._square)
+
+
+def _usable(forces: np.ndarray, in_contact, speed: float) -> bool:
+    """All four wheels on the ground, the loads and the speed finite."""
+    return bool(np.all(in_contact) and np.all(np.isfinite(forces)) and np.isfinite(speed))
+
+
+def _swing_step(measure, x: np.ndarray, dt: float, moving: bool) -> bool:
+    """One tick of a swing measure (`SpeedGovernor`, `SideLoadFluctuation`).
+
+    ``measure.mean``, the slow part of ``x`` (low-pass over ``measure.high_pass``), and
+    ``measure._square``, the mean square of the rest over ``measure.window``, this one only
+    while ``moving``. The first sample starts the mean. True when ``_square`` changed.
+    """
+    if measure.mean is None:
+        measure.mean = x.copy()
+        return False
+    if not dt > 0:
+        return False
+    measure.mean += dt / (measure.high_pass + dt) * (x - measure.mean)
+    if not moving:
+        return False
+    h = x - measure.mean
+    measure._square += dt / (measure.window + dt) * (h * h - measure._square)
+    return True
