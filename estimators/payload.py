@@ -150,7 +150,25 @@ class PayloadEstimator:
         return e
 
     def normal_forces(self, state: MachineState) -> np.ndarray:
-        """``estimate(state).normal_forces``."""
+        """``estimate(state).normal_forces``, from what this tick already made if it can.
+
+        A control tick linearizes the observed state (the margin) before it asks for its
+        forces (the feedback): the derivative kernel's forces are the estimate kernel's
+        bits (the same expressions; a test checks it), and so are the first row of
+        `stepped_suspension_forces`. Else (another state, mass, D or beta, or a tipping
+        state's least-squares linearization) the estimate.
+        """
+        key = self._key()
+        for s, k, e in self._kept:
+            if s is state and k == key:
+                return e.normal_forces
+        last = self._last
+        if (last is not None and last[0] is state and last[1] == key
+                and "_row" in last[2].__dict__):  # the kernel's row: a regular system
+            return last[2].normal_forces
+        kept = self._stepped
+        if kept is not None and kept[0] is state and kept[1] == key:
+            return kept[2]
         return self.estimate(state).normal_forces
 
     def contact_points(self, state: MachineState) -> np.ndarray:
@@ -166,6 +184,7 @@ class PayloadEstimator:
         forces = stepped_forces(self._est, state, step, payload_step=SPAN)
         if forces is None:
             return None
+        forces.flags.writeable = False  # its rows are kept and handed out
         self._stepped = (state, self._key(), forces[0], forces[3])
         return forces[:3]
 

@@ -11,6 +11,7 @@ from estimators.errors import EstimatorError
 from estimators.linearization import ForceLinearization
 from estimators.payload import ANCHOR_MASSES, PayloadEstimator, anchor_machines
 from models import build_reference_machine
+from models.state import WheelContacts
 from testkit.estimator_states import random_state
 
 MACHINE = build_reference_machine()
@@ -182,3 +183,31 @@ def _copied(lin):
     """The same linearization made by the public constructor (no kernel row)."""
     return ForceLinearization(lin.normal_forces, lin.G, lin.g0, lin.d_q, lin.d_qd,
                               lin.in_contact, lin.mode, lin.clipped, lin.time)
+
+
+@pytest.mark.parametrize("fourth", ["d-beta", "cylinder-force"])
+def test_forces_after_a_linearization_are_the_estimates_bits(fourth):
+    """`normal_forces` after `linearize` (or the stepped pack) of the same state reads the
+    forces those made: the estimate kernel's bits, also with a wheel in the air."""
+    est = PayloadEstimator(MACHINE, fourth=fourth, strokes="clip")
+    fresh = NormalForceEstimator(anchor_machines(MACHINE)[0], fourth=fourth, strokes="clip")
+    rng = np.random.default_rng(11)
+    reused = 0
+    for k in range(24):
+        s = replace(random_state(MACHINE, rng, max_tilt=0.3, speed=0.5),
+                    suspension_force=rng.uniform(2e4, 6e4, 2))
+        if k % 3 == 1:  # a rear wheel lifted: the three-wheel system
+            flags = np.array([True, k % 2 == 0, True, k % 2 == 1])
+            points = fresh.estimate(s).contact_points  # the wheels' lowest points
+            s = replace(s, contacts=WheelContacts(flags, np.zeros((4, 3)), points,
+                                                  np.tile(s.base_rotation[2], (4, 1))))
+        est.payload_mass = fresh.payload_mass = float(rng.uniform(0.0, 300.0))
+        if k % 2:
+            est.linearize(s)
+        else:
+            est.stepped_suspension_forces(s, 1.0)
+        f = est.normal_forces(s)
+        reused += est._kept == () or est._kept[0][0] is not s  # not from an estimate
+        assert f.tolist() == fresh.estimate(s).normal_forces.tolist()
+        assert not f.flags.writeable
+    assert reused == 24
