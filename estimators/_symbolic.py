@@ -153,12 +153,14 @@ class Layout:
     fb), base twist (6), base acceleration (6), q, qd, qdd (13 each). Contacts: measured
     points (12, row-major (4, 3)), use-measured flags (4), measured forces in fb (12).
     Selectors (`full_dynamics.Selectors`): mask (4), height weights (4), s_dbeta, s_cylinder,
-    lost (4). Parameters: D, beta, suspension forces (2). Outputs of ``nf_estimate``: x (4),
-    F_Xi (6), A (3x4), b (3), condition, contact points (4x3), residual (3), checksum; of
-    ``nf_constraint``: x, d x / d a (4x19 row-major), d b / d a (3x19), g0 = x - (dx/da) a
-    (4), condition, checksum; of ``nf_derivatives``: x, d x / d a, d x / d q (4x13),
-    d x / d qd (4x13), g0, condition, checksum. The checksum is the sum of the row's other
-    outputs: finite exactly when all of them are, so a caller tests one number.
+    lost (4). Parameters: D, beta, suspension forces (2), the payload's mass (a run-time
+    input: `TreeModel.dynamics`; one kernel serves every payload). Outputs of
+    ``nf_estimate``: x (4), F_Xi (6), A (3x4), b (3), condition, contact points (4x3),
+    residual (3), checksum; of ``nf_constraint``: x, d x / d a (4x19 row-major), d b / d a
+    (3x19), g0 = x - (dx/da) a (4), condition, checksum; of ``nf_derivatives``: x, d x / d a,
+    d x / d q (4x13), d x / d qd (4x13), g0, condition, checksum. The checksum is the sum of
+    the row's other outputs: finite exactly when all of them are, so a caller tests one
+    number.
     """
 
     def __init__(self):
@@ -168,7 +170,7 @@ class Layout:
                           ("qd", n), ("qdd", n), ("points", 12), ("use_measured", 4),
                           ("force", 12), ("mask", 4), ("height_weights", 4),
                           ("s_dbeta", None), ("s_cylinder", None), ("lost", 4), ("d", None),
-                          ("beta", None), ("suspension_force", 2)])
+                          ("beta", None), ("suspension_force", 2), ("payload_mass", None)])
         estimate = _packed([("out_x", 4), ("out_xi", 6), ("out_a", 12), ("out_b", 3),
                             ("out_cond", None), ("out_points", 12), ("out_residual", 3),
                             ("out_sum", None)])
@@ -213,7 +215,7 @@ def build_kernels(tree: TreeModel) -> dict[str, ca.Function]:
     frc = [z[lay.force.start + 3 * k: lay.force.start + 3 * k + 3] for k in range(4)]
     use = z[lay.use_measured]
     ops = CasadiOps
-    dyn = tree.dynamics(ops, rot, twist, acc, q, qd, qdd)
+    dyn = tree.dynamics(ops, rot, twist, acc, q, qd, qdd, payload_mass=z[lay.payload_mass])
     out = normal_force_system(
         ops, tree, dyn, rot, pts, use, frc, z[lay.mask], z[lay.height_weights],
         z[lay.s_dbeta], z[lay.s_cylinder], z[lay.lost], z[lay.d], z[lay.beta],

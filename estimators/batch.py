@@ -171,9 +171,10 @@ def row_parts(est, sb: StateBatch, sl: slice, table: fd.Selectors,
               _ZEROS12 if no_point else sb.point_in_fb[sl],
               _ZEROS4 if no_point else _ONES4,
               _ZEROS12 if sb.force_in_fb is None else sb.force_in_fb[sl],
-              _ZEROS2 if sb.suspension_force is None else sb.suspension_force[sl])
+              _ZEROS2 if sb.suspension_force is None else sb.suspension_force[sl],
+              est._packer.payload)
     parts = [(a, None) for a in fields]
-    parts.insert(-1, (_selector_block(table, est.D, est.beta), pattern))
+    parts.insert(-2, (_selector_block(table, est.D, est.beta), pattern))
     return parts
 
 

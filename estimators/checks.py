@@ -13,15 +13,30 @@ import numpy as np
 
 from estimators.errors import EstimatorInputError
 from models.description import Machine
+from models.reference_machine import MAX_PAYLOAD_MASS
 
 __all__ = ["METHODS", "FOURTH", "BACKENDS", "STROKE_POLICIES", "check_finite_result",
-           "check_options", "coordinate_ranges", "real_number"]
+           "check_options", "check_payload_mass", "coordinate_ranges", "real_number"]
 
 METHODS = ("full", "quasi-static")
 FOURTH = ("d-beta", "cylinder-force")
 BACKENDS = ("auto", "compiled", "casadi", "reference")
 STROKE_POLICIES = ("raise", "clip")
 _STATE_FIELDS = ("base_twist", "base_acceleration", "q", "qd", "qdd")
+
+
+def check_payload_mass(value) -> float:
+    """``value`` as a payload mass [kg] in [0, `MAX_PAYLOAD_MASS`].
+
+    Raises:
+        EstimatorInputError: Not a finite real number in that range.
+    """
+    ok = isinstance(value, (int, float, np.floating)) and not isinstance(value, bool)
+    m = float(value) if ok else math.nan
+    if not (math.isfinite(m) and 0.0 <= m <= MAX_PAYLOAD_MASS):
+        raise EstimatorInputError(f"payload_mass must be a mass in [0, {MAX_PAYLOAD_MASS:g}] "
+                                  f"kg, got {value!r}")
+    return m
 
 
 def check_options(method, fourth, D, beta, backend, strokes) -> tuple[float, float]:  # noqa: N803

@@ -25,7 +25,7 @@ from estimators import full_dynamics as fd
 from estimators._row_views import ESTIMATE_VIEWS, LINEARIZATION_VIEWS, OUT_VIEWS, ROW_CHECKS
 from estimators._symbolic import LAYOUT, Kernels
 from estimators.batch import SINGULAR_CONDITION
-from estimators.checks import check_finite_result, check_options
+from estimators.checks import check_finite_result, check_options, check_payload_mass
 from estimators.errors import EstimatorInputError, SingularSystemError, range_message
 from estimators.linearization import ForceLinearization
 from estimators.packing import RowPacker
@@ -78,7 +78,7 @@ class NormalForceEstimator:
         self.fourth = fourth
         self.strokes = strokes
         self.n_clipped = 0
-        self.tree = _tree_for(machine)
+        self.tree = TreeModel.shared(machine)
         self._qs = QuasiStaticMask(machine) if method == "quasi-static" else None
         self._kernels: Kernels | None = None
         if backend in ("auto", "compiled", "casadi"):
@@ -94,11 +94,20 @@ class NormalForceEstimator:
             drop = self._qs.dropped_index
             zeroed = np.concatenate([np.arange(LAYOUT.twist.start, LAYOUT.acceleration.stop),
                                      LAYOUT.qd.start + drop, LAYOUT.qdd.start + drop])
-        self._packer = RowPacker(machine, fourth, zeroed)
+        self._packer = RowPacker(machine, fourth, zeroed, self.tree.payload_mass)
         self._pack = self._packer.fill  # bound once: the per-call path looks them up often
         self._bounds = self._packer.bounds
         self._ranges = self._packer.ranges
         self._calls = threading.local()
+
+    @property
+    def payload_mass(self) -> float:
+        """The payload's mass [kg]: a kernel input, settable (the description's at first)."""
+        return float(self._packer.payload[0])
+
+    @payload_mass.setter
+    def payload_mass(self, value) -> None:
+        self._packer.payload[0] = check_payload_mass(value)
 
     def warm(self) -> None:
         """Build or load every kernel now rather than at its first call.
@@ -164,7 +173,7 @@ class NormalForceEstimator:
             self.tree, rot, inp[lay.twist], inp[lay.acceleration], inp[lay.q], inp[lay.qd],
             inp[lay.qdd], inp[lay.points].reshape(4, 3), inp[lay.use_measured],
             inp[lay.force].reshape(4, 3), sel, inp[lay.d], inp[lay.beta],
-            inp[lay.suspension_force])
+            inp[lay.suspension_force], float(inp[lay.payload_mass]))
         x = out["x"]
         row = np.concatenate([x, out["xi"], out["A"].ravel(), out["b"], [out["cond"]],
                               np.ravel(out["points"]), out["A"] @ x - out["b"]])
@@ -430,16 +439,3 @@ class NormalForceEstimator:
 
         return calibrate_batch(self.estimate_batch(states, strict=False), normal_forces_gt,
                                window, stride, solver)
-
-
-_TREES: dict = {}
-
-
-def _tree_for(machine: Machine) -> TreeModel:
-    """The tree model of ``machine``, shared by estimators of equal descriptions."""
-    tree = _TREES.get(machine.fingerprint)
-    if tree is None:
-        tree = _TREES[machine.fingerprint] = TreeModel(machine)
-    return tree
-
-

@@ -344,11 +344,16 @@ def chain_base_wrench(tree: TreeModel, dyn: TreeDynamics, chain: str,
 
 def evaluate(tree: TreeModel, rotation_world_fb, twist, acceleration, q, qd, qdd,
              points_measured, use_measured, force_in_fb, selectors: Selectors, d: float,
-             beta: float, suspension_force) -> tuple[TreeDynamics, dict]:
-    """The whole pipeline for one state in numpy (the paper-faithful reference path)."""
+             beta: float, suspension_force, payload_mass: float | None = None
+             ) -> tuple[TreeDynamics, dict]:
+    """The whole pipeline for one state in numpy (the paper-faithful reference path).
+
+    ``payload_mass`` [kg]: None, the description's (`TreeModel.dynamics`).
+    """
     ops = NumpyOps
     dyn = tree.dynamics(ops, np.asarray(rotation_world_fb, float), np.asarray(twist, float),
-                        np.asarray(acceleration, float), q, qd, qdd)
+                        np.asarray(acceleration, float), q, qd, qdd,
+                        payload_mass=payload_mass)
     out = normal_force_system(
         ops, tree, dyn, np.asarray(rotation_world_fb, float), list(points_measured),
         use_measured, list(force_in_fb), selectors.mask, selectors.height_weights,

@@ -38,11 +38,18 @@ class RowPacker:
         fourth: The estimator's fourth equation (``d-beta`` or ``cylinder-force``).
         zeroed: Input positions to zero after packing (the quasi-static method's dropped
             terms), or None.
+        payload_mass: The payload's mass [kg] packed into every row.
+
+    Attributes:
+        payload: The payload's mass [kg] as a (1,) array, packed as it is: its owner
+            (`NormalForceEstimator.payload_mass`) writes it.
     """
 
-    def __init__(self, machine: Machine, fourth: str, zeroed: np.ndarray | None = None):
+    def __init__(self, machine: Machine, fourth: str, zeroed: np.ndarray | None = None,
+                 payload_mass: float = 0.0):
         self.fourth = fourth
         self.zeroed = zeroed
+        self.payload = np.array([float(payload_mass)])
         self.ranges = coordinate_ranges(machine)
         # (index, lower, upper) with the tolerance applied, for `out_of_range`.
         self.bounds = tuple((i, lo - RANGE_TOLERANCE, hi + RANGE_TOLERANCE)
@@ -104,7 +111,7 @@ class RowPacker:
                                  state.base_acceleration, state.q, state.qd, state.qdd,
                                  *((_NO_CONTACTS,) if c is None else
                                    (c.point_in_fb, _ONES4, c.force_in_fb)),
-                                 packed, _ZEROS2 if f is None else f))
+                                 packed, _ZEROS2 if f is None else f, self.payload))
                 except (TypeError, ValueError, BufferError):
                     row = b""
                 if len(row) == len(raw):
@@ -118,7 +125,7 @@ class RowPacker:
                 contacts = (c.point_in_fb.reshape(12), _ONES4, c.force_in_fb.reshape(12))
             np.concatenate((state.base_rotation.reshape(9), state.base_twist,
                             state.base_acceleration, state.q, state.qd, state.qdd, *contacts,
-                            packed, _ZEROS2 if f is None else f), out=inp)
+                            packed, _ZEROS2 if f is None else f, self.payload), out=inp)
         except (ValueError, AttributeError, TypeError) as exc:
             raise EstimatorInputError(f"cannot read the state: {exc}") from exc
         if self.zeroed is not None:

@@ -1,32 +1,28 @@
-r"""The payload as a run-time input: two compiled estimators, interpolated exactly.
+r"""The payload as a run-time input: one compiled estimator for every payload mass.
 
-The normal forces, their map in the accelerations and their sensitivities are affine in the
-payload mass ``m`` (the dynamics are linear in the inertial parameters, the payload's centre
-of mass is fixed in its body, and every fourth row is linear in the wrench). Two estimators
-of the same machine with payloads ``m_a`` and ``m_b``, compiled once before the control loop
-starts, therefore give every other payload exactly:
+The payload's mass ``m`` is an input of the estimator's compiled kernels (`TreeModel.dynamics`:
+the payload's spatial inertia is ``m`` times its inertia per kilogram), and the normal
+forces, their map in the accelerations and their sensitivities are affine in it (the dynamics
+are linear in the inertial parameters, the payload's centre of mass is fixed in its body,
+and every fourth row is linear in the wrench). `PayloadEstimator` holds one
+`NormalForceEstimator` and sets its ``payload_mass`` at every tick (an observer's estimate):
+one kernel call per estimate or linearization, and ``payload_sensitivity`` (``df/dm``, for the
+force margin) from one more row of the same packed input. No kernel is compiled after
+construction, whatever the mass.
 
-.. math:: x(m) = x(m_a) + w\,(x(m_b) - x(m_a)), \qquad w = (m - m_a) / (m_b - m_a).
-
-`PayloadEstimator` does that for `estimate`, `constraint` and `linearize`, with ``payload_mass``
-settable at every tick (an observer's estimate) and ``payload_sensitivity`` (``df/dm``) for
-the force margin. No kernel is compiled after construction, whatever the mass.
-
-The two estimators are those of the machine with its payload at the fixed
-`ANCHOR_MASSES` (`anchor_machines`), not at the machine's own payload: machines that differ
-only in the payload's mass (every scenario of a sweep) share the same two compiled kernel
-sets, so a new payload never compiles anything (before, each draw of a sweep with its own
-payload built six kernels, 25.6 s, on a cold cache; now 0.5 s from the disk cache).
+The estimator is that of the machine with its payload at ``ANCHOR_MASSES[0]``
+(`anchor_machines`), not at the machine's own payload: machines that differ only in the
+payload's mass (every scenario of a sweep) share the same compiled kernels, so a new payload
+never compiles anything. (Until the payload became a kernel input, two estimators at the two
+`ANCHOR_MASSES` were interpolated; `estimators.efforts_kernel` still is, at those anchors.)
 """
 
 from __future__ import annotations
 
 import dataclasses
-import math
 
 import numpy as np
 
-from estimators.errors import EstimatorError
 from estimators.estimator import NormalForceEstimator
 from estimators.linearization import ForceLinearization
 from estimators.results import Estimate
@@ -40,7 +36,6 @@ __all__ = ["ANCHOR_MASSES", "SPAN", "PayloadEstimator", "anchor_machines"]
 ANCHOR_MASSES = (150.0, 250.0)  # [kg] m_a (the reference machine's payload) and m_b
 SPAN = ANCHOR_MASSES[1] - ANCHOR_MASSES[0]  # [kg] m_b - m_a
 _INERTIA_DIGITS = 12  # significant digits of the payload's inertia per kg (`anchor_machines`)
-_LINEAR_FIELDS = ("normal_forces", "G", "g0", "d_q", "d_qd")  # what a mix interpolates
 
 
 def anchor_machines(machine: Machine) -> tuple[Machine, Machine]:
@@ -71,7 +66,7 @@ def anchor_machines(machine: Machine) -> tuple[Machine, Machine]:
     return at(ANCHOR_MASSES[0]), at(ANCHOR_MASSES[1])
 
 
-_RECENT = 4  # states whose anchor estimates a `PayloadEstimator` keeps (`_anchor`)
+_RECENT = 4  # states whose estimates a `PayloadEstimator` keeps (`estimate`)
 
 
 class PayloadEstimator:
@@ -84,178 +79,181 @@ class PayloadEstimator:
 
     Attributes:
         payload_mass: The payload now [kg]; settable, finite, in [0, `MAX_PAYLOAD_MASS`].
-        method, fourth: As the wrapped estimators'.
+        D, beta: The d-beta row's parameters (eq. 29); settable.
+        method, fourth: As the wrapped estimator's.
     """
 
     def __init__(self, machine: Machine, **options):
         body = next(b for b in machine.bodies if b.name == machine.payload)
         self.machine = machine
-        self._m_a = ANCHOR_MASSES[0]
-        machine_a, machine_b = anchor_machines(machine)
-        self._a = NormalForceEstimator(machine_a, **options)
-        self._b = NormalForceEstimator(machine_b, **options)
-        self._kept: dict = {self._a: (), self._b: ()}  # `_anchor`
-        for est in (self._a, self._b):  # loaded now, not in a controller's first tick
-            est.warm()
-        self.method, self.fourth = self._a.method, self._a.fourth
-        self._last: tuple | None = None  # (key, linearization) of the last `linearize`
-        # `stepped_suspension_forces`' (state, the anchors' D and beta, f_a, f_b)
+        self._est = NormalForceEstimator(anchor_machines(machine)[0], **options)
+        self._est.warm()  # loaded now, not in a controller's first tick
+        self.method, self.fourth = self._est.method, self._est.fourth
+        self._kept: tuple = ()  # `estimate`'s (state, key, estimate), newest first
+        self._last: tuple | None = None  # (state, key, linearization) of the last `linearize`
+        # `stepped_suspension_forces`' (state, key, f at m, f at m + SPAN)
         self._stepped: tuple | None = None
         self.payload_mass = float(body.inertia.mass)  # the machine's payload to begin with
 
     @property
     def payload_mass(self) -> float:
         """The payload now [kg]."""
-        return self._mass
+        return self._est.payload_mass
 
     @payload_mass.setter
     def payload_mass(self, value) -> None:
-        ok = isinstance(value, (int, float, np.floating)) and not isinstance(value, bool)
-        m = float(value) if ok else float("nan")
-        if not (np.isfinite(m) and 0.0 <= m <= MAX_PAYLOAD_MASS):
-            raise EstimatorError(f"payload_mass must be a mass in [0, {MAX_PAYLOAD_MASS:g}] "
-                                 f"kg, got {value!r}")
-        self._mass = m
-        self._w = (m - self._m_a) / SPAN
+        self._est.payload_mass = value  # checked there (`EstimatorInputError`)
 
-    def _mix(self, x_a, x_b):
-        return x_a + self._w * (np.asarray(x_b) - np.asarray(x_a))
+    @property
+    def D(self) -> float:  # noqa: N802 (the paper's name)
+        """The d-beta row's D (eq. 29)."""
+        return self._est.D
 
-    def _anchor(self, est: NormalForceEstimator, state: MachineState) -> Estimate:
-        """``est.estimate(state)`` of an anchor, its last `_RECENT` states' results kept.
+    @D.setter
+    def D(self, value: float) -> None:  # noqa: N802
+        self._est.D = value
 
-        By identity (states are immutable) and for the anchor's D and beta then. A control
-        tick asks about the same observed state several times (the margin's payload and
-        suspension sensitivities, the MPC's feedback) between perturbed ones: about 4 of its
-        15 estimates. A kept estimate (the common, regular four- or three-wheel case: its
-        fields are views of one row) is made read-only, as it is shared; a tipping or
-        singular one is not kept.
+    @property
+    def beta(self) -> float:
+        """The d-beta row's beta (eq. 29)."""
+        return self._est.beta
+
+    @beta.setter
+    def beta(self, value: float) -> None:
+        self._est.beta = value
+
+    def _key(self) -> tuple:
+        """What a kept result depends on besides the state: the mass, D and beta."""
+        est = self._est
+        return (float(est._packer.payload[0]), est.D, est.beta)
+
+    def estimate(self, state: MachineState) -> Estimate:
+        """`NormalForceEstimator.estimate` at the current payload mass.
+
+        The last `_RECENT` states' estimates are kept, by identity (states are immutable),
+        for the mass, D and beta they were made at: a control tick asks about the same
+        observed state several times (the margin's sensitivities, the MPC's feedback, the
+        observer's contact points and forces). A kept estimate (the common, regular four- or
+        three-wheel case: its fields are views of one row) is made read-only, as it is
+        shared; a tipping or singular one is not kept.
         """
-        kept = self._kept[est]
-        for s, d, beta, e in kept:  # one read of the tuple: safe across threads
-            if s is state and d == est.D and beta == est.beta:
+        key = self._key()
+        kept = self._kept
+        for s, k, e in kept:  # one read of the tuple: safe across threads
+            if s is state and k == key:
                 return e
-        e = est.estimate(state)
+        e = self._est.estimate(state)
         row = e.__dict__.get("_row")
         if row is not None:  # read-only before any field is made
             row.flags.writeable = False
-            self._kept[est] = ((state, est.D, est.beta, e),) + kept[:_RECENT - 1]
+            self._kept = ((state, key, e),) + kept[:_RECENT - 1]
         return e
 
-    def estimate(self, state: MachineState) -> Estimate:
-        """`NormalForceEstimator.estimate` at the current payload mass."""
-        ea = self._anchor(self._a, state)
-        if self._w == 0.0:
-            return ea
-        eb = self._anchor(self._b, state)
-        return dataclasses.replace(
-            ea, normal_forces=self._mix(ea.normal_forces, eb.normal_forces),
-            wrench_xi=self._mix(ea.wrench_xi, eb.wrench_xi),
-            residual=self._mix(ea.residual, eb.residual),
-            system_rhs=self._mix(ea.system_rhs, eb.system_rhs))
-
     def normal_forces(self, state: MachineState) -> np.ndarray:
-        """``estimate(state).normal_forces``, without mixing the fields nobody reads.
+        """``estimate(state).normal_forces``, from what this tick already made if it can.
 
-        The observer's per-tick call: the same two estimates and the same mix of the
-        forces (~30 us less than making the whole mixed `Estimate`).
+        A control tick linearizes the observed state (the margin) before it asks for its
+        forces (the feedback): the derivative kernel's forces are the estimate kernel's
+        bits (the same expressions; a test checks it), and so are the first row of
+        `stepped_suspension_forces`. Else (another state, mass, D or beta, or a tipping
+        state's least-squares linearization) the estimate.
         """
-        ea = self._anchor(self._a, state)
-        if self._w == 0.0:
-            return ea.normal_forces
-        return self._mix(ea.normal_forces, self._anchor(self._b, state).normal_forces)
+        key = self._key()
+        for s, k, e in self._kept:
+            if s is state and k == key:
+                return e.normal_forces
+        last = self._last
+        if (last is not None and last[0] is state and last[1] == key
+                and "_row" in last[2].__dict__):  # the kernel's row: a regular system
+            return last[2].normal_forces
+        kept = self._stepped
+        if kept is not None and kept[0] is state and kept[1] == key:
+            return kept[2]
+        return self.estimate(state).normal_forces
+
+    def contact_points(self, state: MachineState) -> np.ndarray:
+        """`Estimate.contact_points` of ``state`` (4, 3) [m]."""
+        return self.estimate(state).contact_points
 
     def stepped_suspension_forces(self, state: MachineState, step: float) -> np.ndarray | None:
         """`estimators.suspension_response.stepped_forces` at the current payload mass.
 
-        Mixed as `normal_forces` mixes (the same bits); None where either anchor gives None.
-        Both anchors' forces at the state are kept for `payload_sensitivity` (the margin asks
-        for both at the same state).
+        The same packed input gives the forces at the mass plus `SPAN` too, kept for
+        `payload_sensitivity` (the margin asks for both at the same state).
         """
-        fa = stepped_forces(self._a, state, step)
-        fb = None if fa is None else stepped_forces(self._b, state, step)
-        if fb is None:
+        forces = stepped_forces(self._est, state, step, payload_step=SPAN)
+        if forces is None:
             return None
-        self._stepped = (state, self._d_betas(), fa[0], fb[0])
-        return fa if self._w == 0.0 else self._mix(fa, fb)
-
-    def _d_betas(self) -> tuple:
-        return (self._a.D, self._a.beta, self._b.D, self._b.beta)
-
-    def contact_points(self, state: MachineState) -> np.ndarray:
-        """`Estimate.contact_points` of ``state`` (4, 3) [m].
-
-        Geometry, whatever the payload: one estimate at the first mass gives them.
-        """
-        return self._anchor(self._a, state).contact_points
+        forces.flags.writeable = False  # its rows are kept and handed out
+        self._stepped = (state, self._key(), forces[0], forces[3])
+        return forces[:3]
 
     def constraint(self, state: MachineState) -> tuple[np.ndarray, np.ndarray]:
         """`NormalForceEstimator.constraint` at the current payload mass."""
-        ga, ha = self._a.constraint(state)
-        if self._w == 0.0:
-            return ga, ha
-        gb, hb = self._b.constraint(state)
-        return self._mix(ga, gb), self._mix(ha, hb)
+        return self._est.constraint(state)
 
     def linearize(self, state: MachineState) -> ForceLinearization:
         """`NormalForceEstimator.linearize` at the current payload mass.
 
         The last result is kept for the same state object (states are immutable) at the
         same mass, D and beta: a control tick linearizes the observed state twice, for its
-        uncertainty margin and for the plan's first node (~0.9 ms saved a tick while
-        tipping, where the derivatives are differences).
+        uncertainty margin and for the plan's first node.
         """
-        key = (self._mass, self._a.D, self._a.beta)
+        key = self._key()
         last = self._last
         if last is not None and last[0] is state and last[1] == key:
             return last[2]
-        la = self._a.linearize(state)
-        if self._w == 0.0:
-            result = la
-        else:
-            lb = self._b.linearize(state)
-            result = la.interpolated(lb, self._w)  # both from kernel rows: one mix
-            if result is None:
-                mixed = [self._mix(getattr(la, f), getattr(lb, f)) for f in _LINEAR_FIELDS]
-                if all(math.isfinite(x.sum()) for x in mixed):  # a finite mix of checked rows
-                    result = ForceLinearization.trusted(*mixed, la.in_contact, la.mode,
-                                                        la.clipped, la.time)
-                else:  # the checks of the constructor: they raise
-                    result = dataclasses.replace(la, **dict(zip(_LINEAR_FIELDS, mixed)))
+        result = self._est.linearize(state)
         self._last = (state, key, result)
         return result
 
     def normal_forces_batch(self, batch, payload, strict: bool = False) -> np.ndarray:
         """Normal forces [N] (N, 4) of a `StateBatch`, each row at its own payload [kg] (N,).
 
-        ``strict`` as in `NormalForceEstimator.estimate_batch`.
+        Two batch evaluations, at the `ANCHOR_MASSES`, interpolated (exact: affine in the
+        mass). ``strict`` as in `NormalForceEstimator.estimate_batch`.
         """
-        fa = self._a.estimate_batch(batch, strict=strict).normal_forces
-        fb = self._b.estimate_batch(batch, strict=strict).normal_forces
-        w = (np.asarray(payload, float) - self._m_a) / SPAN
+        est, mass = self._est, self._est.payload_mass
+        try:
+            est.payload_mass = ANCHOR_MASSES[0]
+            fa = est.estimate_batch(batch, strict=strict).normal_forces
+            est.payload_mass = ANCHOR_MASSES[1]
+            fb = est.estimate_batch(batch, strict=strict).normal_forces
+        finally:
+            est.payload_mass = mass
+        w = (np.asarray(payload, float) - ANCHOR_MASSES[0]) / SPAN
         return fa + w[:, None] * (fb - fa)
 
     def payload_sensitivity(self, state: MachineState) -> np.ndarray:
-        """``df/dm`` of the normal forces [N/kg], shape (4,) (exact: affine in ``m``)."""
+        """``df/dm`` of the normal forces [N/kg], shape (4,) (exact: affine in ``m``).
+
+        The difference of the forces at the mass and at the mass plus `SPAN` (minus, near
+        `MAX_PAYLOAD_MASS`).
+        """
         kept = self._stepped
-        if kept is not None and kept[0] is state and kept[1] == self._d_betas():
-            _, _, fa, fb = kept  # the rows of the anchors' estimates at this state
-        else:
-            fa = self._anchor(self._a, state).normal_forces
-            fb = self._anchor(self._b, state).normal_forces
-        return (np.asarray(fb) - np.asarray(fa)) / SPAN
+        if kept is not None and kept[0] is state and kept[1] == self._key():
+            return (kept[3] - kept[2]) / SPAN
+        mass = self.payload_mass
+        dm = SPAN if mass + SPAN <= MAX_PAYLOAD_MASS else -SPAN
+        f0 = self.normal_forces(state)
+        try:
+            self.payload_mass = mass + dm
+            f1 = self.normal_forces(state)
+        finally:
+            self.payload_mass = mass
+        return (np.asarray(f1) - np.asarray(f0)) / dm
 
     @property
     def n_clipped(self) -> int:
         """Evaluations whose coordinates were clipped into their ranges (``strokes="clip"``)."""
-        return self._a.n_clipped
+        return self._est.n_clipped
 
     @property
     def tree(self):
-        """The estimators' tree model (geometry)."""
-        return self._a.tree
+        """The estimator's tree model (geometry)."""
+        return self._est.tree
 
     @property
-    def machines(self) -> tuple[Machine, Machine]:
-        """The two machines whose kernels it uses (to warm them before a run)."""
-        return self._a.machine, self._b.machine
+    def machines(self) -> tuple[Machine]:
+        """The machine whose kernels it uses (to warm them before a run)."""
+        return (self._est.machine,)

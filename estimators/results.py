@@ -62,26 +62,6 @@ class RowFields:
         k = rows.shape[0]
         return tuple(rows[:, slices[name][0]].reshape(k, *slices[name][1]) for name in names)
 
-    def interpolated(self, other, w: float):
-        """``self + w (other - self)`` of every field made from the row; the rest self's.
-
-        For two results made by `from_row` with the same views; None otherwise, and when the
-        mix is not finite (the caller mixes field by field then, with its checks). One pass
-        over the row instead of one per field: entry by entry the same arithmetic as a
-        field's mix, so the same bits.
-        """
-        d, e = self.__dict__, other.__dict__
-        views = d.get("_views")
-        if views is None or e.get("_views") is not views:
-            return None
-        ra, rb = d["_row"], e["_row"]
-        row = ra + w * (rb - ra)
-        if not np.isfinite(row.sum()):
-            return None
-        row.flags.writeable = False
-        fields = {k: v for k, v in d.items() if k not in ("_views", "_row") and k not in views}
-        return type(self).from_row(fields, views, row)
-
     def __getstate__(self) -> dict:
         """Every field made, without the row and the table (whose functions don't pickle)."""
         d = self.__dict__

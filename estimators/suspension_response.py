@@ -21,8 +21,12 @@ from models.state import MachineState
 __all__ = ["stepped_forces"]
 
 
-def stepped_forces(estimator, state: MachineState, step: float) -> np.ndarray | None:
+def stepped_forces(estimator, state: MachineState, step: float,
+                   payload_step: float | None = None) -> np.ndarray | None:
     """Forces (3, 4) [N]: at ``state``, then with suspension force 0, then 1, plus ``step``.
+
+    With ``payload_step`` [kg], a fourth row (4, 4): the forces at ``state`` with the
+    payload's mass (a run-time input of the kernel) plus ``payload_step``.
 
     ``estimator``: a `NormalForceEstimator`. None where the estimate would not take the
     kernel's regular path (no compiled kernels, the quasi-static method's zeroed inputs, no
@@ -40,11 +44,14 @@ def stepped_forces(estimator, state: MachineState, step: float) -> np.ndarray | 
     lay = LAYOUT
     at = lay.suspension_force.start
     base = inp[at:at + 2].tolist()
-    forces = np.empty((3, 4))
-    for k in range(3):
+    forces = np.empty((3 if payload_step is None else 4, 4))
+    for k in range(len(forces)):
         if k:
             inp[at:at + 2] = base
-            inp[at + k - 1] = base[k - 1] + step
+            if k < 3:
+                inp[at + k - 1] = base[k - 1] + step
+            else:
+                inp[lay.payload_mass] += payload_step
         call()
         if not (math.isfinite(out[lay.out_sum]) and out[lay.out_cond] < SINGULAR_CONDITION):
             return None

@@ -175,6 +175,7 @@ class TreeModel:
                 order.append(b)
         self.index = {b.name: i for i, b in enumerate(order)}
         self.hosts = host
+        self._payload_parameters(machine, host)
 
         suspension_bodies = {order[0].name}
         for name in machine.suspension_coordinates:
@@ -240,6 +241,39 @@ class TreeModel:
         first = self.index.get(machine.crane_coordinates[0], crane[0] if crane else 0)
         self.crane_root = first if bodies[first].group == "crane" else (crane[0] if crane else 0)
         self.coordinates = coords
+
+    _shared: dict = {}
+
+    @classmethod
+    def shared(cls, machine: Machine) -> TreeModel:
+        """The tree model of ``machine``, one per description (`Machine.fingerprint`)."""
+        tree = cls._shared.get(machine.fingerprint)
+        if tree is None:
+            tree = cls._shared[machine.fingerprint] = cls(machine)
+        return tree
+
+    def _payload_parameters(self, machine: Machine, host: dict) -> None:
+        """The payload as a run-time parameter of `dynamics` (its mass ``m``).
+
+        The payload's spatial inertia is ``m`` times that of one kilogram of it (its centre
+        of mass is fixed in its body and its rotational inertia scales with the mass), and
+        spatial inertias about one frame add: the host's (the moving body the payload is
+        merged into) is ``M = M_0 + (m - m_0) U`` with ``M_0`` at the description's payload
+        ``m_0`` and ``U`` the payload's per kilogram, in the host's frame. Exact, so the
+        dynamics are affine in ``m``.
+        """
+        name = getattr(machine, "payload", None)
+        body = next((b for b in machine.bodies if b.name == name), None)
+        if body is None or body.inertia.mass <= 0.0:
+            self.payload_body, self.payload_mass = -1, 0.0
+            self.payload_spatial_per_kg = np.zeros((6, 6))
+            return
+        h, t_hb = host.get(name, (name, np.eye(4)))
+        per_kg = Inertia(1.0, body.inertia.com, body.inertia.inertia / body.inertia.mass)
+        self.payload_body = self.index[h]
+        self.payload_mass = float(body.inertia.mass)
+        self.payload_spatial_per_kg = spatial.spatial_inertia(
+            per_kg.transformed(t_hb[:3, :3], t_hb[:3, 3]))
 
     def _descends(self, i: int, ancestor: int) -> bool:
         while i >= 0:
@@ -351,7 +385,7 @@ class TreeModel:
 
     # ------------------------------------------------------------------ eqs. (9)-(11)
     def dynamics(self, ops, rotation_world_fb, twist, acceleration, q, qd, qdd,
-                 gravity: bool = True) -> TreeDynamics:
+                 gravity: bool = True, payload_mass=None) -> TreeDynamics:
         """Forward recursion of twists and accelerations, then the backward wrench sums.
 
         Args:
@@ -363,6 +397,8 @@ class TreeModel:
             qd: Their velocities, shape (13,).
             qdd: Their accelerations, shape (13,).
             gravity: Include the weights (as the base acceleration offset, see `spatial`).
+            payload_mass: The payload's mass [kg] (a number or a symbol); None: the
+                description's (`_payload_parameters`).
 
         Returns:
             The per-body kinematics, wrenches and tree joint forces.
@@ -392,6 +428,9 @@ class TreeModel:
                 rot_fb[i] = rot_fb[p] @ r_pi
                 pos_fb[i] = pos_fb[p] + rot_fb[p] @ p_pi
             m = ops.const(b.spatial)
+            if i == self.payload_body and payload_mass is not None:
+                m = m + (payload_mass - self.payload_mass) * ops.const(
+                    self.payload_spatial_per_kg)
             wrench[i] = m @ nud[i] + ops.ad_star(nu[i]) @ (m @ nu[i])  # eq. (11)
         # Backward accumulation. By Theorem 1 the total wrench of a closed chain at its base
         # does not depend on how successor wrenches are shared between its two branches, so

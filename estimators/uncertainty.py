@@ -28,6 +28,7 @@ The controller turns ``sigma`` into its per-wheel margin ``z sigma`` (`force_mar
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from dataclasses import dataclass
 from statistics import NormalDist
@@ -170,4 +171,10 @@ def force_margin(std: np.ndarray, confidence: float) -> np.ndarray:
     """
     if not (isinstance(confidence, (int, float)) and 0.5 <= confidence < 1.0):
         raise EstimatorError(f"confidence must be in [0.5, 1), got {confidence!r}")
-    return NormalDist().inv_cdf(float(confidence)) * np.asarray(std, float)
+    return _quantile(float(confidence)) * np.asarray(std, float)
+
+
+@functools.lru_cache(maxsize=16)
+def _quantile(confidence: float) -> float:
+    """The standard normal ``confidence`` quantile, kept: a closed loop asks every tick."""
+    return NormalDist().inv_cdf(confidence)

@@ -209,7 +209,7 @@ def run_closed_loop(scenario: ClosedLoopScenario | str, out_dir: Path | None = N
     n_sub = int(round(CONTROL_PERIOD / sim.timestep))
     # Compile before the clock starts (and before the controller and the observer, whose
     # force models load the kernels when built, so that a compile is announced): every
-    # payload is a run-time input of two machines' kernels (estimators.payload), so nothing
+    # payload is a run-time input of one machine's kernels (estimators.payload), so nothing
     # compiles in the loop.
     warm_estimator_kernels(list(_payload_machines(machine)),
                            notice=_notice if progress else None)
@@ -366,10 +366,10 @@ def run_closed_loop(scenario: ClosedLoopScenario | str, out_dir: Path | None = N
 
 
 def _payload_machines(machine):
-    """The machines whose kernels a run uses: the payload estimator's two anchors."""
+    """The machines whose estimator kernels a run uses: the payload estimator's one."""
     from estimators.payload import anchor_machines
 
-    return anchor_machines(machine)
+    return anchor_machines(machine)[:1]
 
 
 def uncertainty_margin(ctrl: MpcController, seen, confidence: float) -> np.ndarray:

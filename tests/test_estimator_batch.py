@@ -154,7 +154,8 @@ def test_gather_assembles_the_rows_batch_evaluates(machine):
     parts[3] = (np.zeros((n, 13)), None)  # mid-range strokes are not needed: finite rows
     parts += [(np.zeros(12), None), (np.zeros(4), None), (np.zeros(12), None)]
     table = rng.random((16, 16))
-    parts += [(table, rng.integers(0, 16, n).astype(np.uint8)), (np.zeros(2), None)]
+    parts += [(table, rng.integers(0, 16, n).astype(np.uint8)), (np.zeros(2), None),
+              (rng.uniform(0.0, 300.0, (n, 1)), None)]  # each row's payload mass
     out_c = np.empty((n, kernel.n_out))
     kernel.gather(parts, out_c)
     out_b = np.empty_like(out_c)
@@ -173,7 +174,7 @@ def test_gather_assembles_the_rows_batch_evaluates(machine):
     short = [(a[:10], i) if a.ndim > 1 and i is None else (a, i) for a, i in parts]
     with pytest.raises(ValueError, match="rows"):
         kernel.gather(short, out_c)
-    bad_index = parts[:-2] + [(table, np.full(n, 16, np.uint8)), parts[-1]]
+    bad_index = parts[:-3] + [(table, np.full(n, 16, np.uint8)), *parts[-2:]]
     with pytest.raises(ValueError, match="index"):
         kernel.gather(bad_index, out_c)
     with pytest.raises(ValueError, match="C-contiguous"):

@@ -11,6 +11,7 @@ from estimators.errors import EstimatorError
 from estimators.linearization import ForceLinearization
 from estimators.payload import ANCHOR_MASSES, PayloadEstimator, anchor_machines
 from models import build_reference_machine
+from models.state import WheelContacts
 from testkit.estimator_states import random_state
 
 MACHINE = build_reference_machine()
@@ -67,61 +68,70 @@ def test_a_repeated_linearization_is_kept_only_for_the_same_state_and_mass():
     est.payload_mass = 250.0  # another mass: computed again
     heavy = est.linearize(equal)
     assert heavy is not again and not np.allclose(heavy.g0, again.g0)
-    est._a.D = est._b.D = 0.9  # another D (the d-beta row): computed again
+    est.D = 0.9  # another D (the d-beta row): computed again
     assert est.linearize(equal) is not heavy
 
 
-def test_the_anchor_estimates_of_the_last_states_are_kept():
-    """A tick asks about the same state several times: each anchor's estimate is kept (the
-    same read-only object) for the last few states, by identity; another D drops them."""
+def test_the_estimates_of_the_last_states_are_kept():
+    """A tick asks about the same state several times: its estimate is kept (the same
+    read-only object) for the last few states, by identity; another D or mass drops it."""
     from estimators.payload import _RECENT
 
     est = PayloadEstimator(MACHINE, fourth="d-beta")
     rng = np.random.default_rng(5)
     s = random_state(MACHINE, rng, max_tilt=0.3, speed=0.5)
-    first = est._anchor(est._a, s)
-    assert est._anchor(est._a, s) is first and not first.normal_forces.flags.writeable
+    first = est.estimate(s)
+    assert est.estimate(s) is first and not first.normal_forces.flags.writeable
     f = est.normal_forces(s)
     np.testing.assert_array_equal(est.normal_forces(s), f)
     np.testing.assert_array_equal(est.payload_sensitivity(s), est.payload_sensitivity(s))
-    again = est._anchor(est._a, replace(s))  # an equal state, another object: computed again
+    assert est.estimate(s) is first  # the sensitivity's other mass did not push it out
+    again = est.estimate(replace(s))  # an equal state, another object: computed again
     assert again is not first
     np.testing.assert_array_equal(again.normal_forces, first.normal_forces)
     for _ in range(_RECENT):
-        est._anchor(est._a, random_state(MACHINE, rng, max_tilt=0.3, speed=0.5))
-    assert est._anchor(est._a, s) is not first  # pushed out by newer states
-    kept = est._anchor(est._a, s)
-    est._a.D = 0.9  # another d-beta row: computed again, with it
-    other = est._anchor(est._a, s)
+        est.estimate(random_state(MACHINE, rng, max_tilt=0.3, speed=0.5))
+    assert est.estimate(s) is not first  # pushed out by newer states
+    kept = est.estimate(s)
+    est.D = 0.9  # another d-beta row: computed again, with it
+    other = est.estimate(s)
     assert other is not kept and not np.allclose(other.normal_forces, kept.normal_forces)
-    assert other.normal_forces.tolist() == est._a.estimate(s).normal_forces.tolist()
+    assert other.normal_forces.tolist() == est._est.estimate(s).normal_forces.tolist()
+    est.payload_mass = 200.0  # another mass: computed again
+    assert est.estimate(s) is not other
 
 
-def test_the_row_mix_has_the_bits_of_a_mix_of_each_field():
-    """`linearize` mixes the two kernel rows at once: each field as if mixed on its own."""
-    est = PayloadEstimator(MACHINE, fourth="cylinder-force", strokes="clip")
-    est.payload_mass = 231.7
-    w = (231.7 - est._m_a) / 100.0
+@pytest.mark.parametrize("fourth", ["d-beta", "cylinder-force"])
+def test_one_kernel_call_at_the_mass_is_the_mix_of_the_anchors(fourth):
+    """The kernels' payload input against the interpolation it replaced: the forces and the
+    linearization at a mass are the anchors' mix, to round-off; df/dm from the stepped
+    rows equals its difference of two estimates."""
+    est = PayloadEstimator(MACHINE, fourth=fourth, strokes="clip")
     rng = np.random.default_rng(8)
-    for _ in range(5):
-        s = replace(random_state(MACHINE, rng, max_tilt=0.3, speed=0.5),
-                    suspension_force=rng.uniform(2e4, 6e4, 2))
-        la, lb = est._a.linearize(s), est._b.linearize(s)
-        mixed = est.linearize(s)
-        assert mixed.__dict__.get("_row") is not None  # the row path, not the field path
-        for name in ("normal_forces", "G", "g0", "d_q", "d_qd"):
-            a, b = getattr(la, name), getattr(lb, name)
-            np.testing.assert_array_equal(getattr(mixed, name), a + w * (b - a))
-        assert mixed.mode == la.mode and (mixed.in_contact == la.in_contact).all()
-        assert not mixed.G.flags.writeable
-    # Results not made from a row (here an eager one) are not mixed this way.
-    eager = ForceLinearization(la.normal_forces, la.G, la.g0, la.d_q, la.d_qd, la.in_contact,
-                               la.mode, la.clipped, la.time)
-    assert eager.interpolated(lb, 0.5) is None and la.interpolated(eager, 0.5) is None
+    for mass in (0.0, 87.5, 231.7, 420.0):
+        for _ in range(3):
+            s = replace(random_state(MACHINE, rng, max_tilt=0.3, speed=0.5),
+                        suspension_force=rng.uniform(2e4, 6e4, 2))
+            anchors = []
+            for m in ANCHOR_MASSES:
+                est.payload_mass = m
+                anchors.append(est.linearize(s))
+            est.payload_mass = mass
+            now = est.linearize(s)
+            w = (mass - ANCHOR_MASSES[0]) / (ANCHOR_MASSES[1] - ANCHOR_MASSES[0])
+            for name in ("normal_forces", "G", "g0", "d_q", "d_qd"):
+                a, b = (getattr(x, name) for x in anchors)
+                np.testing.assert_allclose(getattr(now, name), a + w * (b - a), rtol=0,
+                                           atol=1e-9 * max(1.0, np.abs(b).max()))
+            stepped = est.stepped_suspension_forces(s, 1.0)
+            np.testing.assert_array_equal(stepped[0], est.normal_forces(s))
+            fast = est.payload_sensitivity(s)
+            est._stepped = None  # the difference of two estimates instead
+            np.testing.assert_allclose(fast, est.payload_sensitivity(s), rtol=0, atol=1e-9)
 
 
 def test_machines_that_differ_in_the_payload_share_the_anchor_kernels():
-    """Every scenario's payload gives the same two anchor machines: no compile per payload."""
+    """Every scenario's payload gives the same anchor machines: no compile per payload."""
     prints = {tuple(m.fingerprint for m in anchor_machines(build_reference_machine(mass)))
               for mass in (10.0, 77.7, 150.0, 231.4, 300.0)}
     assert len(prints) == 1
@@ -132,7 +142,7 @@ def test_machines_that_differ_in_the_payload_share_the_anchor_kernels():
     # machine's own payload.
     e1 = PayloadEstimator(build_reference_machine(10.0), strokes="clip")
     e2 = PayloadEstimator(build_reference_machine(231.4), strokes="clip")
-    assert e1._a._kernels is e2._a._kernels and e1._b._kernels is e2._b._kernels
+    assert e1._est._kernels is e2._est._kernels
     assert (e1.payload_mass, e2.payload_mass) == (10.0, 231.4)
 
 
@@ -145,8 +155,7 @@ def test_the_kernels_are_loaded_when_it_is_built(monkeypatch):
     assert set(lazy._kernels._kernels) == set(lazy._kernels.functions)
     monkeypatch.setattr(Kernels, "_registry", {})
     est = PayloadEstimator(build_reference_machine(42.0), strokes="clip")
-    for e in (est._a, est._b):
-        assert set(e._kernels._kernels) == set(e._kernels.functions)
+    assert set(est._est._kernels._kernels) == set(est._est._kernels.functions)
 
 
 def test_stacked_rows_give_the_fields_of_each_linearization():
@@ -174,3 +183,31 @@ def _copied(lin):
     """The same linearization made by the public constructor (no kernel row)."""
     return ForceLinearization(lin.normal_forces, lin.G, lin.g0, lin.d_q, lin.d_qd,
                               lin.in_contact, lin.mode, lin.clipped, lin.time)
+
+
+@pytest.mark.parametrize("fourth", ["d-beta", "cylinder-force"])
+def test_forces_after_a_linearization_are_the_estimates_bits(fourth):
+    """`normal_forces` after `linearize` (or the stepped pack) of the same state reads the
+    forces those made: the estimate kernel's bits, also with a wheel in the air."""
+    est = PayloadEstimator(MACHINE, fourth=fourth, strokes="clip")
+    fresh = NormalForceEstimator(anchor_machines(MACHINE)[0], fourth=fourth, strokes="clip")
+    rng = np.random.default_rng(11)
+    reused = 0
+    for k in range(24):
+        s = replace(random_state(MACHINE, rng, max_tilt=0.3, speed=0.5),
+                    suspension_force=rng.uniform(2e4, 6e4, 2))
+        if k % 3 == 1:  # a rear wheel lifted: the three-wheel system
+            flags = np.array([True, k % 2 == 0, True, k % 2 == 1])
+            points = fresh.estimate(s).contact_points  # the wheels' lowest points
+            s = replace(s, contacts=WheelContacts(flags, np.zeros((4, 3)), points,
+                                                  np.tile(s.base_rotation[2], (4, 1))))
+        est.payload_mass = fresh.payload_mass = float(rng.uniform(0.0, 300.0))
+        if k % 2:
+            est.linearize(s)
+        else:
+            est.stepped_suspension_forces(s, 1.0)
+        f = est.normal_forces(s)
+        reused += est._kept == () or est._kept[0][0] is not s  # not from an estimate
+        assert f.tolist() == fresh.estimate(s).normal_forces.tolist()
+        assert not f.flags.writeable
+    assert reused == 24

@@ -1,7 +1,7 @@
 """The project's normal-force estimator, as the MPC's force model and its closure.
 
-Both take the payload mass at run time (`estimators.payload.PayloadEstimator`: two compiled
-estimators interpolated exactly), so an observer's payload estimate or a pick changes the
+Both take the payload mass at run time (`estimators.payload.PayloadEstimator`: an input of
+the compiled kernels), so an observer's payload estimate or a pick changes the
 model without a compile in the control loop.
 """
 
