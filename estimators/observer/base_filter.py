@@ -199,6 +199,14 @@ class BaseFilter:
         """[v; w] in fb, (6,)."""
         return np.array((*self._v, *self._w))
 
+    def motion(self) -> list:
+        """[`twist`; `acceleration`] as floats, (12,): the same numbers, no arrays made."""
+        up = self.rotation[2].tolist()
+        g = self.g
+        v, w = self._v, self._w
+        v_dot = [fi - ci - g * ui for fi, ci, ui in zip(self._f, cross(w, v), up)]
+        return [*v, *w, *v_dot, *self._alpha]
+
     @property
     def acceleration(self) -> np.ndarray:
         """The twist derivative the dynamics get (module docstring), (6,)."""

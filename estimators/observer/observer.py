@@ -38,7 +38,8 @@ from estimators.efforts import ActuatorEfforts
 from estimators.errors import EstimatorError
 from estimators.linearization import N_GENERALIZED
 from estimators.observer import link_fusion
-from estimators.observer._states import machine_state, wheel_contacts, with_fields
+from estimators.observer._linalg import solve
+from estimators.observer._states import StateBuffer, wheel_contacts, with_fields
 from estimators.observer._vec3 import ground_normal as _ground_normal
 from estimators.observer._vec3 import norm
 from estimators.observer.base_filter import ANGULAR_ACCELERATION_TIME_CONSTANT, BaseFilter
@@ -73,6 +74,11 @@ EVENT_VARIANCE_SCALE = 0.1  # filtered over raw innovation variance: 0.01 still,
 _PRESS_LIFT_TILT = [PRESSURE_CYLINDERS.index("lift"), PRESSURE_CYLINDERS.index("tilt")]
 _CRANE_CYLINDERS = np.array([2, 3, 4])  # slew, lift, tilt: independent coordinates
 _PRESS_CRANE = [PRESSURE_CYLINDERS.index(c) for c in ("slew", "lift", "tilt")]
+_NO_FORCES = np.zeros(5)  # [N] the cylinders' forces before any pressure reading
+_NO_FORCES.flags.writeable = False
+_ONES = np.ones(4)  # the first tick's "previous" forces (`_longitudinal`: an even split)
+_ALL_FOUR = np.ones(4, bool)  # the flags' estimate: every wheel down (shared, read-only)
+_ALL_FOUR.flags.writeable = False
 # Per tick the observer works on a handful of numbers: where numpy's per-call cost (~1 us)
 # dominated, the arithmetic is on Python floats in the same order (`_vec3`: the same results,
 # bit for bit); matrix products and solves stay numpy's.
@@ -241,17 +247,20 @@ class Observer:
             return dataclasses.replace(self._last, stale=True)
 
     def _update(self, r: SensorReadings) -> ObserverEstimate:
-        if not all(np.isfinite(s.value).all() for s in (r.wheel_speeds, r.drive_torques)):
+        wheel_speeds, drive_torques = r.wheel_speeds.value, r.drive_torques.value
+        if not (np.isfinite(wheel_speeds).all() and np.isfinite(drive_torques).all()):
             raise EstimatorError("wheel-speed or drive-torque readings hold NaN or inf")
         t = r.time
         dt = 0.0 if self._last_time is None else t - self._last_time
-        wheels = r.wheel_speeds.value[-1] if len(r.wheel_speeds) else None
-        self.base.update(t, r.angular_rate.value, r.specific_force.value, wheels)
-        n_press = len(r.pressures)
-        stale = len(r.positions) == 0 or n_press == 0
-        if len(r.positions):
-            self.joints.update(r.positions.value)
-            x = self.joints.predict(max(t - r.positions.time[-1], 0.0))
+        wheels = wheel_speeds[-1] if wheel_speeds.shape[0] else None
+        base = self.base
+        base.update(t, r.angular_rate.value, r.specific_force.value, wheels)
+        positions, p = r.positions, r.pressures.value
+        n_pos, n_press = positions.value.shape[0], p.shape[0]
+        stale = n_pos == 0 or n_press == 0
+        if n_pos:
+            self.joints.update(positions.value)
+            x = self.joints.predict(max(t - positions.time[-1], 0.0))
         else:
             x = self.joints.predict(0.0)
         if wheels is not None:
@@ -264,28 +273,29 @@ class Observer:
             self._wheel_rate = rate
         self._wheel_angle = [q + dt * w for q, w in zip(self._wheel_angle, self._wheel_rate)]
         if n_press:  # `cylinder_force`, mean over the tick
-            p = r.pressures.value
             forces = np.add.reduce(p[:, 0::2] * self._area_a - p[:, 1::2] * self._area_b,
                                    0) / n_press
             if not np.isfinite(forces).all():
                 raise EstimatorError("pressure readings hold NaN or inf")
             self._suspension = forces
-        forces = self._suspension if self._suspension is not None else np.zeros(5)
-        q = np.empty(N_INDEPENDENT)
-        q[:N_SERVO_AXES] = clip(x[:, 0], self._q_lo, self._q_hi)
-        q[N_SERVO_AXES:] = self._wheel_angle
-        qd = np.concatenate([x[:, 1], self._wheel_rate])
-        base = self.base
-        state = machine_state(
-            np.zeros(3), base.rotation.copy(), base.twist, base.acceleration, q, qd,
-            np.concatenate([x[:, 2], self._wheel_acc]), t, forces[:2].copy(),
-            r.servo_setpoint)
+        forces = self._suspension if self._suspension is not None else _NO_FORCES
+        # The state's float fields in one buffer: q, qd, qdd are the rows of `joints`.
+        buf = StateBuffer()
+        buf.set_base(base.rotation, base.motion())
+        joints = buf.joints
+        joints[:, :N_SERVO_AXES] = x.T
+        joints[:, N_SERVO_AXES:] = (self._wheel_angle, self._wheel_rate, self._wheel_acc)
+        q = joints[0, :N_SERVO_AXES]
+        clip(q, self._q_lo, self._q_hi, out=q)
+        buf.set_suspension(forces)
+        state = buf.state(t, r.servo_setpoint)
         if self.links is not None:  # the crane's accelerations from the link accelerometers
             state = with_fields(state, qdd=self.links.accelerations(state,
                                                                      r.link_specific_force))
         # Payload from the lift and tilt cylinders.
         f0, y = self.efforts.payload_regressor(state)
         f = forces.tolist()
+        qd = state.qd
         measured, band = without_seal_friction([f[i] for i in _PRESS_LIFT_TILT],
                                                (qd[_LIFT], qd[_TILT]), self._seal_lift_tilt,
                                                SLIDING_SPEED)
@@ -295,25 +305,24 @@ class Observer:
         if self.crane_from_pressures:
             state = with_fields(state, qdd=self._crane_accelerations(state, forces, mass))
         self.force_model.payload_mass = mass
-        if len(r.drive_torques):
-            self._drive = (np.add.reduce(r.drive_torques.value, 0)
-                           / len(r.drive_torques)).tolist()
+        if drive_torques.shape[0]:
+            self._drive = (np.add.reduce(drive_torques, 0) / drive_torques.shape[0]).tolist()
         # The wheels' centres from the geometry (without contacts the estimator gives their
         # lowest points), the contact points below them along the ground's normal, then the
         # four-wheel forces at those points for the flags.
         lowest = self.force_model.contact_points(state)
         points, normal = self._contact_points(lowest, base.rotation)
-        normals = np.array([normal] * 4)
-        previous = self._last.forces_four if self._last is not None else np.ones(4)
-        traction = np.zeros((4, 3))
-        traction[:, 0] = self._longitudinal(previous)
-        all_four = wheel_contacts(np.ones(4, bool), traction, points, normals)
+        normals = np.empty((4, 3))
+        normals[:] = normal
+        finite = bool(np.isfinite(points).all()) and all(map(math.isfinite, normal))
+        previous = self._last.forces_four if self._last is not None else _ONES
+        all_four = wheel_contacts(_ALL_FOUR, self._longitudinal(previous), points, normals,
+                                  finite)
         four = np.asarray(model_normal_forces(
             self.force_model, with_fields(state, contacts=all_four)), float)
         self._contacts(four)
-        traction = np.zeros((4, 3))
-        traction[:, 0] = self._longitudinal(four)
-        contacts = wheel_contacts(np.array(self._in_contact), traction, points, normals)
+        contacts = wheel_contacts(np.array(self._in_contact), self._longitudinal(four), points,
+                                  normals, finite)
         state = with_fields(state, contacts=contacts)
         std = self.payload.std
         unc = self._uncertainty.with_payload_mass(std)
@@ -345,10 +354,7 @@ class Observer:
         rows, press, seal, ix_known, ix_rows, known = self._crane_pattern(sliding)
         speeds = state.qd[rows]
         rhs = (forces[press] - seal * np.sign(speeds) - e0[rows] - e[ix_known] @ qdd[known])
-        try:
-            u = np.linalg.solve(e[ix_rows], rhs)
-        except np.linalg.LinAlgError:
-            return qdd
+        u = solve(e[ix_rows], rhs)  # NaN if singular (it is not: a block of a mass matrix)
         if np.isfinite(u).all():
             qdd[rows] = u
         return qdd
