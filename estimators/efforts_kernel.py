@@ -170,7 +170,7 @@ class EffortKernels:
         inp, out = k.buffers()
         self.fill(inp, state)
         k.call_buffers()
-        if not np.isfinite(out[-1]):
+        if not math.isfinite(out[-1]):
             return None
         n = N_SERVO_AXES
         o = out.copy()
@@ -187,7 +187,7 @@ class EffortKernels:
         inp, out = k.buffers()
         self.fill(inp, state)
         k.call_buffers()
-        if not np.isfinite(out[-1]):
+        if not math.isfinite(out[-1]):
             return None
         m = 3 * len(mounts)
         o = out.copy()

@@ -78,15 +78,12 @@ class BaseFilter:
         self.r_wheel = float(wheel_radius)
         self.rotation = np.eye(3)
         self.rate = np.zeros(3)
-        self.angular_acceleration = np.zeros(3)
-        self.specific_force = np.array([0.0, 0.0, self.g])
-        self.velocity = np.zeros(3)
         self._levelled = False
         self._odometry_acceleration = (0.0, 0.0, 0.0)
         self._last_rate: tuple | None = None
         self._last_time: float | None = None
         self._age = 0.0
-        # The float copies of the public arrays (the filter's own arithmetic).
+        # The filter's state as floats (its own arithmetic); the arrays are made when read.
         self._w = self._alpha = self._v = (0.0, 0.0, 0.0)
         self._f = (0.0, 0.0, self.g)
         lib = filters_c.compiled_filters() if compiled else None
@@ -130,14 +127,12 @@ class BaseFilter:
             (ax, ay, az), (lx, ly, lz) = alpha, self._last_rate
             alpha = self._alpha = (ax + a * ((wx - lx) / dt - ax), ay + a * ((wy - ly) / dt - ay),
                                    az + a * ((wz - lz) / dt - az))
-            self.angular_acceleration = np.array(alpha)
         self._w = self._last_rate = w
         self.rate = w_arr
         p = self.p.tolist()
         (c1x, c1y, c1z), (c2x, c2y, c2z) = cross(alpha, p), cross(w, cross(w, p))
         fx, fy, fz = f_p
         f_o = self._f = (fx - c1x - c2x, fy - c1y - c2y, fz - c1z - c2z)
-        self.specific_force = np.array(f_o)
         velocity = self._v
         if wheel_speeds is not None:
             left, right = wheel_speeds.tolist()
@@ -163,9 +158,7 @@ class BaseFilter:
             # Rotate the estimate by a share of the small angle between the up directions.
             x, y, z = cross(up_meas, up_est)
             self.rotation = _orthonormal(self.rotation @ _exp(b * x, b * y, b * z))
-        if velocity is not self._v:
-            self._v = velocity
-            self.velocity = np.array(velocity)
+        self._v = velocity
         self._last_time = time
 
     def _update_c(self, time: float, dt: float, w: list, f_p: list,
@@ -182,17 +175,26 @@ class BaseFilter:
         self.rotation = st[at["rotation"]].reshape(3, 3).copy()
         values = st.tolist()
         self._alpha = tuple(values[at["alpha"]])
-        if dt > 0:
-            self.angular_acceleration = np.array(self._alpha)
         self._w = self._last_rate = w
         self._f = tuple(values[at["f"]])
-        self.specific_force = np.array(self._f)
-        velocity = tuple(values[at["v"]])
-        if velocity != self._v:
-            self.velocity = np.array(velocity)
-        self._v = velocity
+        self._v = tuple(values[at["v"]])
         self._age = values[at["age"]]
         self._last_time = time
+
+    @property
+    def angular_acceleration(self) -> np.ndarray:
+        """[rad/s^2] in fb, (3,)."""
+        return np.array(self._alpha)
+
+    @property
+    def specific_force(self) -> np.ndarray:
+        """The specific force at the fb origin [m/s^2] in fb, (3,)."""
+        return np.array(self._f)
+
+    @property
+    def velocity(self) -> np.ndarray:
+        """The odometry's linear velocity [m/s] in fb, (3,)."""
+        return np.array(self._v)
 
     @property
     def twist(self) -> np.ndarray:

@@ -38,11 +38,11 @@ from estimators.efforts import ActuatorEfforts
 from estimators.errors import EstimatorError
 from estimators.linearization import N_GENERALIZED
 from estimators.observer import link_fusion
-from estimators.observer._linalg import solve
 from estimators.observer._states import StateBuffer, wheel_contacts, with_fields
 from estimators.observer._vec3 import ground_normal as _ground_normal
 from estimators.observer._vec3 import norm
 from estimators.observer.base_filter import ANGULAR_ACCELERATION_TIME_CONSTANT, BaseFilter
+from estimators.observer.crane_pressures import SLIDING_SPEED, CranePressures
 from estimators.observer.joint_filter import JointFilter
 from estimators.observer.payload_rls import EXPECTED_PICK_TICKS, PayloadRLS, without_seal_friction
 from estimators.uncertainty import StateUncertainty, model_normal_forces
@@ -67,13 +67,10 @@ CONTACT_TICKS = 3
 CONTACT_LANDING_N = 2000.0  # [N] above this once, a lifted wheel has landed (an impact)
 WHEEL_ACCELERATION_TIME_CONSTANT = 0.05  # [s]
 _LIFT, _TILT = 3, 4  # independent coordinates of the lift and tilt cylinders
-SLIDING_SPEED = 4e-3  # [m/s] stroke speed above which a seal slides (the observer's estimate)
 SLIDING_FRICTION_STD = 0.2  # std of a sliding seal's friction about its rating [-]
 PAYLOAD_FILTER_TIME = 0.05  # [s] low-pass of the payload regression (`Observer._filtered`)
 EVENT_VARIANCE_SCALE = 0.1  # filtered over raw innovation variance: 0.01 still, 0.05-0.08 moving
 _PRESS_LIFT_TILT = [PRESSURE_CYLINDERS.index("lift"), PRESSURE_CYLINDERS.index("tilt")]
-_CRANE_CYLINDERS = np.array([2, 3, 4])  # slew, lift, tilt: independent coordinates
-_PRESS_CRANE = [PRESSURE_CYLINDERS.index(c) for c in ("slew", "lift", "tilt")]
 _NO_FORCES = np.zeros(5)  # [N] the cylinders' forces before any pressure reading
 _NO_FORCES.flags.writeable = False
 _ONES = np.ones(4)  # the first tick's "previous" forces (`_longitudinal`: an even split)
@@ -121,7 +118,7 @@ class Observer:
         initial_payload_std: Its std [kg].
     """
 
-    crane_from_pressures = True  # `_crane_accelerations`; False: the encoders' alone
+    crane_from_pressures = True  # `crane_pressures`; False: the encoders' alone
 
     def __init__(self, machine: Machine, spec: SensorSpec, force_model,
                  initial_payload: float | None = None, initial_payload_std: float = 150.0):
@@ -192,7 +189,7 @@ class Observer:
             suspension_force=np.sqrt(self._force_std[:2] ** 2 + self._force_bias[:2] ** 2
                                      + self._friction_std[:2] ** 2))
         self._seal_lift_tilt = self._seal[_PRESS_LIFT_TILT].tolist()
-        self._crane_rows: dict[tuple, tuple] = {}
+        self.crane = CranePressures(self.efforts, self._seal)
         # The link accelerometers' predictions carry the base's acceleration errors, its
         # angular acceleration's through the lever arm to the crane (`LINK_LEVER`).
         base_std = float(np.hypot(accel_std[0], link_fusion.LINK_LEVER * accel_std[3]))
@@ -303,7 +300,7 @@ class Observer:
                                                    y[_LIFT:_TILT + 1]), band)
         mass = min(max(self.payload.mass, 0.0), 1e4)
         if self.crane_from_pressures:
-            state = with_fields(state, qdd=self._crane_accelerations(state, forces, mass))
+            state = with_fields(state, qdd=self.crane.accelerations(state, forces, mass))
         self.force_model.payload_mass = mass
         if drive_torques.shape[0]:
             self._drive = (np.add.reduce(drive_torques, 0) / drive_torques.shape[0]).tolist()
@@ -329,53 +326,6 @@ class Observer:
         self._last_time = t
         self._last = ObserverEstimate(state, mass, std, self.payload.event, unc, four, stale)
         return self._last
-
-    def _crane_accelerations(self, state: MachineState, forces: np.ndarray,
-                             mass: float) -> np.ndarray:
-        """``state.qdd``, the sliding slew, lift and tilt cylinders' from their pressures.
-
-        The crane's dynamics (`estimators.efforts`, at the estimated payload) give each
-        cylinder's force affine in the axes' accelerations, ``F = E u + e_0``; a sliding
-        cylinder's pressures report ``F`` plus its seals' friction against the motion. The
-        sliding cylinders' ``u`` solve their rows with every other axis at the encoders'
-        estimate. Measured against MuJoCo's accelerations: the slew's comes out at 0.015
-        m/s^2 RMS against the Kalman filter's 0.041; the lift's and tilt's are no closer
-        (0.06 against 0.045), but they make the closure's inertial forces consistent with
-        the measured cylinder forces, which is what the normal forces need (closure error
-        2.45 -> 1.49 % on the rough run). A cylinder standing still keeps the encoders'
-        value (its seals hold an unknown force up to their rating).
-        """
-        sliding = tuple(abs(v) > SLIDING_SPEED for v in state.qd[2:5].tolist())
-        qdd = state.qdd.copy()
-        if not any(sliding):
-            return qdd
-        self.efforts.payload_mass = mass
-        e, e0 = self.efforts.affine(state)
-        rows, press, seal, ix_known, ix_rows, known = self._crane_pattern(sliding)
-        speeds = state.qd[rows]
-        rhs = (forces[press] - seal * np.sign(speeds) - e0[rows] - e[ix_known] @ qdd[known])
-        u = solve(e[ix_rows], rhs)  # NaN if singular (it is not: a block of a mass matrix)
-        if np.isfinite(u).all():
-            qdd[rows] = u
-        return qdd
-
-    def _crane_pattern(self, sliding: tuple) -> tuple:
-        """The index arrays of `_crane_accelerations` for one pattern of sliding cylinders.
-
-        (rows, their pressure channels, seal ratings, the known and the free blocks' index
-        tuples, the known axes); made once per pattern (eight at most).
-        """
-        hit = self._crane_rows.get(sliding)
-        if hit is None:
-            mask = np.array(sliding)
-            rows = _CRANE_CYLINDERS[mask]
-            free = np.zeros(N_SERVO_AXES, bool)
-            free[rows] = True
-            known = np.flatnonzero(~free)
-            hit = self._crane_rows[sliding] = (
-                rows, np.array(_PRESS_CRANE)[mask], self._seal[_PRESS_CRANE][mask],
-                np.ix_(rows, known), np.ix_(rows, rows), known)
-        return hit
 
     def _filtered(self, dt: float, measured, f0, y):
         """The payload regression's three sides through one first-order low-pass.
@@ -436,13 +386,15 @@ class Observer:
             n = norm(up)
             up = [v / n for v in up]
         r = self.machine.wheel_radius
-        centre = lowest + r * np.array(up)
-        normal = _ground_normal(centre.tolist(), self._in_contact)
+        r_up = [r * v for v in up]  # on floats: `lowest + r * up` as numpy would round it
+        centre = [[a + b for a, b in zip(row, r_up)] for row in lowest.tolist()]
+        normal = _ground_normal(centre, self._in_contact)
         if not self._sphere_wheels:  # a disc touches in its own plane
             normal[1] = 0.0
             n = norm(normal)
             normal = [v / n for v in normal]
-        return centre - r * np.array(normal), normal
+        r_normal = [r * v for v in normal]
+        return np.array([[a - b for a, b in zip(row, r_normal)] for row in centre]), normal
 
     def _contacts(self, forces: np.ndarray) -> None:
         f = forces.tolist()
