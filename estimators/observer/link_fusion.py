@@ -20,7 +20,9 @@ from __future__ import annotations
 import numpy as np
 
 from estimators.efforts import ActuatorEfforts
+from estimators.observer import fusion_c
 from estimators.observer._linalg import inv
+from models.cbuild import bind
 from models.sensing import LinkAccelerometer, Samples
 from models.state import N_SERVO_AXES, MachineState
 
@@ -49,10 +51,12 @@ class LinkFusion:
             (it enters every reading's prediction).
         prior_std: Std of the encoders' acceleration estimate of each of the nine axes
             [m/s^2], shape (9,).
+        compiled: Fit in C (`fusion_c`, the same results to round-off) when a C compiler
+            and the efforts' kernels are there; False: numpy.
     """
 
     def __init__(self, efforts: ActuatorEfforts, accelerometers: tuple[LinkAccelerometer, ...],
-                 base_std: float, prior_std):
+                 base_std: float, prior_std, compiled: bool = True):
         self.efforts = efforts
         self.accelerometers = tuple(accelerometers)
         prior = np.asarray(prior_std, float)[AXES]
@@ -67,6 +71,15 @@ class LinkFusion:
                                  + MODEL_STD ** 2 for a in self.accelerometers], 3)
         self.std = prior.copy()
         self._weights_of: dict[int, tuple] = {}  # `_weights`: a handful of sample counts
+        lib = fusion_c.compiled_fusion() if compiled else None
+        self._c = None
+        if lib is not None:  # the fit's inputs and outputs in buffers C reads and writes
+            m = 3 * len(self.accelerometers)
+            self._mean, self._w = np.zeros(m), np.zeros(m)
+            self._prior_diag = np.ascontiguousarray(self._prior_info.diagonal())
+            self._io = np.zeros(N_SERVO_AXES + len(AXES))
+            self._row, self._row_at = None, 0
+            self._c = bind(lib.link_fuse, m, self._mean, self._w, self._prior_diag, self._io)
 
     def accelerations(self, state: MachineState, readings: Samples | None) -> np.ndarray:
         """``state.qdd`` with the four crane axes' fitted to the accelerometers' tick means.
@@ -83,6 +96,10 @@ class LinkFusion:
         mean = np.add.reduce(value, 0) / n
         if not np.isfinite(mean).all():
             return qdd
+        if self._c is not None:
+            row = self.efforts.point_specific_forces_row(state, self._mounts)
+            if row is not None:
+                return self._fit_c(qdd, row, mean, n)
         a, b = self.efforts.point_specific_forces(state, self._mounts)
         residual = mean - a @ qdd[:N_SERVO_AXES] - b
         a = a[:, AXES]
@@ -92,6 +109,20 @@ class LinkFusion:
         if np.isfinite(du).all():
             qdd[_AXES_SLICE] += du
             self.std = np.sqrt(cov.diagonal())
+        return qdd
+
+    def _fit_c(self, qdd: np.ndarray, row: np.ndarray, mean: np.ndarray,
+               n: int) -> np.ndarray:
+        """`accelerations`' fit in C (`fusion_c`) on the points kernel's output ``row``."""
+        if row is not self._row:  # this thread's kernel buffer: the same one every tick
+            self._row, self._row_at = row, row.ctypes.data
+        self._mean[:] = mean
+        self._w[:] = self._weights(n)[0]
+        io = self._io
+        io[:N_SERVO_AXES] = qdd[:N_SERVO_AXES]
+        if self._c(self._row_at) == 0:
+            qdd[_AXES_SLICE] = io[_AXES_SLICE]
+            self.std = io[N_SERVO_AXES:].copy()
         return qdd
 
     def _weights(self, n: int) -> tuple[np.ndarray, np.ndarray]:
