@@ -58,6 +58,10 @@ def test_joint_filter_in_c_is_the_numpy_filter():
         np.testing.assert_allclose(xc, xp, rtol=1e-11, atol=1e-13)
         np.testing.assert_allclose(fc.predict(0.004), fp.predict(0.004), rtol=1e-11,
                                    atol=1e-13)
+        dt = 0.0005 * (k % 7)
+        # C's prediction is numpy's arithmetic on the same state: the same bits.
+        np.testing.assert_array_equal(fc.predict_rows(dt), fc.predict(dt).T)
+        np.testing.assert_array_equal(fp.predict_rows(dt), fp.predict(dt).T)
         if k == 100:
             x_keep, x_copy = xc, xc.copy()
     np.testing.assert_array_equal(x_keep, x_copy)  # a returned array is not written later

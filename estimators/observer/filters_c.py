@@ -123,6 +123,19 @@ int base_step(double* s, const double* c, const double* in) {
   return 0;
 }
 
+/* JointFilter.predict transposed: out (3, n) the positions, velocities and accelerations
+   dt after the state x (n, 3). */
+int joint_predict(const double* x, long n, double* out, double dt) {
+  long i;
+  for (i = 0; i < n; ++i) {
+    const double* xi = x + 3 * i;
+    out[i] = xi[0] + dt * xi[1] + 0.5 * dt * dt * xi[2];
+    out[n + i] = xi[1] + dt * xi[2];
+    out[2 * n + i] = xi[2];
+  }
+  return 0;
+}
+
 /* JointFilter.update's loop: x (n, 3) through k samples z (k, n); F (3, 3), K (n, 3). */
 int joint_step(double* x, long n, const double* F, const double* K, const double* z,
                long k) {
@@ -145,8 +158,10 @@ int joint_step(double* x, long n, const double* F, const double* K, const double
 """
 
 def compiled_filters():
-    """The loaded `FILTERS_C` (``base_step``, ``joint_step``), or None without a compiler."""
+    """The loaded `FILTERS_C` (``base_step``, ``joint_step``, ``joint_predict``) or None."""
     return load_shared(FILTERS_C, "observer_filters", {
         "base_step": ([ctypes.c_void_p] * 3, ctypes.c_int),
         "joint_step": ([ctypes.c_void_p, ctypes.c_long, ctypes.c_void_p, ctypes.c_void_p,
-                        ctypes.c_void_p, ctypes.c_long], ctypes.c_int)}, "Python")
+                        ctypes.c_void_p, ctypes.c_long], ctypes.c_int),
+        "joint_predict": ([ctypes.c_void_p, ctypes.c_long, ctypes.c_void_p, ctypes.c_double],
+                          ctypes.c_int)}, "Python")

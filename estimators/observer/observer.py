@@ -257,9 +257,9 @@ class Observer:
         stale = n_pos == 0 or n_press == 0
         if n_pos:
             self.joints.update(positions.value)
-            x = self.joints.predict(max(t - positions.time[-1], 0.0))
+            x = self.joints.predict_rows(max(t - positions.time[-1], 0.0))
         else:
-            x = self.joints.predict(0.0)
+            x = self.joints.predict_rows(0.0)
         if wheels is not None:
             left, right = wheels.tolist()
             rate = [left, left, right, right]  # FL, RL, FR, RR
@@ -280,7 +280,7 @@ class Observer:
         buf = StateBuffer()
         buf.set_base(base.rotation, base.motion())
         joints = buf.joints
-        joints[:, :N_SERVO_AXES] = x.T
+        joints[:, :N_SERVO_AXES] = x
         joints[:, N_SERVO_AXES:] = (self._wheel_angle, self._wheel_rate, self._wheel_acc)
         q = joints[0, :N_SERVO_AXES]
         clip(q, self._q_lo, self._q_hi, out=q)
