@@ -42,3 +42,32 @@ def test_link_fusion_in_c_is_the_numpy_fit():
     assert moved > 0.1  # the fit did move the crane's axes
     empty = Samples(np.zeros(0), np.zeros((0, 3 * len(spec.link_accelerometers))))
     np.testing.assert_array_equal(fc.accelerations(state, empty), state.qdd)
+
+
+def test_observer_in_c_is_the_python_observer():
+    """The whole observer, its C parts (`filters_c`, `fusion_c`) against Python and numpy,
+    on the swing test's readings (realistic sensors, the crane and the wheels moving):
+    every estimate to round-off, tick after tick."""
+    from estimators.observer import Observer
+    from estimators.payload import PayloadEstimator
+    from tests.test_link_accelerometers import _swinging
+
+    spec = sensor_suite("realistic", 1)
+    obs = None
+    for k, (machine, _, readings) in enumerate(_swinging(spec, ticks=150)):
+        if obs is None:
+            obs = [Observer(machine, spec, PayloadEstimator(machine, fourth="cylinder-force",
+                                                            strokes="clip"), compiled=c)
+                   for c in (True, False)]
+            assert obs[0].links._c is not None and obs[1].links._c is None
+        ec, ep = (o.update(readings) for o in obs)
+        for name in ("base_rotation", "base_twist", "base_acceleration", "q", "qd", "qdd",
+                     "suspension_force"):
+            a, b = getattr(ec.state, name), getattr(ep.state, name)
+            np.testing.assert_allclose(a, b, rtol=1e-9, atol=1e-9 * np.abs(b).max(),
+                                       err_msg=f"{name} at tick {k}")
+        np.testing.assert_allclose(ec.forces_four, ep.forces_four, rtol=1e-9)
+        np.testing.assert_allclose(ec.state.contacts.force_in_fb, ep.state.contacts.force_in_fb,
+                                   rtol=1e-9, atol=1e-6)
+        np.testing.assert_array_equal(ec.state.contacts.in_contact, ep.state.contacts.in_contact)
+        assert abs(ec.payload_mass - ep.payload_mass) <= 1e-9 * abs(ep.payload_mass)

@@ -1,5 +1,7 @@
 """The observer's chassis and joint filters in C: one call each per control tick.
 
+(And the tick's mean cylinder forces from the chamber pressures, `cylinder_forces`.)
+
 `base_filter.BaseFilter` and `joint_filter.JointFilter` are a few hundred floating-point
 operations a tick, which Python spends ~70 us on (float arithmetic and numpy calls on
 3-vectors and 9x3 arrays). `FILTERS_C` is the same arithmetic in the same order, compiled
@@ -136,6 +138,24 @@ int joint_predict(const double* x, long n, double* out, double dt) {
   return 0;
 }
 
+/* Observer._cylinder_forces: out (5) the mean over k samples p (k, 10) of each cylinder's
+   p_A A_A - p_B A_B, summed in numpy's order (row after row). Returns 1 if one is not
+   finite. */
+int cylinder_forces(const double* aa, const double* ab, double* out, const double* p,
+                    long k) {
+  long i, j;
+  int bad = 0;
+  for (j = 0; j < 5; ++j) out[j] = p[2 * j] * aa[j] - p[2 * j + 1] * ab[j];
+  for (i = 1; i < k; ++i)
+    for (j = 0; j < 5; ++j)
+      out[j] = out[j] + (p[10 * i + 2 * j] * aa[j] - p[10 * i + 2 * j + 1] * ab[j]);
+  for (j = 0; j < 5; ++j) {
+    out[j] = out[j] / (double)k;
+    if (!isfinite(out[j])) bad = 1;
+  }
+  return bad;
+}
+
 /* JointFilter.update's loop: x (n, 3) through k samples z (k, n); F (3, 3), K (n, 3). */
 int joint_step(double* x, long n, const double* F, const double* K, const double* z,
                long k) {
@@ -158,10 +178,12 @@ int joint_step(double* x, long n, const double* F, const double* K, const double
 """
 
 def compiled_filters():
-    """The loaded `FILTERS_C` (``base_step``, ``joint_step``, ``joint_predict``) or None."""
+    """The loaded `FILTERS_C` (its four functions), or None without a compiler."""
     return load_shared(FILTERS_C, "observer_filters", {
         "base_step": ([ctypes.c_void_p] * 3, ctypes.c_int),
         "joint_step": ([ctypes.c_void_p, ctypes.c_long, ctypes.c_void_p, ctypes.c_void_p,
                         ctypes.c_void_p, ctypes.c_long], ctypes.c_int),
         "joint_predict": ([ctypes.c_void_p, ctypes.c_long, ctypes.c_void_p, ctypes.c_double],
-                          ctypes.c_int)}, "Python")
+                          ctypes.c_int),
+        "cylinder_forces": ([ctypes.c_void_p] * 4 + [ctypes.c_long], ctypes.c_int)},
+        "Python")

@@ -37,7 +37,7 @@ import numpy as np
 from estimators.efforts import ActuatorEfforts
 from estimators.errors import EstimatorError
 from estimators.linearization import N_GENERALIZED
-from estimators.observer import link_fusion
+from estimators.observer import filters_c, link_fusion
 from estimators.observer._states import StateBuffer, wheel_contacts, with_fields
 from estimators.observer._vec3 import ground_normal as _ground_normal
 from estimators.observer._vec3 import norm
@@ -46,6 +46,7 @@ from estimators.observer.crane_pressures import SLIDING_SPEED, CranePressures
 from estimators.observer.joint_filter import JointFilter
 from estimators.observer.payload_rls import EXPECTED_PICK_TICKS, PayloadRLS, without_seal_friction
 from estimators.uncertainty import StateUncertainty, model_normal_forces
+from models.cbuild import bind
 from models.coordinates import N_INDEPENDENT
 from models.description import Machine
 from models.numeric import clip
@@ -116,20 +117,25 @@ class Observer:
         initial_payload: Prior of the payload [kg] (the empty grapple's mass is a fair one);
             None: the description's.
         initial_payload_std: Its std [kg].
+        compiled: Run the filters' and the fit's arithmetic in C (`filters_c`,
+            `fusion_c`: the same results to round-off) when a C compiler is there; False:
+            Python and numpy.
     """
 
     crane_from_pressures = True  # `crane_pressures`; False: the encoders' alone
 
     def __init__(self, machine: Machine, spec: SensorSpec, force_model,
-                 initial_payload: float | None = None, initial_payload_std: float = 150.0):
+                 initial_payload: float | None = None, initial_payload_std: float = 150.0,
+                 compiled: bool = True):
         if not isinstance(spec, SensorSpec) or spec.oracle:
             raise EstimatorError("the observer needs a sensor suite with sensors (not oracle)")
         self.machine, self.spec, self.force_model = machine, spec, force_model
-        self.base = BaseFilter(spec.imu.position, machine.gravity, machine.wheel_radius)
+        self.base = BaseFilter(spec.imu.position, machine.gravity, machine.wheel_radius,
+                               compiled=compiled)
         dt_pos = 1.0 / spec.stroke.rate
         noise = np.r_[np.full(N_LINEAR_AXES, spec.stroke.sample_std),
                       np.full(N_SERVO_AXES - N_LINEAR_AXES, spec.angle.sample_std)]
-        self.joints = JointFilter(N_SERVO_AXES, dt_pos, noise)
+        self.joints = JointFilter(N_SERVO_AXES, dt_pos, noise, compiled=compiled)
         self.efforts = ActuatorEfforts(machine)
         areas = cylinder_areas(machine)
         a_norm = np.hypot(areas[:, 0], areas[:, 1])
@@ -181,6 +187,11 @@ class Observer:
                                            "wheel_is_sphere", True))
         # Constant per tick: areas, ranges, the error model (checked once), the crane rows.
         self._area_a, self._area_b = areas[:, 0].copy(), areas[:, 1].copy()
+        self._filters_c = filters_c.compiled_filters() if compiled else None
+        self._forces_c = None
+        if self._filters_c is not None:
+            self._forces = np.zeros(len(PRESSURE_CYLINDERS))
+            self._bind_forces(8)
         self._q_lo = machine.coordinates.lower[:N_SERVO_AXES]
         self._q_hi = machine.coordinates.upper[:N_SERVO_AXES]
         accel_std, qd_std = self._uncertainty_const
@@ -194,7 +205,7 @@ class Observer:
         # angular acceleration's through the lever arm to the crane (`LINK_LEVER`).
         base_std = float(np.hypot(accel_std[0], link_fusion.LINK_LEVER * accel_std[3]))
         self.links = (link_fusion.LinkFusion(self.efforts, spec.link_accelerometers, base_std,
-                                             qdd_std) if has_links else None)
+                                             qdd_std, compiled) if has_links else None)
 
     # ------------------------------------------------------------------ uncertainty
     def _uncertainty_parts(self) -> tuple[np.ndarray, np.ndarray]:
@@ -269,12 +280,8 @@ class Observer:
                                    in zip(self._wheel_acc, rate, self._wheel_rate)]
             self._wheel_rate = rate
         self._wheel_angle = [q + dt * w for q, w in zip(self._wheel_angle, self._wheel_rate)]
-        if n_press:  # `cylinder_force`, mean over the tick
-            forces = np.add.reduce(p[:, 0::2] * self._area_a - p[:, 1::2] * self._area_b,
-                                   0) / n_press
-            if not np.isfinite(forces).all():
-                raise EstimatorError("pressure readings hold NaN or inf")
-            self._suspension = forces
+        if n_press:
+            self._suspension = self._cylinder_forces(p)
         forces = self._suspension if self._suspension is not None else _NO_FORCES
         # The state's float fields in one buffer: q, qd, qdd are the rows of `joints`.
         buf = StateBuffer()
@@ -326,6 +333,36 @@ class Observer:
         self._last_time = t
         self._last = ObserverEstimate(state, mass, std, self.payload.event, unc, four, stale)
         return self._last
+
+    def _cylinder_forces(self, p: np.ndarray) -> np.ndarray:
+        """`models.sensing.cylinder_force` [N] (5,), the mean over the tick's samples (k, 10).
+
+        In C (`filters_c.cylinder_forces`: numpy's operations and order, the same bits)
+        when compiled: the samples are copied into a bound buffer (cheaper than their
+        address).
+
+        Raises:
+            EstimatorError: A force is not finite.
+        """
+        k = p.shape[0]
+        if self._forces_c is None:
+            forces = np.add.reduce(p[:, 0::2] * self._area_a - p[:, 1::2] * self._area_b,
+                                   0) / k
+            if not np.isfinite(forces).all():
+                raise EstimatorError("pressure readings hold NaN or inf")
+            return forces
+        if k > self._pressures.shape[0]:
+            self._bind_forces(2 * k)
+        self._pressures[:k] = p
+        if self._forces_c(k):
+            raise EstimatorError("pressure readings hold NaN or inf")
+        return self._forces.copy()
+
+    def _bind_forces(self, rows: int) -> None:
+        """`filters_c.cylinder_forces` bound to a buffer of ``rows`` pressure samples."""
+        self._pressures = np.zeros((rows, 2 * len(PRESSURE_CYLINDERS)))
+        self._forces_c = bind(self._filters_c.cylinder_forces, self._area_a, self._area_b,
+                              self._forces, self._pressures)
 
     def _filtered(self, dt: float, measured, f0, y):
         """The payload regression's three sides through one first-order low-pass.
