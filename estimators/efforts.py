@@ -284,6 +284,17 @@ class ActuatorEfforts:
             bias.append(a_p - data.oMf[fid].rotation.T @ model.gravity.linear)
         return np.vstack(rows), np.concatenate(bias)
 
+    def point_specific_forces_row(self, state: MachineState, mounts) -> np.ndarray | None:
+        """`point_specific_forces` as the compiled kernel's output row, not copied.
+
+        ``A`` (3 k x 9, row-major), ``b`` (3 k) and a checksum: this thread's buffer, valid
+        until the next call. None without the kernel, or when its result is not finite
+        (`point_specific_forces` then takes Pinocchio's path).
+        """
+        if self._kernels is None:
+            return None
+        return self._kernels.points_row(state, mounts)
+
     def prepare_points(self, mounts) -> None:
         """Build `point_specific_forces`' kernel for ``mounts`` now (start-up, not a tick).
 

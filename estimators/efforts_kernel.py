@@ -170,7 +170,7 @@ class EffortKernels:
         inp, out = k.buffers()
         self.fill(inp, state)
         k.call_buffers()
-        if not np.isfinite(out[-1]):
+        if not math.isfinite(out[-1]):
             return None
         n = N_SERVO_AXES
         o = out.copy()
@@ -180,6 +180,18 @@ class EffortKernels:
 
     def points(self, state, mounts) -> tuple[np.ndarray, np.ndarray] | None:
         """``(A (3k, 9), b (3k,))`` at ``mounts``, or None if not finite."""
+        out = self.points_row(state, mounts)
+        if out is None:
+            return None
+        m = 3 * len(mounts)
+        o = out.copy()
+        return o[:m * N_SERVO_AXES].reshape(m, N_SERVO_AXES), o[m * N_SERVO_AXES:-1]
+
+    def points_row(self, state, mounts) -> np.ndarray | None:
+        """The ``points`` kernel's output row (A row-major, b, checksum), or None if not finite.
+
+        This thread's output buffer, not a copy: valid until the kernel runs again on it.
+        """
         last, k = self._last_points
         if mounts is not last or not isinstance(mounts, tuple):  # a tuple cannot change
             k = self.points_kernel(mounts)
@@ -187,11 +199,7 @@ class EffortKernels:
         inp, out = k.buffers()
         self.fill(inp, state)
         k.call_buffers()
-        if not np.isfinite(out[-1]):
-            return None
-        m = 3 * len(mounts)
-        o = out.copy()
-        return o[:m * N_SERVO_AXES].reshape(m, N_SERVO_AXES), o[m * N_SERVO_AXES:-1]
+        return out if math.isfinite(out[-1]) else None
 
 
 _REGISTRY: dict[str, EffortKernels | None] = {}

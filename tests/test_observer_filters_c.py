@@ -58,7 +58,49 @@ def test_joint_filter_in_c_is_the_numpy_filter():
         np.testing.assert_allclose(xc, xp, rtol=1e-11, atol=1e-13)
         np.testing.assert_allclose(fc.predict(0.004), fp.predict(0.004), rtol=1e-11,
                                    atol=1e-13)
+        dt = 0.0005 * (k % 7)
+        # C's prediction is numpy's arithmetic on the same state: the same bits.
+        np.testing.assert_array_equal(fc.predict_rows(dt), fc.predict(dt).T)
+        np.testing.assert_array_equal(fp.predict_rows(dt), fp.predict(dt).T)
         if k == 100:
             x_keep, x_copy = xc, xc.copy()
     np.testing.assert_array_equal(x_keep, x_copy)  # a returned array is not written later
     assert np.abs(fp.x[:, 2]).max() > 0.01  # accelerations were estimated
+
+
+def test_cylinder_forces_in_c_are_numpys():
+    """Random pressures, 1 to 7 samples a tick (past the bound buffer's 8 rows once): the
+    same bits; a NaN raises in both."""
+    from estimators.errors import EstimatorError
+    from estimators.observer import Observer
+    from estimators.payload import PayloadEstimator
+    from models import build_reference_machine
+    from models.sensor_suites import sensor_suite
+
+    machine = build_reference_machine()
+    spec = sensor_suite("realistic", 0)
+    closure = PayloadEstimator(machine, fourth="cylinder-force", strokes="clip")
+    oc = Observer(machine, spec, closure)
+    op = Observer(machine, spec, closure, compiled=False)
+    assert oc._forces_c is not None and op._forces_c is None
+    rng = np.random.default_rng(11)
+    for k in [*range(1, 8), 12, 3]:
+        p = rng.uniform(0.0, 2.5e7, (k, 10))
+        np.testing.assert_array_equal(oc._cylinder_forces(p), op._cylinder_forces(p))
+    p[1, 3] = np.nan
+    for obs in (oc, op):
+        with pytest.raises(EstimatorError, match="pressure"):
+            obs._cylinder_forces(p)
+
+
+def test_imu_means_in_c_are_numpys():
+    """The base filter's tick means in C, random samples, 1 to 11 a stream (past the bound
+    buffer's 8 rows): numpy's own reduction's bits."""
+    f = BaseFilter(np.array([0.8, -0.3, 1.1]), 9.81, 0.55)
+    assert f._c is not None
+    rng = np.random.default_rng(4)
+    for k, m in [(1, 1), (4, 5), (8, 3), (11, 2), (2, 9), (5, 5)]:
+        rates, forces = rng.normal(size=(k, 3)), 9.81 + rng.normal(size=(m, 3))
+        w, s = f._means_c(rates, forces)
+        np.testing.assert_array_equal(w, np.add.reduce(rates, 0) / k)
+        np.testing.assert_array_equal(s, np.add.reduce(forces, 0) / m)

@@ -1,45 +1,73 @@
 """The observer's per-tick `MachineState` and `WheelContacts`, built without copies.
 
 The validating constructors copy and check every array (~20 us a state, ~15 us a contact
-set); the observer builds two of each per tick from arrays it has just made and holds no
-other reference to. These helpers freeze such arrays in place after one finiteness test of
-them all (and the rotation's check); when the test fails they call the validating
-constructor with the same arguments, which raises its usual error. The results are the
-same objects, field for field, as the constructors would make.
+set); the observer builds three states and two contact sets per tick from numbers it has
+just computed and holds no other reference to. `StateBuffer` holds a state's float fields in
+one fresh array (one finiteness test for them all; the fields are read-only views of it);
+`with_fields` and `wheel_contacts` freeze fresh arrays in place. When a test fails they call
+the validating constructor with the same arguments, which raises its usual error. The
+results hold the same values, field for field, as the constructors would make.
 """
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
+from models.coordinates import N_INDEPENDENT
 from models.state import MachineState, WheelContacts, check_rotation
 
-__all__ = ["machine_state", "wheel_contacts", "with_fields"]
+__all__ = ["StateBuffer", "wheel_contacts", "with_fields"]
+
+# The float fields' places in a `StateBuffer`: the base's position (always zero: the
+# observer does not know it), rotation (row-major), twist, acceleration; then q, qd, qdd as
+# the rows of a (3, 13) block; the suspension forces last.
+_POSITION, _ROTATION, _TWIST, _ACCELERATION = slice(0, 3), slice(3, 12), slice(12, 18), \
+    slice(18, 24)
+_MOTION = slice(12, 24)
+_JOINTS = slice(24, 24 + 3 * N_INDEPENDENT)
+_SUSPENSION = slice(_JOINTS.stop, _JOINTS.stop + 2)
+_SIZE = _SUSPENSION.stop
 
 
-def _freeze(*arrays: np.ndarray) -> None:
-    for a in arrays:
-        a.setflags(write=False)
+class StateBuffer:
+    """One tick's state fields in one array, filled in place, then frozen into a state.
 
-
-def machine_state(base_position: np.ndarray, base_rotation: np.ndarray,
-                  base_twist: np.ndarray, base_acceleration: np.ndarray, q: np.ndarray,
-                  qd: np.ndarray, qdd: np.ndarray, time: float,
-                  suspension_force: np.ndarray, servo_setpoint: np.ndarray) -> MachineState:
-    """`MachineState` of fresh float arrays of the right shapes (taken over, not copied).
-
-    ``servo_setpoint``: a read-only checked array (`SensorReadings`'), shared; a writable
-    one takes the validating constructor.
+    Attributes:
+        joints: The (3, 13) block of q, qd and qdd (rows), to be written.
     """
-    floats = (base_position, base_rotation, base_twist, base_acceleration, q, qd, qdd,
-              suspension_force)
-    if servo_setpoint.flags.writeable or not np.isfinite(
-            np.concatenate([a.reshape(-1) for a in floats])).all():
-        return MachineState(base_position, base_rotation, base_twist, base_acceleration, q,
-                            qd, qdd, float(time), None, suspension_force, servo_setpoint)
-    check_rotation("base_rotation", base_rotation)
-    return MachineState._trusted(base_position, base_rotation, base_twist, base_acceleration,
-                                 q, qd, qdd, time, None, suspension_force, servo_setpoint)
+
+    def __init__(self):
+        self._buf = np.zeros(_SIZE)
+        self.joints = self._buf[_JOINTS].reshape(3, N_INDEPENDENT)
+
+    def set_base(self, rotation: np.ndarray, motion) -> None:
+        """The base's rotation (3, 3) and [twist (6); acceleration (6)] (12,)."""
+        self._buf[_ROTATION] = rotation.reshape(-1)
+        self._buf[_MOTION] = motion
+
+    def set_suspension(self, forces: np.ndarray) -> None:
+        """The two suspension cylinders' forces [N], the first two of ``forces``."""
+        self._buf[_SUSPENSION] = forces[:2]
+
+    def state(self, time: float, servo_setpoint: np.ndarray) -> MachineState:
+        """The `MachineState` of the buffer (taken over: not written afterwards).
+
+        ``servo_setpoint``: a read-only checked array (`SensorReadings`'), shared; a writable
+        one, or a non-finite field, takes the validating constructor.
+        """
+        buf = self._buf
+        buf.flags.writeable = False  # views made from now on are read-only too
+        rotation = buf[_ROTATION].reshape(3, 3)
+        joints = buf[_JOINTS].reshape(3, N_INDEPENDENT)
+        fields = (buf[_POSITION], rotation, buf[_TWIST], buf[_ACCELERATION], joints[0],
+                  joints[1], joints[2])
+        if servo_setpoint.flags.writeable or not np.isfinite(buf).all():
+            return MachineState(*fields, float(time), None, buf[_SUSPENSION],
+                                servo_setpoint)
+        check_rotation("base_rotation", rotation)
+        return MachineState._trusted(*fields, time, None, buf[_SUSPENSION], servo_setpoint)
 
 
 def with_fields(state: MachineState, **changes) -> MachineState:
@@ -57,13 +85,19 @@ def with_fields(state: MachineState, **changes) -> MachineState:
     return new
 
 
-def wheel_contacts(in_contact: np.ndarray, force: np.ndarray, point: np.ndarray,
-                   normal: np.ndarray) -> WheelContacts:
-    """`WheelContacts` of fresh arrays: bool (4,), float (4, 3) each (taken over)."""
-    if not np.isfinite(np.concatenate([force.reshape(-1), point.reshape(-1),
-                                       normal.reshape(-1)])).all():
+def wheel_contacts(in_contact: np.ndarray, longitudinal: list, point: np.ndarray,
+                   normal: np.ndarray, geometry_finite: bool) -> WheelContacts:
+    """`WheelContacts` whose force is ``longitudinal`` along fb x (4 floats [N]).
+
+    ``in_contact`` bool (4,), ``point`` and ``normal`` float (4, 3): taken over (frozen, not
+    copied); ``geometry_finite``: whether those two are finite (the caller's test).
+    """
+    force = np.zeros((4, 3))
+    force[:, 0] = longitudinal
+    if not (geometry_finite and all(map(math.isfinite, longitudinal))):
         return WheelContacts(in_contact, force, point, normal)
-    _freeze(in_contact, force, point, normal)
+    for a in (in_contact, force, point, normal):
+        a.flags.writeable = False
     c = object.__new__(WheelContacts)
     c.__dict__.update(in_contact=in_contact, force_in_fb=force, point_in_fb=point,
                       normal_in_fb=normal)

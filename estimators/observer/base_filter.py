@@ -78,15 +78,12 @@ class BaseFilter:
         self.r_wheel = float(wheel_radius)
         self.rotation = np.eye(3)
         self.rate = np.zeros(3)
-        self.angular_acceleration = np.zeros(3)
-        self.specific_force = np.array([0.0, 0.0, self.g])
-        self.velocity = np.zeros(3)
         self._levelled = False
         self._odometry_acceleration = (0.0, 0.0, 0.0)
         self._last_rate: tuple | None = None
         self._last_time: float | None = None
         self._age = 0.0
-        # The float copies of the public arrays (the filter's own arithmetic).
+        # The filter's state as floats (its own arithmetic); the arrays are made when read.
         self._w = self._alpha = self._v = (0.0, 0.0, 0.0)
         self._f = (0.0, 0.0, self.g)
         lib = filters_c.compiled_filters() if compiled else None
@@ -99,6 +96,8 @@ class BaseFilter:
                                      ATTITUDE_TIME_CONSTANT])
             self._in = np.zeros(10)
             self._c = bind(lib.base_step, self._state, self._consts, self._in)
+            self._lib = lib
+            self._bind_samples(8)
 
     def update(self, time: float, rates: np.ndarray, forces: np.ndarray,
                wheel_speeds: np.ndarray | None) -> None:
@@ -106,9 +105,11 @@ class BaseFilter:
         n_w, n_f = rates.shape[0], forces.shape[0]
         if n_w == 0 or n_f == 0:
             return  # nothing new: keep the state (the caller flags the gap)
-        # `mean(axis=0)`: the same sum (numpy's own reduction) over the same count
-        w_arr = np.add.reduce(rates, 0) / n_w
-        f_arr = np.add.reduce(forces, 0) / n_f
+        if self._c is not None:
+            w_arr, f_arr = self._means_c(rates, forces)
+        else:  # `mean(axis=0)`: the same sum (numpy's own reduction) over the same count
+            w_arr = np.add.reduce(rates, 0) / n_w
+            f_arr = np.add.reduce(forces, 0) / n_f
         w = wx, wy, wz = w_arr.tolist()
         f_p = f_arr.tolist()
         if not all(map(math.isfinite, w + f_p)):
@@ -130,14 +131,12 @@ class BaseFilter:
             (ax, ay, az), (lx, ly, lz) = alpha, self._last_rate
             alpha = self._alpha = (ax + a * ((wx - lx) / dt - ax), ay + a * ((wy - ly) / dt - ay),
                                    az + a * ((wz - lz) / dt - az))
-            self.angular_acceleration = np.array(alpha)
         self._w = self._last_rate = w
         self.rate = w_arr
         p = self.p.tolist()
         (c1x, c1y, c1z), (c2x, c2y, c2z) = cross(alpha, p), cross(w, cross(w, p))
         fx, fy, fz = f_p
         f_o = self._f = (fx - c1x - c2x, fy - c1y - c2y, fz - c1z - c2z)
-        self.specific_force = np.array(f_o)
         velocity = self._v
         if wheel_speeds is not None:
             left, right = wheel_speeds.tolist()
@@ -163,10 +162,26 @@ class BaseFilter:
             # Rotate the estimate by a share of the small angle between the up directions.
             x, y, z = cross(up_meas, up_est)
             self.rotation = _orthonormal(self.rotation @ _exp(b * x, b * y, b * z))
-        if velocity is not self._v:
-            self._v = velocity
-            self.velocity = np.array(velocity)
+        self._v = velocity
         self._last_time = time
+
+    def _means_c(self, rates: np.ndarray, forces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """`update`'s tick means in C (`filters_c.imu_means`: numpy's sums, the same bits).
+
+        The samples are copied into a bound buffer (cheaper than taking their address).
+        """
+        k, m = rates.shape[0], forces.shape[0]
+        if max(k, m) > self._samples.shape[1]:
+            self._bind_samples(2 * max(k, m))
+        self._samples[0, :k] = rates
+        self._samples[1, :m] = forces
+        self._means(k, m)
+        return self._in[1:4].copy(), self._in[4:7].copy()
+
+    def _bind_samples(self, rows: int) -> None:
+        """`filters_c.imu_means` bound to a buffer of ``rows`` samples of each stream."""
+        self._samples = np.zeros((2, rows, 3))
+        self._means = bind(self._lib.imu_means, self._in, self._samples, rows)
 
     def _update_c(self, time: float, dt: float, w: list, f_p: list,
                   wheel_speeds: np.ndarray | None) -> None:
@@ -182,22 +197,39 @@ class BaseFilter:
         self.rotation = st[at["rotation"]].reshape(3, 3).copy()
         values = st.tolist()
         self._alpha = tuple(values[at["alpha"]])
-        if dt > 0:
-            self.angular_acceleration = np.array(self._alpha)
         self._w = self._last_rate = w
         self._f = tuple(values[at["f"]])
-        self.specific_force = np.array(self._f)
-        velocity = tuple(values[at["v"]])
-        if velocity != self._v:
-            self.velocity = np.array(velocity)
-        self._v = velocity
+        self._v = tuple(values[at["v"]])
         self._age = values[at["age"]]
         self._last_time = time
+
+    @property
+    def angular_acceleration(self) -> np.ndarray:
+        """[rad/s^2] in fb, (3,)."""
+        return np.array(self._alpha)
+
+    @property
+    def specific_force(self) -> np.ndarray:
+        """The specific force at the fb origin [m/s^2] in fb, (3,)."""
+        return np.array(self._f)
+
+    @property
+    def velocity(self) -> np.ndarray:
+        """The odometry's linear velocity [m/s] in fb, (3,)."""
+        return np.array(self._v)
 
     @property
     def twist(self) -> np.ndarray:
         """[v; w] in fb, (6,)."""
         return np.array((*self._v, *self._w))
+
+    def motion(self) -> list:
+        """[`twist`; `acceleration`] as floats, (12,): the same numbers, no arrays made."""
+        up = self.rotation[2].tolist()
+        g = self.g
+        v, w = self._v, self._w
+        v_dot = [fi - ci - g * ui for fi, ci, ui in zip(self._f, cross(w, v), up)]
+        return [*v, *w, *v_dot, *self._alpha]
 
     @property
     def acceleration(self) -> np.ndarray:

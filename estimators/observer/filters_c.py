@@ -1,5 +1,7 @@
 """The observer's chassis and joint filters in C: one call each per control tick.
 
+(And the tick's mean cylinder forces from the chamber pressures, `cylinder_forces`.)
+
 `base_filter.BaseFilter` and `joint_filter.JointFilter` are a few hundred floating-point
 operations a tick, which Python spends ~70 us on (float arithmetic and numpy calls on
 3-vectors and 9x3 arrays). `FILTERS_C` is the same arithmetic in the same order, compiled
@@ -123,6 +125,52 @@ int base_step(double* s, const double* c, const double* in) {
   return 0;
 }
 
+/* JointFilter.predict transposed: out (3, n) the positions, velocities and accelerations
+   dt after the state x (n, 3). */
+int joint_predict(const double* x, long n, double* out, double dt) {
+  long i;
+  for (i = 0; i < n; ++i) {
+    const double* xi = x + 3 * i;
+    out[i] = xi[0] + dt * xi[1] + 0.5 * dt * dt * xi[2];
+    out[n + i] = xi[1] + dt * xi[2];
+    out[2 * n + i] = xi[2];
+  }
+  return 0;
+}
+
+/* BaseFilter.update's tick means: in[1..3] the mean of k rate samples, in[4..6] of m
+   specific-force samples, summed in numpy's order (row after row); buf holds the rates
+   (rows, 3) then the forces (rows, 3). */
+int imu_means(double* in, const double* buf, long rows, long k, long m) {
+  const double* f = buf + 3 * rows;
+  long i, j;
+  for (j = 0; j < 3; ++j) { in[1 + j] = buf[j]; in[4 + j] = f[j]; }
+  for (i = 1; i < k; ++i)
+    for (j = 0; j < 3; ++j) in[1 + j] = in[1 + j] + buf[3 * i + j];
+  for (i = 1; i < m; ++i)
+    for (j = 0; j < 3; ++j) in[4 + j] = in[4 + j] + f[3 * i + j];
+  for (j = 0; j < 3; ++j) { in[1 + j] = in[1 + j] / (double)k; in[4 + j] = in[4 + j] / (double)m; }
+  return 0;
+}
+
+/* Observer._cylinder_forces: out (5) the mean over k samples p (k, 10) of each cylinder's
+   p_A A_A - p_B A_B, summed in numpy's order (row after row). Returns 1 if one is not
+   finite. */
+int cylinder_forces(const double* aa, const double* ab, double* out, const double* p,
+                    long k) {
+  long i, j;
+  int bad = 0;
+  for (j = 0; j < 5; ++j) out[j] = p[2 * j] * aa[j] - p[2 * j + 1] * ab[j];
+  for (i = 1; i < k; ++i)
+    for (j = 0; j < 5; ++j)
+      out[j] = out[j] + (p[10 * i + 2 * j] * aa[j] - p[10 * i + 2 * j + 1] * ab[j]);
+  for (j = 0; j < 5; ++j) {
+    out[j] = out[j] / (double)k;
+    if (!isfinite(out[j])) bad = 1;
+  }
+  return bad;
+}
+
 /* JointFilter.update's loop: x (n, 3) through k samples z (k, n); F (3, 3), K (n, 3). */
 int joint_step(double* x, long n, const double* F, const double* K, const double* z,
                long k) {
@@ -145,8 +193,13 @@ int joint_step(double* x, long n, const double* F, const double* K, const double
 """
 
 def compiled_filters():
-    """The loaded `FILTERS_C` (``base_step``, ``joint_step``), or None without a compiler."""
+    """The loaded `FILTERS_C` (its five functions), or None without a compiler."""
     return load_shared(FILTERS_C, "observer_filters", {
         "base_step": ([ctypes.c_void_p] * 3, ctypes.c_int),
         "joint_step": ([ctypes.c_void_p, ctypes.c_long, ctypes.c_void_p, ctypes.c_void_p,
-                        ctypes.c_void_p, ctypes.c_long], ctypes.c_int)}, "Python")
+                        ctypes.c_void_p, ctypes.c_long], ctypes.c_int),
+        "joint_predict": ([ctypes.c_void_p, ctypes.c_long, ctypes.c_void_p, ctypes.c_double],
+                          ctypes.c_int),
+        "cylinder_forces": ([ctypes.c_void_p] * 4 + [ctypes.c_long], ctypes.c_int),
+        "imu_means": ([ctypes.c_void_p] * 2 + [ctypes.c_long] * 3, ctypes.c_int)},
+        "Python")

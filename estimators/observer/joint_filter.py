@@ -22,6 +22,7 @@ from scipy.linalg import solve_discrete_are
 
 from estimators.errors import EstimatorError
 from estimators.observer import filters_c
+from models.cbuild import bind
 
 __all__ = ["JOINT_JERK_DENSITY", "JointFilter"]
 
@@ -65,9 +66,11 @@ class JointFilter:
         lib = filters_c.compiled_filters() if compiled else None
         self._c = None
         if lib is not None:  # the state in C's buffer: `x` is updated in place
+            self._lib = lib
             self._f_c = np.ascontiguousarray(self.F, float)
-            self._c = (lib.joint_step, self.x.ctypes.data, self._f_c.ctypes.data,
-                       self.K.ctypes.data)
+            self._samples(8)  # the samples' buffer (grown when a tick brings more)
+            self._rows = np.zeros((3, n))  # `predict_rows`' output
+            self._predict_c = bind(lib.joint_predict, self.x, n, self._rows)
 
     def update(self, samples: np.ndarray) -> np.ndarray:
         """Run the filter over position samples (k, n), oldest first; returns ``x`` (n, 3)."""
@@ -83,9 +86,11 @@ class JointFilter:
             self.x[:, 0] = z[0]
             self.initialized = True
         if self._c is not None:
-            fun, x_at, f_at, k_at = self._c
-            z = np.ascontiguousarray(z)
-            fun(x_at, z.shape[1], f_at, k_at, z.ctypes.data, z.shape[0])
+            k = z.shape[0]
+            if k > self._z.shape[0]:
+                self._samples(2 * k)
+            self._z[:k] = z  # a copy into a bound buffer: cheaper than z's address
+            self._c(k)
             return self.x.copy()  # as numpy's path, an array the next update leaves alone
         ft, k = self.F.T, self.K
         x = self.x
@@ -102,6 +107,23 @@ class JointFilter:
         out[:, 0] = x[:, 0] + dt * x[:, 1] + 0.5 * dt * dt * x[:, 2]
         out[:, 1] = x[:, 1] + dt * x[:, 2]
         return out
+
+    def predict_rows(self, dt: float) -> np.ndarray:
+        """`predict` transposed, (3, n): the positions, velocities and accelerations.
+
+        With C (`filters_c.joint_predict`, the same operations: the same bits) a buffer of
+        the filter's, valid until the next call; else a view of a new array.
+        """
+        if self._c is None:
+            return self.predict(dt).T
+        self._predict_c(float(dt))
+        return self._rows
+
+    def _samples(self, rows: int) -> None:
+        """A buffer of ``rows`` samples for C, and `joint_step` bound to it."""
+        n = self.x.shape[0]
+        self._z = np.zeros((rows, n))
+        self._c = bind(self._lib.joint_step, self.x, n, self._f_c, self.K, self._z)
 
     @property
     def std(self) -> tuple[np.ndarray, np.ndarray]:

@@ -20,6 +20,9 @@ from __future__ import annotations
 import numpy as np
 
 from estimators.efforts import ActuatorEfforts
+from estimators.observer import fusion_c
+from estimators.observer._linalg import inv
+from models.cbuild import bind
 from models.sensing import LinkAccelerometer, Samples
 from models.state import N_SERVO_AXES, MachineState
 
@@ -27,6 +30,7 @@ __all__ = ["AXES", "LINK_EXPECTED_PICK_TICKS", "LINK_LEVER", "LINK_PAYLOAD_FILTE
            "MODEL_STD", "LinkFusion"]
 
 AXES = np.array([2, 3, 4, 5])  # slew, lift, tilt, telescope: q[:9] indices
+_AXES_SLICE = slice(2, 6)  # the same, as a slice (a view: cheaper to update in place)
 # [m/s^2] what a reading's prediction misses besides the sensor and the base: the tick's
 # mean (the pressures' window too) against the tick's instant (the positions').
 MODEL_STD = 0.02
@@ -47,10 +51,12 @@ class LinkFusion:
             (it enters every reading's prediction).
         prior_std: Std of the encoders' acceleration estimate of each of the nine axes
             [m/s^2], shape (9,).
+        compiled: Fit in C (`fusion_c`, the same results to round-off) when a C compiler
+            and the efforts' kernels are there; False: numpy.
     """
 
     def __init__(self, efforts: ActuatorEfforts, accelerometers: tuple[LinkAccelerometer, ...],
-                 base_std: float, prior_std):
+                 base_std: float, prior_std, compiled: bool = True):
         self.efforts = efforts
         self.accelerometers = tuple(accelerometers)
         prior = np.asarray(prior_std, float)[AXES]
@@ -64,6 +70,16 @@ class LinkFusion:
         self._floor = np.repeat([a.accelerometer.bias ** 2 + float(base_std) ** 2
                                  + MODEL_STD ** 2 for a in self.accelerometers], 3)
         self.std = prior.copy()
+        self._weights_of: dict[int, tuple] = {}  # `_weights`: a handful of sample counts
+        lib = fusion_c.compiled_fusion() if compiled else None
+        self._c = None
+        if lib is not None:  # the fit's inputs and outputs in buffers C reads and writes
+            m = 3 * len(self.accelerometers)
+            self._mean, self._w = np.zeros(m), np.zeros(m)
+            self._prior_diag = np.ascontiguousarray(self._prior_info.diagonal())
+            self._io = np.zeros(N_SERVO_AXES + len(AXES))
+            self._row, self._row_at = None, 0
+            self._c = bind(lib.link_fuse, m, self._mean, self._w, self._prior_diag, self._io)
 
     def accelerations(self, state: MachineState, readings: Samples | None) -> np.ndarray:
         """``state.qdd`` with the four crane axes' fitted to the accelerometers' tick means.
@@ -71,24 +87,48 @@ class LinkFusion:
         Without readings this tick (or with a non-finite one) the encoders' estimate stays.
         """
         qdd = state.qdd.copy()
-        if readings is None or not len(readings):
+        if readings is None:
             return qdd
-        mean = np.add.reduce(readings.value, 0) / len(readings)
+        value = readings.value
+        n = value.shape[0]
+        if not n:
+            return qdd
+        mean = np.add.reduce(value, 0) / n
         if not np.isfinite(mean).all():
             return qdd
-        n = len(readings)
+        if self._c is not None:
+            row = self.efforts.point_specific_forces_row(state, self._mounts)
+            if row is not None:
+                return self._fit_c(qdd, row, mean, n)
         a, b = self.efforts.point_specific_forces(state, self._mounts)
-        u_e = qdd[:N_SERVO_AXES]
-        residual = mean - a @ u_e - b
+        residual = mean - a @ qdd[:N_SERVO_AXES] - b
         a = a[:, AXES]
-        w = 1.0 / (self._variance / n + self._floor)
-        info = a.T @ (w[:, None] * a) + self._prior_info
-        try:
-            cov = np.linalg.inv(info)
-        except np.linalg.LinAlgError:
-            return qdd
+        w, w_column = self._weights(n)
+        cov = inv(a.T @ (w_column * a) + self._prior_info)
         du = cov @ (a.T @ (w * residual))
         if np.isfinite(du).all():
-            qdd[AXES] += du
-            self.std = np.sqrt(np.diag(cov))
+            qdd[_AXES_SLICE] += du
+            self.std = np.sqrt(cov.diagonal())
         return qdd
+
+    def _fit_c(self, qdd: np.ndarray, row: np.ndarray, mean: np.ndarray,
+               n: int) -> np.ndarray:
+        """`accelerations`' fit in C (`fusion_c`) on the points kernel's output ``row``."""
+        if row is not self._row:  # this thread's kernel buffer: the same one every tick
+            self._row, self._row_at = row, row.ctypes.data
+        self._mean[:] = mean
+        self._w[:] = self._weights(n)[0]
+        io = self._io
+        io[:N_SERVO_AXES] = qdd[:N_SERVO_AXES]
+        if self._c(self._row_at) == 0:
+            qdd[_AXES_SLICE] = io[_AXES_SLICE]
+            self.std = io[N_SERVO_AXES:].copy()
+        return qdd
+
+    def _weights(self, n: int) -> tuple[np.ndarray, np.ndarray]:
+        """The readings' weights of a tick of ``n`` samples, (3 k,) and as a column (kept)."""
+        hit = self._weights_of.get(n)
+        if hit is None:
+            w = 1.0 / (self._variance / n + self._floor)
+            hit = self._weights_of[n] = (w, w[:, None])
+        return hit

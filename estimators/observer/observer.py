@@ -37,14 +37,16 @@ import numpy as np
 from estimators.efforts import ActuatorEfforts
 from estimators.errors import EstimatorError
 from estimators.linearization import N_GENERALIZED
-from estimators.observer import link_fusion
-from estimators.observer._states import machine_state, wheel_contacts, with_fields
+from estimators.observer import filters_c, link_fusion
+from estimators.observer._states import StateBuffer, wheel_contacts, with_fields
 from estimators.observer._vec3 import ground_normal as _ground_normal
 from estimators.observer._vec3 import norm
 from estimators.observer.base_filter import ANGULAR_ACCELERATION_TIME_CONSTANT, BaseFilter
+from estimators.observer.crane_pressures import SLIDING_SPEED, CranePressures
 from estimators.observer.joint_filter import JointFilter
 from estimators.observer.payload_rls import EXPECTED_PICK_TICKS, PayloadRLS, without_seal_friction
 from estimators.uncertainty import StateUncertainty, model_normal_forces
+from models.cbuild import bind
 from models.coordinates import N_INDEPENDENT
 from models.description import Machine
 from models.numeric import clip
@@ -66,13 +68,15 @@ CONTACT_TICKS = 3
 CONTACT_LANDING_N = 2000.0  # [N] above this once, a lifted wheel has landed (an impact)
 WHEEL_ACCELERATION_TIME_CONSTANT = 0.05  # [s]
 _LIFT, _TILT = 3, 4  # independent coordinates of the lift and tilt cylinders
-SLIDING_SPEED = 4e-3  # [m/s] stroke speed above which a seal slides (the observer's estimate)
 SLIDING_FRICTION_STD = 0.2  # std of a sliding seal's friction about its rating [-]
 PAYLOAD_FILTER_TIME = 0.05  # [s] low-pass of the payload regression (`Observer._filtered`)
 EVENT_VARIANCE_SCALE = 0.1  # filtered over raw innovation variance: 0.01 still, 0.05-0.08 moving
 _PRESS_LIFT_TILT = [PRESSURE_CYLINDERS.index("lift"), PRESSURE_CYLINDERS.index("tilt")]
-_CRANE_CYLINDERS = np.array([2, 3, 4])  # slew, lift, tilt: independent coordinates
-_PRESS_CRANE = [PRESSURE_CYLINDERS.index(c) for c in ("slew", "lift", "tilt")]
+_NO_FORCES = np.zeros(5)  # [N] the cylinders' forces before any pressure reading
+_NO_FORCES.flags.writeable = False
+_ONES = np.ones(4)  # the first tick's "previous" forces (`_longitudinal`: an even split)
+_ALL_FOUR = np.ones(4, bool)  # the flags' estimate: every wheel down (shared, read-only)
+_ALL_FOUR.flags.writeable = False
 # Per tick the observer works on a handful of numbers: where numpy's per-call cost (~1 us)
 # dominated, the arithmetic is on Python floats in the same order (`_vec3`: the same results,
 # bit for bit); matrix products and solves stay numpy's.
@@ -113,20 +117,25 @@ class Observer:
         initial_payload: Prior of the payload [kg] (the empty grapple's mass is a fair one);
             None: the description's.
         initial_payload_std: Its std [kg].
+        compiled: Run the filters' and the fit's arithmetic in C (`filters_c`,
+            `fusion_c`: the same results to round-off) when a C compiler is there; False:
+            Python and numpy.
     """
 
-    crane_from_pressures = True  # `_crane_accelerations`; False: the encoders' alone
+    crane_from_pressures = True  # `crane_pressures`; False: the encoders' alone
 
     def __init__(self, machine: Machine, spec: SensorSpec, force_model,
-                 initial_payload: float | None = None, initial_payload_std: float = 150.0):
+                 initial_payload: float | None = None, initial_payload_std: float = 150.0,
+                 compiled: bool = True):
         if not isinstance(spec, SensorSpec) or spec.oracle:
             raise EstimatorError("the observer needs a sensor suite with sensors (not oracle)")
         self.machine, self.spec, self.force_model = machine, spec, force_model
-        self.base = BaseFilter(spec.imu.position, machine.gravity, machine.wheel_radius)
+        self.base = BaseFilter(spec.imu.position, machine.gravity, machine.wheel_radius,
+                               compiled=compiled)
         dt_pos = 1.0 / spec.stroke.rate
         noise = np.r_[np.full(N_LINEAR_AXES, spec.stroke.sample_std),
                       np.full(N_SERVO_AXES - N_LINEAR_AXES, spec.angle.sample_std)]
-        self.joints = JointFilter(N_SERVO_AXES, dt_pos, noise)
+        self.joints = JointFilter(N_SERVO_AXES, dt_pos, noise, compiled=compiled)
         self.efforts = ActuatorEfforts(machine)
         areas = cylinder_areas(machine)
         a_norm = np.hypot(areas[:, 0], areas[:, 1])
@@ -178,6 +187,11 @@ class Observer:
                                            "wheel_is_sphere", True))
         # Constant per tick: areas, ranges, the error model (checked once), the crane rows.
         self._area_a, self._area_b = areas[:, 0].copy(), areas[:, 1].copy()
+        self._filters_c = filters_c.compiled_filters() if compiled else None
+        self._forces_c = None
+        if self._filters_c is not None:
+            self._forces = np.zeros(len(PRESSURE_CYLINDERS))
+            self._bind_forces(8)
         self._q_lo = machine.coordinates.lower[:N_SERVO_AXES]
         self._q_hi = machine.coordinates.upper[:N_SERVO_AXES]
         accel_std, qd_std = self._uncertainty_const
@@ -186,12 +200,12 @@ class Observer:
             suspension_force=np.sqrt(self._force_std[:2] ** 2 + self._force_bias[:2] ** 2
                                      + self._friction_std[:2] ** 2))
         self._seal_lift_tilt = self._seal[_PRESS_LIFT_TILT].tolist()
-        self._crane_rows: dict[tuple, tuple] = {}
+        self.crane = CranePressures(self.efforts, self._seal)
         # The link accelerometers' predictions carry the base's acceleration errors, its
         # angular acceleration's through the lever arm to the crane (`LINK_LEVER`).
         base_std = float(np.hypot(accel_std[0], link_fusion.LINK_LEVER * accel_std[3]))
         self.links = (link_fusion.LinkFusion(self.efforts, spec.link_accelerometers, base_std,
-                                             qdd_std) if has_links else None)
+                                             qdd_std, compiled) if has_links else None)
 
     # ------------------------------------------------------------------ uncertainty
     def _uncertainty_parts(self) -> tuple[np.ndarray, np.ndarray]:
@@ -241,19 +255,22 @@ class Observer:
             return dataclasses.replace(self._last, stale=True)
 
     def _update(self, r: SensorReadings) -> ObserverEstimate:
-        if not all(np.isfinite(s.value).all() for s in (r.wheel_speeds, r.drive_torques)):
+        wheel_speeds, drive_torques = r.wheel_speeds.value, r.drive_torques.value
+        if not (np.isfinite(wheel_speeds).all() and np.isfinite(drive_torques).all()):
             raise EstimatorError("wheel-speed or drive-torque readings hold NaN or inf")
         t = r.time
         dt = 0.0 if self._last_time is None else t - self._last_time
-        wheels = r.wheel_speeds.value[-1] if len(r.wheel_speeds) else None
-        self.base.update(t, r.angular_rate.value, r.specific_force.value, wheels)
-        n_press = len(r.pressures)
-        stale = len(r.positions) == 0 or n_press == 0
-        if len(r.positions):
-            self.joints.update(r.positions.value)
-            x = self.joints.predict(max(t - r.positions.time[-1], 0.0))
+        wheels = wheel_speeds[-1] if wheel_speeds.shape[0] else None
+        base = self.base
+        base.update(t, r.angular_rate.value, r.specific_force.value, wheels)
+        positions, p = r.positions, r.pressures.value
+        n_pos, n_press = positions.value.shape[0], p.shape[0]
+        stale = n_pos == 0 or n_press == 0
+        if n_pos:
+            self.joints.update(positions.value)
+            x = self.joints.predict_rows(max(t - positions.time[-1], 0.0))
         else:
-            x = self.joints.predict(0.0)
+            x = self.joints.predict_rows(0.0)
         if wheels is not None:
             left, right = wheels.tolist()
             rate = [left, left, right, right]  # FL, RL, FR, RR
@@ -263,29 +280,26 @@ class Observer:
                                    in zip(self._wheel_acc, rate, self._wheel_rate)]
             self._wheel_rate = rate
         self._wheel_angle = [q + dt * w for q, w in zip(self._wheel_angle, self._wheel_rate)]
-        if n_press:  # `cylinder_force`, mean over the tick
-            p = r.pressures.value
-            forces = np.add.reduce(p[:, 0::2] * self._area_a - p[:, 1::2] * self._area_b,
-                                   0) / n_press
-            if not np.isfinite(forces).all():
-                raise EstimatorError("pressure readings hold NaN or inf")
-            self._suspension = forces
-        forces = self._suspension if self._suspension is not None else np.zeros(5)
-        q = np.empty(N_INDEPENDENT)
-        q[:N_SERVO_AXES] = clip(x[:, 0], self._q_lo, self._q_hi)
-        q[N_SERVO_AXES:] = self._wheel_angle
-        qd = np.concatenate([x[:, 1], self._wheel_rate])
-        base = self.base
-        state = machine_state(
-            np.zeros(3), base.rotation.copy(), base.twist, base.acceleration, q, qd,
-            np.concatenate([x[:, 2], self._wheel_acc]), t, forces[:2].copy(),
-            r.servo_setpoint)
+        if n_press:
+            self._suspension = self._cylinder_forces(p)
+        forces = self._suspension if self._suspension is not None else _NO_FORCES
+        # The state's float fields in one buffer: q, qd, qdd are the rows of `joints`.
+        buf = StateBuffer()
+        buf.set_base(base.rotation, base.motion())
+        joints = buf.joints
+        joints[:, :N_SERVO_AXES] = x
+        joints[:, N_SERVO_AXES:] = (self._wheel_angle, self._wheel_rate, self._wheel_acc)
+        q = joints[0, :N_SERVO_AXES]
+        clip(q, self._q_lo, self._q_hi, out=q)
+        buf.set_suspension(forces)
+        state = buf.state(t, r.servo_setpoint)
         if self.links is not None:  # the crane's accelerations from the link accelerometers
             state = with_fields(state, qdd=self.links.accelerations(state,
                                                                      r.link_specific_force))
         # Payload from the lift and tilt cylinders.
         f0, y = self.efforts.payload_regressor(state)
         f = forces.tolist()
+        qd = state.qd
         measured, band = without_seal_friction([f[i] for i in _PRESS_LIFT_TILT],
                                                (qd[_LIFT], qd[_TILT]), self._seal_lift_tilt,
                                                SLIDING_SPEED)
@@ -293,27 +307,26 @@ class Observer:
                                                    y[_LIFT:_TILT + 1]), band)
         mass = min(max(self.payload.mass, 0.0), 1e4)
         if self.crane_from_pressures:
-            state = with_fields(state, qdd=self._crane_accelerations(state, forces, mass))
+            state = with_fields(state, qdd=self.crane.accelerations(state, forces, mass))
         self.force_model.payload_mass = mass
-        if len(r.drive_torques):
-            self._drive = (np.add.reduce(r.drive_torques.value, 0)
-                           / len(r.drive_torques)).tolist()
+        if drive_torques.shape[0]:
+            self._drive = (np.add.reduce(drive_torques, 0) / drive_torques.shape[0]).tolist()
         # The wheels' centres from the geometry (without contacts the estimator gives their
         # lowest points), the contact points below them along the ground's normal, then the
         # four-wheel forces at those points for the flags.
         lowest = self.force_model.contact_points(state)
         points, normal = self._contact_points(lowest, base.rotation)
-        normals = np.array([normal] * 4)
-        previous = self._last.forces_four if self._last is not None else np.ones(4)
-        traction = np.zeros((4, 3))
-        traction[:, 0] = self._longitudinal(previous)
-        all_four = wheel_contacts(np.ones(4, bool), traction, points, normals)
+        normals = np.empty((4, 3))
+        normals[:] = normal
+        finite = bool(np.isfinite(points).all()) and all(map(math.isfinite, normal))
+        previous = self._last.forces_four if self._last is not None else _ONES
+        all_four = wheel_contacts(_ALL_FOUR, self._longitudinal(previous), points, normals,
+                                  finite)
         four = np.asarray(model_normal_forces(
             self.force_model, with_fields(state, contacts=all_four)), float)
         self._contacts(four)
-        traction = np.zeros((4, 3))
-        traction[:, 0] = self._longitudinal(four)
-        contacts = wheel_contacts(np.array(self._in_contact), traction, points, normals)
+        contacts = wheel_contacts(np.array(self._in_contact), self._longitudinal(four), points,
+                                  normals, finite)
         state = with_fields(state, contacts=contacts)
         std = self.payload.std
         unc = self._uncertainty.with_payload_mass(std)
@@ -321,55 +334,35 @@ class Observer:
         self._last = ObserverEstimate(state, mass, std, self.payload.event, unc, four, stale)
         return self._last
 
-    def _crane_accelerations(self, state: MachineState, forces: np.ndarray,
-                             mass: float) -> np.ndarray:
-        """``state.qdd``, the sliding slew, lift and tilt cylinders' from their pressures.
+    def _cylinder_forces(self, p: np.ndarray) -> np.ndarray:
+        """`models.sensing.cylinder_force` [N] (5,), the mean over the tick's samples (k, 10).
 
-        The crane's dynamics (`estimators.efforts`, at the estimated payload) give each
-        cylinder's force affine in the axes' accelerations, ``F = E u + e_0``; a sliding
-        cylinder's pressures report ``F`` plus its seals' friction against the motion. The
-        sliding cylinders' ``u`` solve their rows with every other axis at the encoders'
-        estimate. Measured against MuJoCo's accelerations: the slew's comes out at 0.015
-        m/s^2 RMS against the Kalman filter's 0.041; the lift's and tilt's are no closer
-        (0.06 against 0.045), but they make the closure's inertial forces consistent with
-        the measured cylinder forces, which is what the normal forces need (closure error
-        2.45 -> 1.49 % on the rough run). A cylinder standing still keeps the encoders'
-        value (its seals hold an unknown force up to their rating).
+        In C (`filters_c.cylinder_forces`: numpy's operations and order, the same bits)
+        when compiled: the samples are copied into a bound buffer (cheaper than their
+        address).
+
+        Raises:
+            EstimatorError: A force is not finite.
         """
-        sliding = tuple(abs(v) > SLIDING_SPEED for v in state.qd[2:5].tolist())
-        qdd = state.qdd.copy()
-        if not any(sliding):
-            return qdd
-        self.efforts.payload_mass = mass
-        e, e0 = self.efforts.affine(state)
-        rows, press, seal, ix_known, ix_rows, known = self._crane_pattern(sliding)
-        speeds = state.qd[rows]
-        rhs = (forces[press] - seal * np.sign(speeds) - e0[rows] - e[ix_known] @ qdd[known])
-        try:
-            u = np.linalg.solve(e[ix_rows], rhs)
-        except np.linalg.LinAlgError:
-            return qdd
-        if np.isfinite(u).all():
-            qdd[rows] = u
-        return qdd
+        k = p.shape[0]
+        if self._forces_c is None:
+            forces = np.add.reduce(p[:, 0::2] * self._area_a - p[:, 1::2] * self._area_b,
+                                   0) / k
+            if not np.isfinite(forces).all():
+                raise EstimatorError("pressure readings hold NaN or inf")
+            return forces
+        if k > self._pressures.shape[0]:
+            self._bind_forces(2 * k)
+        self._pressures[:k] = p
+        if self._forces_c(k):
+            raise EstimatorError("pressure readings hold NaN or inf")
+        return self._forces.copy()
 
-    def _crane_pattern(self, sliding: tuple) -> tuple:
-        """The index arrays of `_crane_accelerations` for one pattern of sliding cylinders.
-
-        (rows, their pressure channels, seal ratings, the known and the free blocks' index
-        tuples, the known axes); made once per pattern (eight at most).
-        """
-        hit = self._crane_rows.get(sliding)
-        if hit is None:
-            mask = np.array(sliding)
-            rows = _CRANE_CYLINDERS[mask]
-            free = np.zeros(N_SERVO_AXES, bool)
-            free[rows] = True
-            known = np.flatnonzero(~free)
-            hit = self._crane_rows[sliding] = (
-                rows, np.array(_PRESS_CRANE)[mask], self._seal[_PRESS_CRANE][mask],
-                np.ix_(rows, known), np.ix_(rows, rows), known)
-        return hit
+    def _bind_forces(self, rows: int) -> None:
+        """`filters_c.cylinder_forces` bound to a buffer of ``rows`` pressure samples."""
+        self._pressures = np.zeros((rows, 2 * len(PRESSURE_CYLINDERS)))
+        self._forces_c = bind(self._filters_c.cylinder_forces, self._area_a, self._area_b,
+                              self._forces, self._pressures)
 
     def _filtered(self, dt: float, measured, f0, y):
         """The payload regression's three sides through one first-order low-pass.
@@ -430,13 +423,15 @@ class Observer:
             n = norm(up)
             up = [v / n for v in up]
         r = self.machine.wheel_radius
-        centre = lowest + r * np.array(up)
-        normal = _ground_normal(centre.tolist(), self._in_contact)
+        r_up = [r * v for v in up]  # on floats: `lowest + r * up` as numpy would round it
+        centre = [[a + b for a, b in zip(row, r_up)] for row in lowest.tolist()]
+        normal = _ground_normal(centre, self._in_contact)
         if not self._sphere_wheels:  # a disc touches in its own plane
             normal[1] = 0.0
             n = norm(normal)
             normal = [v / n for v in normal]
-        return centre - r * np.array(normal), normal
+        r_normal = [r * v for v in normal]
+        return np.array([[a - b for a, b in zip(row, r_normal)] for row in centre]), normal
 
     def _contacts(self, forces: np.ndarray) -> None:
         f = forces.tolist()

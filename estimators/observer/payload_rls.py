@@ -37,6 +37,8 @@ import math
 
 import numpy as np
 
+from estimators.observer._linalg import solve
+
 __all__ = ["EVENT_CHI2", "EVENT_MASS_CHANGE", "EVENT_TICKS", "EVENT_WINDOW",
            "EXPECTED_PICK_SECONDS", "EXPECTED_PICK_TICKS",
            "FORGETTING_TIME", "PayloadRLS", "without_seal_friction"]
@@ -61,7 +63,7 @@ def _gain(y0: float, y1: float, p, r0: float, r1: float, rhs) -> np.ndarray:
     """``solve(outer(y, y) p + diag(r), rhs)``."""
     yy = y0 * y1 * p
     s = np.array([[y0 * y0 * p + r0, yy + 0.0], [yy + 0.0, y1 * y1 * p + r1]])
-    return np.linalg.solve(s, rhs)
+    return solve(s, rhs)  # NaN if singular: not with r0, r1 > 0
 
 
 def _sign(x: float) -> float:
