@@ -59,6 +59,26 @@ def test_constant_twist_base_prediction():
     np.testing.assert_allclose(p - s.base_position, [2.0, 2.0, 0.0], atol=1e-12)
 
 
+
+def test_base_pose_is_pinocchios_product_to_the_bit():
+    """`predict_base_pose` (kept start pose, exp6 of the vector) = ``T_0 exp6(Motion)``."""
+    import pinocchio as pin
+
+    from models import build_reference_machine
+    machine = build_reference_machine()
+    rng = np.random.default_rng(5)
+    states = [make_state(machine, base_twist=rng.normal(0.0, 1.0, 6)).replace(
+        base_position=rng.normal(0.0, 3.0, 3),
+        base_rotation=pin.Quaternion(*rng.normal(size=4)).normalized().toRotationMatrix())
+        for _ in range(4)]
+    for k in range(40):  # alternating states: the kept pose follows the state asked for
+        s, t = states[k % 3 if k < 20 else k % 4], float(rng.uniform(0.0, 2.0))
+        m = (pin.SE3(s.base_rotation, s.base_position)
+             * pin.exp6(pin.Motion(s.base_twist * t)))
+        p, R = predict_base_pose(s, t)
+        np.testing.assert_array_equal(p, m.translation)
+        np.testing.assert_array_equal(R, m.rotation)
+
 def _mpc(machine, model, **force):
     cfg = ControllerConfig(force=ForceConfig(**force))
     return make_controller("mpc-full", machine, cfg, force_model=model)

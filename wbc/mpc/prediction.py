@@ -129,13 +129,27 @@ class CondensedPrediction:
         return u, q, vel
 
 
+class _StartPose:
+    """``T_0`` of the last state asked for (`predict_base_pose`).
+
+    The MPC predicts from one state several times a tick; a state is immutable, so the same
+    object has the same pose.
+    """
+
+    state: MachineState | None = None
+    pose: pin.SE3 | None = None
+
+
 def predict_base_pose(state: MachineState, t: float) -> tuple[np.ndarray, np.ndarray]:
     """Pose of fb after ``t`` [s] at the state's constant twist: (position (3,), R (3, 3)).
 
-    ``T(t) = T_0 exp(t [v; w])`` (right-multiplied: the twist is in fb).
+    ``T(t) = T_0 exp(t [v; w])`` (right-multiplied: the twist is in fb). ``exp6`` of the
+    6-vector is the one of its `pin.Motion` (the same function), without that object.
     """
-    m0 = pin.SE3(state.base_rotation, state.base_position)
-    mt = m0 * pin.exp6(pin.Motion(state.base_twist * t))
+    if _StartPose.state is not state:
+        _StartPose.pose = pin.SE3(state.base_rotation, state.base_position)
+        _StartPose.state = state
+    mt = _StartPose.pose * pin.exp6(state.base_twist * t)
     return mt.translation.copy(), mt.rotation.copy()
 
 
