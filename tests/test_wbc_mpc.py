@@ -251,3 +251,37 @@ def test_weights_can_change_between_ticks(machine):
     J = task.compute_jacobian(ctx)
     np.testing.assert_allclose(P2 - P1, J.T @ ((w2 - w1)[:, None] * J), atol=1e-8)
     assert not np.allclose(P1, P2)
+
+
+def test_kept_and_direct_task_costs_are_the_products(machine):
+    """Every MPC task's ``(H, c)`` = `Task.compute_qp_objective`'s ``J^T W J, J^T W e``.
+
+    The cached Hessians and constant costs, and the costs written without ``J^T W``
+    (`HorizonInputTask`, `HorizonSmoothnessTask`: one nonzero term an entry), on random
+    references and previous accelerations: c to the bit (an exact zero added to a finite
+    sum changes nothing but a zero's sign, which `assert_array_equal` does not see).
+    """
+    from dataclasses import replace
+
+    from wbc.context import ReferenceSample
+    from wbc.tasks import SlackPenaltyTask
+    from wbc.tasks.task import Task
+    st = make_state(machine)
+    c = _mpc(machine, _extension_model(machine, st))
+    c.set_goal(JointGoal(crane=st.q[2:9] + 0.1))
+    c.step(st)
+    rng = np.random.default_rng(3)
+    ctx = c.context(st)
+    N = ctx.layout.n_steps
+    for k in range(5):
+        ref = ReferenceSample(*(rng.normal(0.0, 1.0, (N + 1, 9)) for _ in range(3)))
+        ctx = replace(ctx, reference=ref, previous_acceleration=rng.normal(0.0, 1.0, 9)
+                      * (k > 0))
+        for task in c.planner.tasks:
+            if task.is_active(ctx):
+                H, cost = task.compute_qp_objective(ctx)
+                H_ref, cost_ref = Task.compute_qp_objective(task, ctx)
+                if isinstance(task, SlackPenaltyTask):  # and its linear term
+                    cost_ref[ctx.layout.slack] += task.linear
+                np.testing.assert_array_equal(H, H_ref)
+                np.testing.assert_array_equal(cost, cost_ref, err_msg=type(task).__name__)

@@ -115,8 +115,12 @@ class ConstantJacobianTask(Task):
             self._c = None
             self._cache_key = key
         if not self.constant_error:
-            return self._H, self._jw @ self.compute_error(ctx)
+            return self._H, self._linear_term(ctx)
         if self._c is None:
-            self._c = self._jw @ self.compute_error(ctx)
+            self._c = self._linear_term(ctx)
             self._c.setflags(write=False)
         return self._H, self._c
+
+    def _linear_term(self, ctx) -> np.ndarray:
+        """``c = J^T W e``, (n,), from the kept ``J^T W`` (the cache is current)."""
+        return self._jw @ self.compute_error(ctx)
