@@ -14,6 +14,9 @@ from wbc.force_models.protocol import NormalForceModel, contact_flags
 __all__ = ["ForceRowsConstraint", "check_margins", "check_thresholds",
            "lifted_wheel_thresholds"]
 
+# `np.all`, `np.any` of 1-D arrays without their Python dispatch (margins: every tick)
+_all, _any = np.logical_and.reduce, np.logical_or.reduce
+
 
 def check_thresholds(thresholds) -> np.ndarray:
     """Per-wheel thresholds [N] as a finite array of shape (4,), order FL, RL, FR, RR."""
@@ -30,7 +33,7 @@ def check_margins(value, n: int, what: str) -> np.ndarray:
         ConfigurationError: Anything else; the message names ``what``.
     """
     m = np.asarray(value, float)
-    if m.shape != (n,) or not np.all(np.isfinite(m)) or np.any(m < 0):
+    if m.shape != (n,) or not _all(np.isfinite(m)) or _any(m < 0):
         raise ConfigurationError(f"{what} must be {n} finite forces >= 0 [N], got {value!r}")
     return m
 
