@@ -285,3 +285,17 @@ def test_kept_and_direct_task_costs_are_the_products(machine):
                     cost_ref[ctx.layout.slack] += task.linear
                 np.testing.assert_array_equal(H, H_ref)
                 np.testing.assert_array_equal(cost, cost_ref, err_msg=type(task).__name__)
+
+
+def test_node_times_are_kept_per_prediction(machine):
+    st = make_state(machine)
+    planner = _mpc(machine, _extension_model(machine, st)).planner
+    pred = planner.prediction
+    for _ in range(2):
+        np.testing.assert_array_equal(planner.node_times, np.r_[0.0, pred.times])
+        np.testing.assert_array_equal(planner.node_starts, np.r_[pred.start_times,
+                                                                 pred.horizon])
+        assert not planner.node_times.flags.writeable
+        assert not planner.node_starts.flags.writeable
+    planner.prediction = CondensedPrediction(planner.layout, 2 * pred.step_lengths)
+    assert planner.node_times[-1] == pytest.approx(2 * pred.horizon)
