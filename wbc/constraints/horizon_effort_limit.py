@@ -54,8 +54,6 @@ class HorizonEffortLimit(Constraint):
         self.upper = (1.0 - margin) * hi
         self.n_linearizations = int(n_linearizations)
         self.axes = np.asarray(axes, int)
-        self._rows = axis_index(self.axes)  # the same rows, a slice where contiguous
-        self._key_axes = self.axes  # the axes `_rows` is of
         self._scale = np.maximum(hi, -lo)[self.axes]
         self._structure_cache: tuple | None = None
         self.last_efforts: np.ndarray | None = None
@@ -64,7 +62,8 @@ class HorizonEffortLimit(Constraint):
         """What the layout and step lengths fix, built once for them.
 
         ``(steps j, which j each step uses, flat indices of the upper and the lower rows'
-        entries in G, G's `DiagonalBlocks`)``.
+        entries in G, G's `DiagonalBlocks`, the bounded axes as an index: a slice where
+        contiguous)``.
         """
         key = (ctx.structure_key, self.n_linearizations, self.axes.tobytes())
         if self._structure_cache is None or self._structure_cache[0] != key:
@@ -83,14 +82,15 @@ class HorizonEffortLimit(Constraint):
             flat = [np.ravel_multi_index(np.broadcast_arrays(k, side, row, col), shape)
                     .reshape(N, -1) for side in (0, 1)]
             diagonal = DiagonalBlocks(2 * self.axes.size, lay.step(0).start, na, N)
-            self._structure_cache = (key, steps, which, flat, diagonal)
+            self._structure_cache = (key, steps, which, flat, diagonal,
+                                     axis_index(self.axes))
         return self._structure_cache[1:]
 
     def compute(self, ctx) -> Inequality:
         """Two rows per crane axis and step: ``+-E u_k <= bound - e_0``."""
         lay, pred = ctx.layout, ctx.prediction
         N = lay.n_steps
-        steps, which, (upper_idx, lower_idx), diagonal = self._structure(ctx)
+        steps, which, (upper_idx, lower_idx), diagonal, ax = self._structure(ctx)
         if steps.size > 1:  # the nominal trajectory is needed beyond the measured state
             qn, vn = pred.trajectory(ctx.q, ctx.qd, ctx.nominal_inputs,
                                      (ctx.free_positions, ctx.free_velocities))
@@ -101,7 +101,6 @@ class HorizonEffortLimit(Constraint):
             st = (ctx.state if j == 0 else
                   nominal_state(ctx.state, pred.start_times[j], qn[j], vn[j]))
             maps.append(self.efforts.affine(st))
-        ax = self._rows if self._key_axes is self.axes else axis_index(self.axes)
         na_b = self.axes.size
         # Every step at once: E_k (N, bounded axes, axes) and e_0,k of the node each step uses
         # (one node: its arrays, which the operations broadcast over the steps).

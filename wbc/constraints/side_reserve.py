@@ -115,7 +115,8 @@ class SideReserveConstraint(Constraint):
     def _structure(self, ctx, n_nodes: int, sides: np.ndarray) -> tuple:
         """What the layout, the nodes and the sides fix, kept while they stay the same.
 
-        ``nodes``: the nodes after now (`nodes`: a slice, they are the last ones);
+        ``nodes``: the nodes after now (`nodes`), a slice where they follow each other
+        (they do: the last ones);
         ``(first, second)``: the pairs' first and second wheels (slices, `SIDE_PAIRS`);
         ``decay``, ``exp(-t_k / T)`` per row; the slack entries of G.
         """

@@ -130,14 +130,13 @@ class CondensedPrediction:
 
 
 class _StartPose:
-    """``T_0`` of the last state asked for (`predict_base_pose`).
+    """``(state, T_0)`` of the last state asked for (`predict_base_pose`), or None.
 
     The MPC predicts from one state several times a tick; a state is immutable, so the same
-    object has the same pose.
+    object has the same pose. One tuple, replaced whole: a thread reads a consistent pair.
     """
 
-    state: MachineState | None = None
-    pose: pin.SE3 | None = None
+    kept: tuple | None = None
 
 
 def predict_base_pose(state: MachineState, t: float) -> tuple[np.ndarray, np.ndarray]:
@@ -146,10 +145,10 @@ def predict_base_pose(state: MachineState, t: float) -> tuple[np.ndarray, np.nda
     ``T(t) = T_0 exp(t [v; w])`` (right-multiplied: the twist is in fb). ``exp6`` of the
     6-vector is the one of its `pin.Motion` (the same function), without that object.
     """
-    if _StartPose.state is not state:
-        _StartPose.pose = pin.SE3(state.base_rotation, state.base_position)
-        _StartPose.state = state
-    mt = _StartPose.pose * pin.exp6(state.base_twist * t)
+    kept = _StartPose.kept
+    if kept is None or kept[0] is not state:
+        kept = _StartPose.kept = (state, pin.SE3(state.base_rotation, state.base_position))
+    mt = kept[1] * pin.exp6(state.base_twist * t)
     return mt.translation.copy(), mt.rotation.copy()
 
 
