@@ -59,6 +59,26 @@ def test_constant_twist_base_prediction():
     np.testing.assert_allclose(p - s.base_position, [2.0, 2.0, 0.0], atol=1e-12)
 
 
+
+def test_base_pose_is_pinocchios_product_to_the_bit():
+    """`predict_base_pose` (kept start pose, exp6 of the vector) = ``T_0 exp6(Motion)``."""
+    import pinocchio as pin
+
+    from models import build_reference_machine
+    machine = build_reference_machine()
+    rng = np.random.default_rng(5)
+    states = [make_state(machine, base_twist=rng.normal(0.0, 1.0, 6)).replace(
+        base_position=rng.normal(0.0, 3.0, 3),
+        base_rotation=pin.Quaternion(*rng.normal(size=4)).normalized().toRotationMatrix())
+        for _ in range(4)]
+    for k in range(40):  # alternating states: the kept pose follows the state asked for
+        s, t = states[k % 3 if k < 20 else k % 4], float(rng.uniform(0.0, 2.0))
+        m = (pin.SE3(s.base_rotation, s.base_position)
+             * pin.exp6(pin.Motion(s.base_twist * t)))
+        p, R = predict_base_pose(s, t)
+        np.testing.assert_array_equal(p, m.translation)
+        np.testing.assert_array_equal(R, m.rotation)
+
 def _mpc(machine, model, **force):
     cfg = ControllerConfig(force=ForceConfig(**force))
     return make_controller("mpc-full", machine, cfg, force_model=model)
@@ -231,3 +251,51 @@ def test_weights_can_change_between_ticks(machine):
     J = task.compute_jacobian(ctx)
     np.testing.assert_allclose(P2 - P1, J.T @ ((w2 - w1)[:, None] * J), atol=1e-8)
     assert not np.allclose(P1, P2)
+
+
+def test_kept_and_direct_task_costs_are_the_products(machine):
+    """Every MPC task's ``(H, c)`` = `Task.compute_qp_objective`'s ``J^T W J, J^T W e``.
+
+    The cached Hessians and constant costs, and the costs written without ``J^T W``
+    (`HorizonInputTask`, `HorizonSmoothnessTask`: one nonzero term an entry), on random
+    references and previous accelerations: c to the bit (an exact zero added to a finite
+    sum changes nothing but a zero's sign, which `assert_array_equal` does not see).
+    """
+    from dataclasses import replace
+
+    from wbc.context import ReferenceSample
+    from wbc.tasks import SlackPenaltyTask
+    from wbc.tasks.task import Task
+    st = make_state(machine)
+    c = _mpc(machine, _extension_model(machine, st))
+    c.set_goal(JointGoal(crane=st.q[2:9] + 0.1))
+    c.step(st)
+    rng = np.random.default_rng(3)
+    ctx = c.context(st)
+    N = ctx.layout.n_steps
+    for k in range(5):
+        ref = ReferenceSample(*(rng.normal(0.0, 1.0, (N + 1, 9)) for _ in range(3)))
+        ctx = replace(ctx, reference=ref, previous_acceleration=rng.normal(0.0, 1.0, 9)
+                      * (k > 0))
+        for task in c.planner.tasks:
+            if task.is_active(ctx):
+                H, cost = task.compute_qp_objective(ctx)
+                H_ref, cost_ref = Task.compute_qp_objective(task, ctx)
+                if isinstance(task, SlackPenaltyTask):  # and its linear term
+                    cost_ref[ctx.layout.slack] += task.linear
+                np.testing.assert_array_equal(H, H_ref)
+                np.testing.assert_array_equal(cost, cost_ref, err_msg=type(task).__name__)
+
+
+def test_node_times_are_kept_per_prediction(machine):
+    st = make_state(machine)
+    planner = _mpc(machine, _extension_model(machine, st)).planner
+    pred = planner.prediction
+    for _ in range(2):
+        np.testing.assert_array_equal(planner.node_times, np.r_[0.0, pred.times])
+        np.testing.assert_array_equal(planner.node_starts, np.r_[pred.start_times,
+                                                                 pred.horizon])
+        assert not planner.node_times.flags.writeable
+        assert not planner.node_starts.flags.writeable
+    planner.prediction = CondensedPrediction(planner.layout, 2 * pred.step_lengths)
+    assert planner.node_times[-1] == pytest.approx(2 * pred.horizon)

@@ -322,3 +322,22 @@ def test_context_from_state_sets_every_field(machine, limits):
     np.testing.assert_array_equal(ctx.brake, limits.brake_acceleration(ctx.qd, DT))
     with pytest.raises(dataclasses.FrozenInstanceError):
         ctx.dt = 0.02
+
+
+def test_kept_costs_of_constant_errors_are_the_formula(machine, limits):
+    """`SpeedScaleTask`, `SlackPenaltyTask`: ``c`` kept (read-only) = ``J^T W e`` (+ rho_1)."""
+    from wbc.tasks import SlackPenaltyTask, SpeedScaleTask
+    layout = VariableLayout(speed_scale=True, n_slack=4)
+    ctx = _ctx(machine, limits, layout=layout)
+    slack, scale = SlackPenaltyTask(7.0, 3.0), SpeedScaleTask(5.0)
+    for task, linear in ((slack, 7.0), (scale, 0.0)):
+        for _ in range(2):  # built, then kept
+            H, c = task.compute_qp_objective(ctx)
+            jac = task.compute_jacobian(ctx)
+            want = (jac.T * task.weight) @ task.compute_error(ctx)
+            if linear:
+                want[layout.slack] += linear
+            np.testing.assert_array_equal(c, want)
+            assert not c.flags.writeable
+    slack.linear = 9.0  # a new rho_1 is seen at once
+    assert slack.compute_qp_objective(ctx)[1][layout.slack].tolist() == [9.0] * 4

@@ -14,6 +14,9 @@ from wbc.force_models.protocol import NormalForceModel, contact_flags
 __all__ = ["ForceRowsConstraint", "check_margins", "check_thresholds",
            "lifted_wheel_thresholds"]
 
+# `np.all`, `np.any` of 1-D arrays without their Python dispatch (margins: every tick)
+_all, _any = np.logical_and.reduce, np.logical_or.reduce
+
 
 def check_thresholds(thresholds) -> np.ndarray:
     """Per-wheel thresholds [N] as a finite array of shape (4,), order FL, RL, FR, RR."""
@@ -30,7 +33,7 @@ def check_margins(value, n: int, what: str) -> np.ndarray:
         ConfigurationError: Anything else; the message names ``what``.
     """
     m = np.asarray(value, float)
-    if m.shape != (n,) or not np.all(np.isfinite(m)) or np.any(m < 0):
+    if m.shape != (n,) or not _all(np.isfinite(m)) or _any(m < 0):
         raise ConfigurationError(f"{what} must be {n} finite forces >= 0 [N], got {value!r}")
     return m
 
@@ -115,9 +118,7 @@ class ForceRowsConstraint(Constraint):
         rows, thresholds, slack = self._rows(ctx, flags, A.shape[0] // 4)
         if rows is None:
             return None
-        G = np.take(A, rows, axis=0)
-        np.negative(G, out=G)
-        G /= self.force_scale
+        G = np.divide(A[rows], -self.force_scale)  # = -A[rows] / f_s, the same bits
         h = (b[rows] - thresholds) / self.force_scale
         if slack is not None:
             G[slack] = -1.0
@@ -129,6 +130,8 @@ class ForceRowsConstraint(Constraint):
         None rows without a wheel in contact. The rows and slack entries are kept while the
         flags, the constrained nodes and the slacks stay the same (they change when a wheel
         lifts); the thresholds, which the MPC's margin moves every tick, are made each call.
+        The rows are an index array, or a slice where they follow each other (all four
+        wheels in contact).
         """
         nodes, later = self._constrained_nodes(ctx, n_nodes)
         lay = ctx.layout
@@ -141,11 +144,13 @@ class ForceRowsConstraint(Constraint):
             else:
                 rows = (4 * nodes[:, None] + wheels[None, :]).ravel()
                 slack = None
+                if rows.size and np.array_equal(rows, np.arange(rows[0], rows[0] + rows.size)):
+                    rows = slice(int(rows[0]), int(rows[0]) + rows.size)  # no index copy
                 if lay.slack is not None:
                     col = lay.slack.start + np.tile(wheels, nodes.size)
                     if lay.n_slack >= 8:  # the later nodes' own slacks
                         col = col + 4 * np.repeat(later, wheels.size)
-                    slack = (np.arange(rows.size), col)
+                    slack = (np.arange(col.size), col)
                 self._rows_cache = (key, (rows, wheels, slack))
         rows, wheels, slack = self._rows_cache[1]
         if rows is None:

@@ -21,7 +21,7 @@ from __future__ import annotations
 import numpy as np
 
 from estimators.efforts import ActuatorEfforts, effort_ranges
-from wbc.axes import CRANE_AXES, N_AXES
+from wbc.axes import CRANE_AXES, N_AXES, axis_index
 from wbc.constraints.constraint import Constraint, DiagonalBlocks, Inequality
 from wbc.errors import ConfigurationError
 from wbc.mpc.prediction import nominal_state
@@ -62,7 +62,8 @@ class HorizonEffortLimit(Constraint):
         """What the layout and step lengths fix, built once for them.
 
         ``(steps j, which j each step uses, flat indices of the upper and the lower rows'
-        entries in G, G's `DiagonalBlocks`)``.
+        entries in G, G's `DiagonalBlocks`, the bounded axes as an index: a slice where
+        contiguous)``.
         """
         key = (ctx.structure_key, self.n_linearizations, self.axes.tobytes())
         if self._structure_cache is None or self._structure_cache[0] != key:
@@ -77,17 +78,19 @@ class HorizonEffortLimit(Constraint):
             k = np.arange(N)[:, None, None]
             row = np.arange(self.axes.size)[None, :, None]
             col = lay.step(0).start + np.arange(N * na).reshape(N, 1, na)
-            flat = [np.ravel_multi_index(np.broadcast_arrays(k, side, row, col), shape).ravel()
-                    for side in (0, 1)]
+            # (N, bounded axes x axes): a row of values assigned to them broadcasts over N
+            flat = [np.ravel_multi_index(np.broadcast_arrays(k, side, row, col), shape)
+                    .reshape(N, -1) for side in (0, 1)]
             diagonal = DiagonalBlocks(2 * self.axes.size, lay.step(0).start, na, N)
-            self._structure_cache = (key, steps, which, flat, diagonal)
+            self._structure_cache = (key, steps, which, flat, diagonal,
+                                     axis_index(self.axes))
         return self._structure_cache[1:]
 
     def compute(self, ctx) -> Inequality:
         """Two rows per crane axis and step: ``+-E u_k <= bound - e_0``."""
         lay, pred = ctx.layout, ctx.prediction
         N = lay.n_steps
-        steps, which, (upper_idx, lower_idx), diagonal = self._structure(ctx)
+        steps, which, (upper_idx, lower_idx), diagonal, ax = self._structure(ctx)
         if steps.size > 1:  # the nominal trajectory is needed beyond the measured state
             qn, vn = pred.trajectory(ctx.q, ctx.qd, ctx.nominal_inputs,
                                      (ctx.free_positions, ctx.free_velocities))
@@ -98,19 +101,19 @@ class HorizonEffortLimit(Constraint):
             st = (ctx.state if j == 0 else
                   nominal_state(ctx.state, pred.start_times[j], qn[j], vn[j]))
             maps.append(self.efforts.affine(st))
-        ax = self.axes
-        na_b = ax.size
+        na_b = self.axes.size
         # Every step at once: E_k (N, bounded axes, axes) and e_0,k of the node each step uses
         # (one node: its arrays, which the operations broadcast over the steps).
+        # Rows scaled to the effort range (the solver's tolerance is absolute): one step's
+        # (bounded axes x axes) values, or every step's.
         if len(maps) == 1:
             E1 = maps[0][0][ax]
             E, e0 = E1[None], maps[0][1][ax]
-            scaled = np.tile((E1 / self._scale[:, None]).ravel(), N)
+            scaled = (E1 / self._scale[:, None]).ravel()
         else:
             E = np.stack([m[0] for m in maps])[which][:, ax]
             e0 = np.stack([m[1] for m in maps])[which][:, ax]
-            # Rows scaled to the effort range (the solver's tolerance is absolute).
-            scaled = (E / self._scale[:, None]).ravel()
+            scaled = (E / self._scale[:, None]).reshape(N, -1)
         brake = (E @ ctx.brake_inputs[:N, :, None])[:, :, 0] + e0
         hi = np.maximum(self.upper[ax], brake)
         lo = np.minimum(self.lower[ax], brake)
@@ -118,7 +121,9 @@ class HorizonEffortLimit(Constraint):
         G = np.zeros(2 * N * na_b * lay.n)
         G[upper_idx] = scaled
         G[lower_idx] = -scaled
-        h = np.stack([(hi - e0) / self._scale, (e0 - lo) / self._scale], axis=1)
+        h = np.empty((N, 2, na_b))
+        np.divide(hi - e0, self._scale, out=h[:, 0])
+        np.divide(e0 - lo, self._scale, out=h[:, 1])
         G = G.reshape(2 * N * na_b, lay.n)
         h = h.reshape(2 * N * na_b)
         E0, e00 = maps[0]

@@ -12,6 +12,7 @@ from wbc.errors import ConfigurationError
 __all__ = ["SIDE_PAIRS", "SideReserveConstraint"]
 
 SIDE_PAIRS = np.array([[0, 1], [2, 3]])  # left (FL, RL), right (FR, RR) in the wheel order
+_all = np.logical_and.reduce  # `np.all` of a 1-D array without its Python dispatch
 
 
 class SideReserveConstraint(Constraint):
@@ -89,18 +90,22 @@ class SideReserveConstraint(Constraint):
         """The rows of the sides with a reserve, after now; None: inactive."""
         fc = self.force_constraint
         lay = ctx.layout
-        sides = np.flatnonzero(self.reserve > 0)
+        sides = (self.reserve > 0).nonzero()[0]
         if (sides.size == 0 or fc.last_forces_map is None or fc.last_in_contact is None
-                or not np.all(fc.last_in_contact)):
+                or not _all(fc.last_in_contact)):
             return None
         if lay.slack is None or lay.n_slack < 10:
             raise ConfigurationError("SideReserveConstraint needs a layout with 10 slacks")
         A, b = fc.last_forces_map
-        first, second, pairs, n_nodes, decay, slack = self._structure(ctx, A.shape[0] // 4,
-                                                                      sides)
-        A_sum = A[first] + A[second]  # node-major, then side
-        b_sum = b[first] + b[second]
-        need = np.tile(fc.thresholds[pairs].sum(axis=1) + self.reserve[sides], n_nodes)
+        n_nodes = A.shape[0] // 4
+        nodes, first, second, decay, slack = self._structure(ctx, n_nodes, sides)
+        # (node, side) rows of each pair's two wheels, node-major: by basic indexing
+        A_3, b_2 = A.reshape(n_nodes, 4, -1), b.reshape(n_nodes, 4)
+        A_sum = (A_3[nodes, first] + A_3[nodes, second]).reshape(-1, A.shape[1])
+        b_sum = (b_2[nodes, first] + b_2[nodes, second]).reshape(-1)
+        need = np.empty((b_sum.size // sides.size, sides.size))  # every node's the same
+        need[:] = fc.thresholds[first] + fc.thresholds[second] + self.reserve[sides]
+        need = need.reshape(-1)
         short = np.maximum(need - (A_sum @ self.nominal(ctx) + b_sum), 0.0)
         wanted = need - short * decay
         G = np.divide(A_sum, -fc.force_scale, out=A_sum)
@@ -110,18 +115,20 @@ class SideReserveConstraint(Constraint):
     def _structure(self, ctx, n_nodes: int, sides: np.ndarray) -> tuple:
         """What the layout, the nodes and the sides fix, kept while they stay the same.
 
-        ``(first, second)``: the rows of each pair's two wheels in the force map, node-major;
-        the ``pairs`` (m, 2); the node count; ``decay``, ``exp(-t_k / T)`` per row; the
-        slack entries of G.
+        ``nodes``: the nodes after now (`nodes`), a slice where they follow each other
+        (they do: the last ones);
+        ``(first, second)``: the pairs' first and second wheels (slices, `SIDE_PAIRS`);
+        ``decay``, ``exp(-t_k / T)`` per row; the slack entries of G.
         """
         key = (ctx.structure_key, n_nodes, sides.tobytes(), ctx.dt, self.time_constant)
         if self._cache is None or self._cache[0] != key:
             nodes, times = self.nodes(ctx, n_nodes)
-            pairs = SIDE_PAIRS[sides]  # (m, 2)
-            rows = 4 * nodes[:, None, None] + pairs[None, :, :]  # (k, m, 2)
+            pairs = SIDE_PAIRS[sides]  # (m, 2): a side's wheels, the sides' 2 apart
+            first, second = (slice(int(pairs[0, w]), int(pairs[-1, w]) + 1, 2) for w in (0, 1))
+            at = (slice(int(nodes[0]), int(nodes[-1]) + 1)
+                  if nodes.size and nodes[-1] - nodes[0] == nodes.size - 1 else nodes)
             decay = np.repeat(np.exp(-times / self.time_constant), sides.size)
-            slack = (np.arange(rows.shape[0] * rows.shape[1]),
+            slack = (np.arange(nodes.size * sides.size),
                      ctx.layout.slack.start + 8 + np.tile(sides, nodes.size))
-            self._cache = (key, (rows[..., 0].reshape(-1), rows[..., 1].reshape(-1), pairs,
-                                 nodes.size, decay, slack))
+            self._cache = (key, (at, first, second, decay, slack))
         return self._cache[1]

@@ -2,9 +2,7 @@
 
 from __future__ import annotations
 
-import numpy as np
-
-from wbc.constraints.constraint import Box, Constraint
+from wbc.constraints.constraint import Box, Constraint, unbounded
 from wbc.errors import ConfigurationError
 
 __all__ = ["SpeedScaleLimit"]
@@ -41,7 +39,6 @@ class SpeedScaleLimit(Constraint):
         """Box on s; None when the layout has no speed scale."""
         if ctx.layout.scale is None:
             return None
-        n = ctx.layout.n
-        lb, ub = np.full(n, -np.inf), np.full(n, np.inf)
+        lb, ub = unbounded(ctx.layout.n)
         lb[ctx.layout.scale], ub[ctx.layout.scale] = self.bounds(ctx.speed_scale, ctx.dt)
         return Box(lb, ub)

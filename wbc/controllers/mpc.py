@@ -242,7 +242,7 @@ class MpcController(Controller):
         """
         measured = state.servo_setpoint
         if (self.warp is None or self.servo is None or self.servo.setpoint is None
-                or measured is None or not np.all(fb.in_contact)):
+                or measured is None or not np.logical_and.reduce(fb.in_contact)):
             return fb
         shift = self.warp @ (self.servo.setpoint - np.asarray(measured, float)[:N_AXES])
         return ForceFeedback(fb.forces + shift, fb.model_forces, fb.in_contact, fb.time)
@@ -266,8 +266,7 @@ class MpcController(Controller):
                 if self.warp_drift is not None:
                     self.warp_drift.update(fb, float(q[SUSPENSION_AXES[0]]
                                                      - q[SUSPENSION_AXES[1]]))
-                    pred = self.planner.prediction
-                    drift = self.warp_drift.drift(np.append(pred.start_times, pred.horizon))
+                    drift = self.warp_drift.drift(self.planner.node_starts)
             if self.governor is not None:
                 self._govern(fb, state)
             if self.side_swing is not None and self.side_reserve is not None:

@@ -50,6 +50,10 @@ from models.numeric import clip
 
 __all__ = ["SideLoadFluctuation", "SpeedGovernor"]
 
+# `np.all`, `np.any`, `np.min` of 1-D arrays without their Python dispatch (the same ufunc
+# reductions; this runs every tick)
+_all, _any, _min = np.logical_and.reduce, np.logical_or.reduce, np.minimum.reduce
+
 _MIN_SCALE = 0.05  # below this the commanded speed cannot be inferred from the measured one
 
 
@@ -112,17 +116,17 @@ class SpeedGovernor:
             speed: The base's horizontal speed now [m/s].
             in_contact: Contact flags (4,): only wheels on the ground count.
         """
-        if self.mean is None or not np.any(self.per_speed > 0):
+        if self.mean is None or not _any(self.per_speed > 0):
             return 1.0
         v_nom = speed / max(self.scale_lag, _MIN_SCALE)
-        if not (np.isfinite(v_nom) and v_nom > 0):
+        if not (math.isfinite(v_nom) and v_nom > 0):
             return 1.0
         need = self.z * self.per_speed * v_nom  # the fluctuation at s = 1 [N]
         wheels = np.asarray(in_contact, bool) & (need > 0)
-        if not np.any(wheels):
+        if not _any(wheels):
             return 1.0
         headroom = self.mean - np.asarray(thresholds, float)
-        return float(clip(np.min(headroom[wheels] / need[wheels]), 0.0, 1.0))
+        return float(clip(_min(headroom[wheels] / need[wheels]), 0.0, 1.0))
 
 
 class SideLoadFluctuation:
@@ -198,7 +202,8 @@ class SideLoadFluctuation:
 
 def _usable(forces: np.ndarray, in_contact, speed: float) -> bool:
     """All four wheels on the ground, the loads and the speed finite."""
-    return bool(np.all(in_contact) and np.all(np.isfinite(forces)) and np.isfinite(speed))
+    return bool(_all(np.asarray(in_contact, bool).reshape(-1)) and _all(np.isfinite(forces))
+                and math.isfinite(speed))
 
 
 def _swing_step(measure, x: np.ndarray, dt: float, moving: bool) -> bool:

@@ -78,6 +78,7 @@ class MpcPlanner:
         self._plan: np.ndarray | None = None  # (N, 9) inputs of the last plan
         self._plan_time = 0.0
         self._shift: tuple | None = None  # (elapsed time, the plan's step for each step)
+        self._kept_times: tuple | None = None  # (prediction, `node_times`, `node_starts`)
 
     @property
     def horizon(self) -> float:
@@ -86,8 +87,28 @@ class MpcPlanner:
 
     @property
     def node_times(self) -> np.ndarray:
-        """Times of the reference samples relative to now: 0, t_1, ..., t_N [s]."""
-        return np.concatenate([[0.0], self.prediction.times])
+        """Times of the reference samples relative to now: 0, t_1, ..., t_N [s].
+
+        Read-only, made once per prediction (asked every tick).
+        """
+        return self._times()[0]
+
+    @property
+    def node_starts(self) -> np.ndarray:
+        """The step start times and the horizon: t_0, ..., t_{N-1}, t_N [s], read-only."""
+        return self._times()[1]
+
+    def _times(self) -> tuple[np.ndarray, np.ndarray]:
+        """(`node_times`, `node_starts`), kept while the prediction is the same."""
+        pred = self.prediction
+        kept = self._kept_times
+        if kept is None or kept[0] is not pred:
+            times = (np.concatenate([[0.0], pred.times]),
+                     np.append(pred.start_times, pred.horizon))
+            for t in times:
+                t.setflags(write=False)
+            self._kept_times = kept = (pred, *times)
+        return kept[1:]
 
     def reset(self) -> None:
         """Forget the previous plan and the solver workspace."""

@@ -129,13 +129,26 @@ class CondensedPrediction:
         return u, q, vel
 
 
+class _StartPose:
+    """``(state, T_0)`` of the last state asked for (`predict_base_pose`), or None.
+
+    The MPC predicts from one state several times a tick; a state is immutable, so the same
+    object has the same pose. One tuple, replaced whole: a thread reads a consistent pair.
+    """
+
+    kept: tuple | None = None
+
+
 def predict_base_pose(state: MachineState, t: float) -> tuple[np.ndarray, np.ndarray]:
     """Pose of fb after ``t`` [s] at the state's constant twist: (position (3,), R (3, 3)).
 
-    ``T(t) = T_0 exp(t [v; w])`` (right-multiplied: the twist is in fb).
+    ``T(t) = T_0 exp(t [v; w])`` (right-multiplied: the twist is in fb). ``exp6`` of the
+    6-vector is the one of its `pin.Motion` (the same function), without that object.
     """
-    m0 = pin.SE3(state.base_rotation, state.base_position)
-    mt = m0 * pin.exp6(pin.Motion(state.base_twist * t))
+    kept = _StartPose.kept
+    if kept is None or kept[0] is not state:
+        kept = _StartPose.kept = (state, pin.SE3(state.base_rotation, state.base_position))
+    mt = kept[1] * pin.exp6(state.base_twist * t)
     return mt.translation.copy(), mt.rotation.copy()
 
 

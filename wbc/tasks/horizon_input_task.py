@@ -24,6 +24,21 @@ class HorizonInputTask(ConstantJacobianTask):
         """``-a_ref`` at the step start times."""
         return -ctx.reference.acceleration[:-1].ravel()
 
+    def _linear_term(self, ctx) -> np.ndarray:
+        """``W e`` on the accelerations, zeros elsewhere: ``J^T W e`` written directly.
+
+        J selects the accelerations, so each entry of the product ``J^T W e`` has one
+        nonzero term, ``w_i e_i``; its other terms are exact zeros, which leave a finite sum
+        as it is (at most a zero's sign differs, and adding into the QP's ``q``, which
+        starts at +0, does not keep that): the same QP without reading ``J^T W``
+        (n x N n_axes), most of it zeros, every tick.
+        """
+        lay = ctx.layout
+        c = np.zeros(lay.n)
+        np.multiply(self.compute_weight(ctx), self.compute_error(ctx),
+                    out=c[lay.accelerations])
+        return c
+
     def compute_jacobian(self, ctx) -> np.ndarray:
         """Identity on all accelerations."""
         lay = ctx.layout

@@ -34,6 +34,7 @@ class HorizonLevelingTask(ConstantJacobianTask):
             raise ConfigurationError(f"force_scale must be > 0, got {force_scale}")
         super().__init__(weight)
         self.force_scale = float(force_scale)
+        self._kept_row: tuple | None = None  # (warp bytes, F_s, `_row`)
 
     def is_active(self, ctx) -> bool:
         """Active when the context has a warp model."""
@@ -44,7 +45,14 @@ class HorizonLevelingTask(ConstantJacobianTask):
         return (ctx.structure_key, ctx.warp.tobytes(), self.force_scale)
 
     def _row(self, ctx) -> np.ndarray:
-        return DIAGONAL @ ctx.warp / (4.0 * self.force_scale)  # (9,)
+        """``n^T W / (4 F_s)``, (9,), kept while the warp matrix and F_s stay the same."""
+        warp = ctx.warp.tobytes()
+        kept = self._kept_row
+        if kept is None or kept[0] != warp or kept[1] != self.force_scale:
+            row = DIAGONAL @ ctx.warp / (4.0 * self.force_scale)
+            row.setflags(write=False)
+            self._kept_row = kept = (warp, self.force_scale, row)
+        return kept[2]
 
     def compute_error(self, ctx) -> np.ndarray:
         """Zero-input warp change (with the terrain's drift) minus the wanted one, (N,)."""

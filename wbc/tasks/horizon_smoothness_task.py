@@ -28,6 +28,20 @@ class HorizonSmoothnessTask(ConstantJacobianTask):
         e[:ctx.layout.n_axes] = -ctx.previous_acceleration
         return e
 
+    def _linear_term(self, ctx) -> np.ndarray:
+        """``J^T W e`` written directly: ``W e`` on step 0's inputs, zeros elsewhere.
+
+        Only e's first step (``-u_prev``) is nonzero, and there J's first differences have
+        one entry per column (1 on step 0's own inputs): each entry of the product has
+        one nonzero term, ``w_i e_i`` (see `HorizonInputTask._linear_term`).
+        """
+        lay = ctx.layout
+        e = self.compute_error(ctx)
+        c = np.zeros(lay.n)
+        step = lay.step(0)
+        np.multiply(self.compute_weight(ctx)[step], e[step], out=c[step])
+        return c
+
     def compute_jacobian(self, ctx) -> np.ndarray:
         """First differences of the inputs."""
         lay = ctx.layout

@@ -22,11 +22,14 @@ class SlackPenaltyTask(ConstantJacobianTask):
         quadratic: rho_2 (> 0; keeps the Hessian definite).
     """
 
+    constant_error = True
+
     def __init__(self, linear: float = 1e3, quadratic: float = 1e2):
         if not (linear > 0 and quadratic > 0):
             raise ConfigurationError(f"slack penalties must be > 0, got {linear}, {quadratic}")
         super().__init__(quadratic)
         self.linear = float(linear)
+        self._with_linear: tuple | None = None  # (the base's c, rho_1, c with rho_1)
 
     def is_active(self, ctx) -> bool:
         """Active when the layout has slacks."""
@@ -43,8 +46,15 @@ class SlackPenaltyTask(ConstantJacobianTask):
         return jac
 
     def compute_qp_objective(self, ctx) -> Objective:
-        """Quadratic part from the base class plus the linear term ``rho_1`` on eps."""
+        """Quadratic part from the base class plus the linear term ``rho_1`` on eps.
+
+        ``c`` is read-only and kept while the base class keeps its own and ``rho_1`` stays.
+        """
         H, c = super().compute_qp_objective(ctx)
-        c = c.copy()
-        c[ctx.layout.slack] += self.linear
-        return H, c
+        kept = self._with_linear
+        if kept is None or kept[0] is not c or kept[1] != self.linear:
+            full = c.copy()
+            full[ctx.layout.slack] += self.linear
+            full.setflags(write=False)
+            self._with_linear = kept = (c, self.linear, full)
+        return H, kept[2]

@@ -15,6 +15,8 @@ class SpeedScaleTask(ConstantJacobianTask):
     Works with any layout that has a speed scale (whole-body QP and MPC).
     """
 
+    constant_error = True
+
     def __init__(self, weight: float = 10.0):
         super().__init__(weight)
 

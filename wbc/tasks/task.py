@@ -80,8 +80,11 @@ class ConstantJacobianTask(Task):
 
     The cache is keyed by `structure_key` (``ctx.structure_key``: layout and time steps)
     and the weights. The cached ``H`` is read-only: `wbc.qp.QPBuilder` reuses its Hessian
-    sum while the tasks return the same arrays.
+    sum while the tasks return the same arrays. A subclass whose error depends only on what
+    its Jacobian depends on sets `constant_error`: then ``c`` is cached (read-only) too.
     """
+
+    constant_error = False  # True: the error depends on the structure and weights alone
 
     def structure_key(self, ctx):
         """What the Jacobian depends on (a subclass adds its own constants)."""
@@ -93,6 +96,7 @@ class ConstantJacobianTask(Task):
         self._weight = None  # the weight array the cache was made with
         self._jw = None
         self._H = None
+        self._c = None  # with `constant_error`: ``J^T W e``, read-only
 
     def compute_qp_objective(self, ctx) -> Objective:
         """(H, c) with ``H`` and ``J^T W`` cached per structure."""
@@ -108,5 +112,15 @@ class ConstantJacobianTask(Task):
             self._jw = jac.T * weight
             self._H = self._jw @ jac
             self._H.setflags(write=False)
+            self._c = None
             self._cache_key = key
-        return self._H, self._jw @ self.compute_error(ctx)
+        if not self.constant_error:
+            return self._H, self._linear_term(ctx)
+        if self._c is None:
+            self._c = self._linear_term(ctx)
+            self._c.setflags(write=False)
+        return self._H, self._c
+
+    def _linear_term(self, ctx) -> np.ndarray:
+        """``c = J^T W e``, (n,), from the kept ``J^T W`` (the cache is current)."""
+        return self._jw @ self.compute_error(ctx)
