@@ -9,6 +9,8 @@ slip) keeps it: ``sum_i max(g_i lb_i, g_i ub_i) + |g|_1 tol <= h``. That changes
 the solution: the box implies the row. The remaining rows are warm started from the previous
 solve's multipliers (DAQP's ``dual_start``: its initial working set is the rows with nonzero
 multipliers) when the problem has the same rows; a warm solve that fails is retried cold.
+The rows outside constant blocks are screened in C when a compiler is there
+(`wbc.solvers.screen_c`: numpy's kept rows, proven row by row, else numpy decides).
 
 DAQP solves the least-distance form of the QP: with ``H = L L'`` and ``x = L^-T (u - v)``,
 ``v = L^-1 f``, the cost is ``|u|^2 / 2`` up to a constant and every row ``g x`` reads
@@ -42,6 +44,7 @@ from scipy.linalg import lapack
 
 from models.numeric import clip
 from wbc.errors import ConfigurationError, QPSolveError
+from wbc.solvers.screen_c import CompiledScreen, compiled_screen
 from wbc.solvers.solution import QPSolution
 
 __all__ = ["DaqpBackend", "redundant_rows"]
@@ -170,6 +173,9 @@ class DaqpBackend:
         self._rows_structure: tuple | None = None  # (key, (constant mask, gaps))
         self._rows_t: tuple | None = None  # (key, G's rows times L^-T, block products)
         self._ldp_rows: tuple | None = None  # (L^-T, buffer of DAQP's rows)
+        self.compiled = True  # screen in C when it can (`wbc.solvers.screen_c`); False: numpy
+        self._screen_c: tuple | None = None  # (structure key, `CompiledScreen` or None)
+        self._kept_rest: tuple | None = None  # the C screening's (kept, rest) rows
 
     def reset(self) -> None:
         """Forget the previous multipliers (the next solve is cold)."""
@@ -250,7 +256,7 @@ class DaqpBackend:
         if self._box is None or self._box[0] != bounds:
             self._box = (bounds, _box_terms(lo, hi, n, self.tolerances["primal_tol"]))
         box = self._box[1]
-        worst = np.empty(m_in)
+        worst = np.empty(m_in)  # the gap rows' sums written only by the numpy screening
         screens = {}
         for first, block in blocks:
             entry = self._screens.get(id(block))
@@ -266,9 +272,26 @@ class DaqpBackend:
             screens[id(block)] = entry
             worst[first:first + block.shape[0]] = entry[3]
         self._screens = screens  # the blocks of this problem only
-        for a, b in self._structure(m_in, blocks, diagonal)[1]:
+        _, gaps, done = self._structure(m_in, blocks, diagonal)
+        c = self._compiled_screen(G, h, gaps, done)
+        found = None if c is None else c.run(G, worst, h, box)
+        self._kept_rest = found  # `_times_factor`'s rows, if the C pass found them
+        if found is not None:
+            return found[0]
+        for a, b in gaps:
             worst[a:b] = _worst(G[a:b], box)
         return np.flatnonzero(~(worst <= h))
+
+    def _compiled_screen(self, G: np.ndarray, h: np.ndarray, gaps: tuple, done: np.ndarray
+                         ) -> CompiledScreen | None:
+        """The C screening (`wbc.solvers.screen_c`) for this structure; None: numpy's."""
+        if not (G.dtype == h.dtype == np.float64 and G.strides[1] == 8 and h.strides[0] == 8
+                and self.compiled):
+            return None
+        key = (self._rows_structure[0], G.shape[1])
+        if self._screen_c is None or self._screen_c[0] != key:
+            self._screen_c = (key, compiled_screen(G.shape[0], G.shape[1], gaps, done))
+        return self._screen_c[1]
 
     def _times_factor(self, G: np.ndarray, kept: np.ndarray, inv_t: np.ndarray,
                       blocks: tuple, out: np.ndarray, diagonal: tuple = ()) -> None:
@@ -281,6 +304,8 @@ class DaqpBackend:
         whose rows are multiplied block by block (`_diagonal_product`).
         """
         constant, _, done = self._structure(G.shape[0], blocks, diagonal)
+        found = self._kept_rest
+        rest = found[1] if found is not None and found[0] is kept else kept[~done[kept]]
         products = {}
         for first, block in blocks:
             entry = self._products.get(id(block))
@@ -301,7 +326,6 @@ class DaqpBackend:
         for first, d in diagonal:
             if d.rows >= 2:
                 _diagonal_product(G, first, d, inv_t, buffer)
-        rest = kept[~done[kept]]
         if rest.size == 1:  # as two rows: numpy makes one row a matrix-vector product,
             rest = np.repeat(rest, 2)  # which sums in another order than the matrix product
         if rest.size:
