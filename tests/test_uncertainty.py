@@ -91,7 +91,7 @@ def test_suspension_sensitivity_from_one_packed_row_equals_the_estimates(estimat
                                                                           monkeypatch):
     """The stepped forces of one packed kernel row (`estimators.suspension_response`) give the
     sensitivity of three separate estimates to the bit, for one estimator and for the
-    payload estimator's mix of its two anchors."""
+    payload estimator (its payload a kernel input); its df/dm too."""
     from estimators import uncertainty
     from estimators.payload import PayloadEstimator
 
