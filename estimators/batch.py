@@ -21,6 +21,7 @@ from estimators.errors import EstimatorInputError, SingularSystemError, range_me
 from estimators.results import BatchEstimate
 from estimators.tipping import least_squares
 from models.errors import StateError
+from models.reference_machine import MAX_PAYLOAD_MASS
 from models.state_batch import StateBatch
 
 __all__ = ["as_batch", "estimate_batch", "pack_rows", "validate_batch"]
@@ -31,7 +32,7 @@ _PATTERNS = ((np.arange(16)[:, None] >> np.arange(4)) & 1).astype(bool)  # row k
 
 
 def estimate_batch(est, states, *, strict: bool = True, chunk: int = 4096,
-                   threads: int = 2) -> BatchEstimate:
+                   threads: int = 2, payload_mass=None) -> BatchEstimate:
     """`NormalForceEstimator.estimate_batch` (see there) of the estimator ``est``."""
     for name, value in (("chunk", chunk), ("threads", threads)):
         if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
@@ -39,6 +40,7 @@ def estimate_batch(est, states, *, strict: bool = True, chunk: int = 4096,
     sb = as_batch(states)
     lay = LAYOUT
     n = len(sb)
+    payload = None if payload_mass is None else _payload_column(payload_mass, n)
     out = np.empty((n, lay.out_size))  # every row is written by the kernel
     kernel = est._kernels.kernel("nf_estimate") if est._kernels is not None else None
     ic = sb.in_contact if sb.in_contact is not None else np.ones((n, 4), bool)
@@ -58,7 +60,7 @@ def estimate_batch(est, states, *, strict: bool = True, chunk: int = 4096,
         sl = slice(lo, min(lo + size, n))
         pattern[sl] = np.packbits(ic[sl], axis=1, bitorder="little")[:, 0]
         if kernel is not None:  # each row assembled, range-checked and evaluated (in C)
-            if not kernel.gather(row_parts(est, sb, sl, table, pattern[sl]), out[sl],
+            if not kernel.gather(row_parts(est, sb, sl, table, pattern[sl], payload), out[sl],
                                  (lay.q.start, *bounds)):
                 out_of_range.append(lo)
         else:
@@ -66,7 +68,7 @@ def estimate_batch(est, states, *, strict: bool = True, chunk: int = 4096,
             if not (np.all(q >= bounds[0]) and np.all(q <= bounds[1])):
                 out_of_range.append(lo)
                 return
-            inp = pack_rows(est, sb, sl, table, pattern[sl])
+            inp = pack_rows(est, sb, sl, table, pattern[sl], payload)
             sel = table.rows(pattern[sl])
             out[sl] = np.array([est._reference_row(row, sel.row(i))
                                 for i, row in enumerate(inp)]).reshape(-1, lay.out_size)
@@ -145,22 +147,23 @@ def _range_bounds(est) -> tuple[np.ndarray, np.ndarray]:
 
 
 def pack_rows(est, sb: StateBatch, sl: slice, table: fd.Selectors,
-              pattern: np.ndarray) -> np.ndarray:
+              pattern: np.ndarray, payload: np.ndarray | None = None) -> np.ndarray:
     """Kernel input rows (n, input size) of the states ``sl`` of a validated batch.
 
     ``table``: `full_dynamics.select_systems` of the 16 contact patterns (`_PATTERNS`);
     ``pattern``: each state's pattern (bit k: wheel k in contact), shape (rows of ``sl``,).
     """
-    return assemble_rows(row_parts(est, sb, sl, table, pattern), len(pattern))
+    return assemble_rows(row_parts(est, sb, sl, table, pattern, payload), len(pattern))
 
 
 def row_parts(est, sb: StateBatch, sl: slice, table: fd.Selectors,
-              pattern: np.ndarray) -> list:
+              pattern: np.ndarray, payload: np.ndarray | None = None) -> list:
     """The kernel input of the states ``sl`` as `Compiled.gather` parts.
 
     In the layout's order (`_symbolic.Layout`): ``(array, None)`` per field (one row repeated
     where the batch has no such field), and ``(table's selector block (16, 16), pattern)``
-    for the selectors (`pack_rows` has the arguments).
+    for the selectors (`pack_rows` has the arguments). ``payload``: every state's payload
+    mass [kg], an (N, 1) column of the whole batch; None: the estimator's.
     """
     twist, acc, qd, qdd = (sb.base_twist[sl], sb.base_acceleration[sl], sb.qd[sl],
                            sb.qdd[sl])
@@ -172,10 +175,24 @@ def row_parts(est, sb: StateBatch, sl: slice, table: fd.Selectors,
               _ZEROS4 if no_point else _ONES4,
               _ZEROS12 if sb.force_in_fb is None else sb.force_in_fb[sl],
               _ZEROS2 if sb.suspension_force is None else sb.suspension_force[sl],
-              est._packer.payload)
+              est._packer.payload if payload is None else payload[sl])
     parts = [(a, None) for a in fields]
     parts.insert(-2, (_selector_block(table, est.D, est.beta), pattern))
     return parts
+
+
+def _payload_column(payload_mass, n: int) -> np.ndarray:
+    """Each row's payload [kg] as the (n, 1) column `row_parts` reads, checked."""
+    m = np.asarray(payload_mass, dtype=float)
+    if m.shape != (n,):
+        raise EstimatorInputError(f"payload_mass must have one mass per state, shape ({n},), "
+                                  f"got {m.shape}")
+    bad = ~((m >= 0.0) & (m <= MAX_PAYLOAD_MASS))  # NaN too
+    if bad.any():
+        i = int(np.flatnonzero(bad)[0])
+        raise EstimatorInputError(f"payload_mass[{i}] = {m[i]!r} kg outside [0, "
+                                  f"{MAX_PAYLOAD_MASS:g}] kg")
+    return np.ascontiguousarray(m[:, None])
 
 
 def _selector_block(table: fd.Selectors, d: float, beta: float) -> np.ndarray:

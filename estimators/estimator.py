@@ -396,7 +396,7 @@ class NormalForceEstimator:
                                   est.mode, clipped, state.time)
 
     def estimate_batch(self, states, *, strict: bool = True, chunk: int = 4096,
-                       threads: int = 2) -> BatchEstimate:
+                       threads: int = 2, payload_mass=None) -> BatchEstimate:
         """Normal forces of a log of states, vectorised.
 
         Args:
@@ -406,16 +406,19 @@ class NormalForceEstimator:
                 least squares and flag it in `BatchEstimate.singular`.
             chunk: States per compiled call.
             threads: Threads over chunks (the compiled code releases the GIL).
+            payload_mass: Each row's payload [kg], shape (N,); None: `payload_mass`.
 
         Returns:
             The `BatchEstimate`.
 
         Raises:
             EstimatorInputError: A field has a wrong shape, NaN/inf, or a stroke is out of
-                range (the message names the field, the rows and the range).
+                range (the message names the field, the rows and the range), or a payload
+                mass outside [0, `MAX_PAYLOAD_MASS`].
             SingularSystemError: With ``strict``, a row's system is singular.
         """
-        return batch.estimate_batch(self, states, strict=strict, chunk=chunk, threads=threads)
+        return batch.estimate_batch(self, states, strict=strict, chunk=chunk, threads=threads,
+                                    payload_mass=payload_mass)
 
 
     # ------------------------------------------------------------------ calibration

@@ -210,19 +210,11 @@ class PayloadEstimator:
     def normal_forces_batch(self, batch, payload, strict: bool = False) -> np.ndarray:
         """Normal forces [N] (N, 4) of a `StateBatch`, each row at its own payload [kg] (N,).
 
-        Two batch evaluations, at the `ANCHOR_MASSES`, interpolated (exact: affine in the
-        mass). ``strict`` as in `NormalForceEstimator.estimate_batch`.
+        One batch evaluation, each row's mass a kernel input. ``strict`` as in
+        `NormalForceEstimator.estimate_batch`.
         """
-        est, mass = self._est, self._est.payload_mass
-        try:
-            est.payload_mass = ANCHOR_MASSES[0]
-            fa = est.estimate_batch(batch, strict=strict).normal_forces
-            est.payload_mass = ANCHOR_MASSES[1]
-            fb = est.estimate_batch(batch, strict=strict).normal_forces
-        finally:
-            est.payload_mass = mass
-        w = (np.asarray(payload, float) - ANCHOR_MASSES[0]) / SPAN
-        return fa + w[:, None] * (fb - fa)
+        return self._est.estimate_batch(batch, strict=strict,
+                                        payload_mass=payload).normal_forces
 
     def payload_sensitivity(self, state: MachineState) -> np.ndarray:
         """``df/dm`` of the normal forces [N/kg], shape (4,) (exact: affine in ``m``).

@@ -91,16 +91,3 @@ def test_cylinder_forces_in_c_are_numpys():
     for obs in (oc, op):
         with pytest.raises(EstimatorError, match="pressure"):
             obs._cylinder_forces(p)
-
-
-def test_imu_means_in_c_are_numpys():
-    """The base filter's tick means in C, random samples, 1 to 11 a stream (past the bound
-    buffer's 8 rows): numpy's own reduction's bits."""
-    f = BaseFilter(np.array([0.8, -0.3, 1.1]), 9.81, 0.55)
-    assert f._c is not None
-    rng = np.random.default_rng(4)
-    for k, m in [(1, 1), (4, 5), (8, 3), (11, 2), (2, 9), (5, 5)]:
-        rates, forces = rng.normal(size=(k, 3)), 9.81 + rng.normal(size=(m, 3))
-        w, s = f._means_c(rates, forces)
-        np.testing.assert_array_equal(w, np.add.reduce(rates, 0) / k)
-        np.testing.assert_array_equal(s, np.add.reduce(forces, 0) / m)

@@ -211,3 +211,23 @@ def test_forces_after_a_linearization_are_the_estimates_bits(fourth):
         assert f.tolist() == fresh.estimate(s).normal_forces.tolist()
         assert not f.flags.writeable
     assert reused == 24
+
+
+def test_a_batch_evaluates_each_row_at_its_own_payload():
+    """`normal_forces_batch`: each row's mass a kernel input, the single estimates' bits;
+    a mass out of range or of the wrong count is refused, naming it."""
+    from estimators.batch import as_batch
+
+    est = PayloadEstimator(MACHINE, fourth="cylinder-force", strokes="clip")
+    rng = np.random.default_rng(12)
+    states = [replace(random_state(MACHINE, rng, max_tilt=0.3, speed=0.5),
+                      suspension_force=rng.uniform(2e4, 6e4, 2)) for _ in range(7)]
+    masses = rng.uniform(0.0, 400.0, len(states))
+    forces = est.normal_forces_batch(as_batch(states), masses)
+    for s, m, f in zip(states, masses, forces):
+        est.payload_mass = float(m)
+        assert f.tolist() == est.estimate(s).normal_forces.tolist()
+    with pytest.raises(EstimatorError, match=r"payload_mass\[2\]"):
+        est.normal_forces_batch(as_batch(states), np.where(np.arange(7) == 2, -1.0, masses))
+    with pytest.raises(EstimatorError, match="one mass per state"):
+        est.normal_forces_batch(as_batch(states), masses[:3])

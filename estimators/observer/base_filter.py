@@ -96,8 +96,6 @@ class BaseFilter:
                                      ATTITUDE_TIME_CONSTANT])
             self._in = np.zeros(10)
             self._c = bind(lib.base_step, self._state, self._consts, self._in)
-            self._lib = lib
-            self._bind_samples(8)
 
     def update(self, time: float, rates: np.ndarray, forces: np.ndarray,
                wheel_speeds: np.ndarray | None) -> None:
@@ -105,11 +103,9 @@ class BaseFilter:
         n_w, n_f = rates.shape[0], forces.shape[0]
         if n_w == 0 or n_f == 0:
             return  # nothing new: keep the state (the caller flags the gap)
-        if self._c is not None:
-            w_arr, f_arr = self._means_c(rates, forces)
-        else:  # `mean(axis=0)`: the same sum (numpy's own reduction) over the same count
-            w_arr = np.add.reduce(rates, 0) / n_w
-            f_arr = np.add.reduce(forces, 0) / n_f
+        # `mean(axis=0)`: the same sum (numpy's own reduction) over the same count
+        w_arr = np.add.reduce(rates, 0) / n_w
+        f_arr = np.add.reduce(forces, 0) / n_f
         w = wx, wy, wz = w_arr.tolist()
         f_p = f_arr.tolist()
         if not all(map(math.isfinite, w + f_p)):
@@ -165,24 +161,6 @@ class BaseFilter:
         self._v = velocity
         self._last_time = time
 
-    def _means_c(self, rates: np.ndarray, forces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """`update`'s tick means in C (`filters_c.imu_means`: numpy's sums, the same bits).
-
-        The samples are copied into a bound buffer (cheaper than taking their address).
-        """
-        k, m = rates.shape[0], forces.shape[0]
-        if max(k, m) > self._samples.shape[1]:
-            self._bind_samples(2 * max(k, m))
-        self._samples[0, :k] = rates
-        self._samples[1, :m] = forces
-        self._means(k, m)
-        return self._in[1:4].copy(), self._in[4:7].copy()
-
-    def _bind_samples(self, rows: int) -> None:
-        """`filters_c.imu_means` bound to a buffer of ``rows`` samples of each stream."""
-        self._samples = np.zeros((2, rows, 3))
-        self._means = bind(self._lib.imu_means, self._in, self._samples, rows)
-
     def _update_c(self, time: float, dt: float, w: list, f_p: list,
                   wheel_speeds: np.ndarray | None) -> None:
         """`update`'s arithmetic after its checks, in C (`filters_c.base_step`)."""
@@ -225,20 +203,18 @@ class BaseFilter:
 
     def motion(self) -> list:
         """[`twist`; `acceleration`] as floats, (12,): the same numbers, no arrays made."""
-        up = self.rotation[2].tolist()
-        g = self.g
-        v, w = self._v, self._w
-        v_dot = [fi - ci - g * ui for fi, ci, ui in zip(self._f, cross(w, v), up)]
-        return [*v, *w, *v_dot, *self._alpha]
+        return [*self._v, *self._w, *self._v_dot(), *self._alpha]
 
     @property
     def acceleration(self) -> np.ndarray:
         """The twist derivative the dynamics get (module docstring), (6,)."""
+        return np.array([*self._v_dot(), *self._alpha])
+
+    def _v_dot(self) -> list:
+        """The linear part of `acceleration`: ``f - w x v - g R^T e_z`` as floats, (3,)."""
         up = self.rotation[2].tolist()
         g = self.g
-        v_dot = tuple(fi - ci - g * ui
-                      for fi, ci, ui in zip(self._f, cross(self._w, self._v), up))
-        return np.array(v_dot + self._alpha)
+        return [fi - ci - g * ui for fi, ci, ui in zip(self._f, cross(self._w, self._v), up)]
 
 
 def _orthonormal(r: np.ndarray) -> np.ndarray:

@@ -138,21 +138,6 @@ int joint_predict(const double* x, long n, double* out, double dt) {
   return 0;
 }
 
-/* BaseFilter.update's tick means: in[1..3] the mean of k rate samples, in[4..6] of m
-   specific-force samples, summed in numpy's order (row after row); buf holds the rates
-   (rows, 3) then the forces (rows, 3). */
-int imu_means(double* in, const double* buf, long rows, long k, long m) {
-  const double* f = buf + 3 * rows;
-  long i, j;
-  for (j = 0; j < 3; ++j) { in[1 + j] = buf[j]; in[4 + j] = f[j]; }
-  for (i = 1; i < k; ++i)
-    for (j = 0; j < 3; ++j) in[1 + j] = in[1 + j] + buf[3 * i + j];
-  for (i = 1; i < m; ++i)
-    for (j = 0; j < 3; ++j) in[4 + j] = in[4 + j] + f[3 * i + j];
-  for (j = 0; j < 3; ++j) { in[1 + j] = in[1 + j] / (double)k; in[4 + j] = in[4 + j] / (double)m; }
-  return 0;
-}
-
 /* Observer._cylinder_forces: out (5) the mean over k samples p (k, 10) of each cylinder's
    p_A A_A - p_B A_B, summed in numpy's order (row after row). Returns 1 if one is not
    finite. */
@@ -193,13 +178,12 @@ int joint_step(double* x, long n, const double* F, const double* K, const double
 """
 
 def compiled_filters():
-    """The loaded `FILTERS_C` (its five functions), or None without a compiler."""
+    """The loaded `FILTERS_C` (its four functions), or None without a compiler."""
     return load_shared(FILTERS_C, "observer_filters", {
         "base_step": ([ctypes.c_void_p] * 3, ctypes.c_int),
         "joint_step": ([ctypes.c_void_p, ctypes.c_long, ctypes.c_void_p, ctypes.c_void_p,
                         ctypes.c_void_p, ctypes.c_long], ctypes.c_int),
         "joint_predict": ([ctypes.c_void_p, ctypes.c_long, ctypes.c_void_p, ctypes.c_double],
                           ctypes.c_int),
-        "cylinder_forces": ([ctypes.c_void_p] * 4 + [ctypes.c_long], ctypes.c_int),
-        "imu_means": ([ctypes.c_void_p] * 2 + [ctypes.c_long] * 3, ctypes.c_int)},
+        "cylinder_forces": ([ctypes.c_void_p] * 4 + [ctypes.c_long], ctypes.c_int)},
         "Python")
