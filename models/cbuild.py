@@ -28,7 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["HOST_OPTIONS", "bind", "cache_dir", "compile_shared", "load_shared"]
+__all__ = ["HOST_OPTIONS", "bind", "cache_dir", "compile_shared", "load_shared", "mujoco_options"]
 
 _log = logging.getLogger(__name__)
 
@@ -65,7 +65,29 @@ def cache_dir() -> Path:
     return Path(base) / "wbc-hdmm"
 
 
-def compile_shared(source: str, name: str, opt: str = "-O2", host: bool = True) -> Path:
+@functools.cache
+def mujoco_options() -> tuple[str, ...]:
+    """Compiler options of a source that calls MuJoCo's C API (``#include <mujoco/mujoco.h>``).
+
+    The headers and the library of the installed ``mujoco`` package: the library the Python
+    bindings have loaded already, so the compiled code and the bindings share one MuJoCo
+    (the bindings' ``MjModel._address`` and ``MjData._address`` are its ``mjModel*`` and
+    ``mjData*``). Its file name carries the version, so the cache key does too.
+
+    Raises:
+        OSError: The package has no headers or no library.
+    """
+    import mujoco
+
+    root = Path(mujoco.__file__).parent
+    libs = sorted(root.glob("libmujoco.so*"))
+    if not (root / "include" / "mujoco" / "mujoco.h").exists() or not libs:
+        raise OSError(f"no MuJoCo headers or library under {root}")
+    return (f"-I{root / 'include'}", str(libs[-1]), f"-Wl,-rpath,{root}")
+
+
+def compile_shared(source: str, name: str, opt: str = "-O2", host: bool = True,
+                   mujoco: bool = False) -> Path:
     """The shared library of C ``source`` (compiled now, or found in the cache).
 
     Args:
@@ -74,21 +96,25 @@ def compile_shared(source: str, name: str, opt: str = "-O2", host: bool = True) 
         opt: The optimisation option.
         host: Build for this host's CPU (`HOST_OPTIONS`), falling back to the portable
             build if the compiler rejects them; False: the portable build.
+        mujoco: The source calls MuJoCo's C API (`mujoco_options`).
 
     Raises:
         OSError, subprocess.SubprocessError: No compiler, or the source did not compile.
     """
+    extra = list(mujoco_options()) if mujoco else []
     if host:
         try:
-            return _build(source, name, [opt, *HOST_OPTIONS], _host_id())
+            return _build(source, name, [opt, *HOST_OPTIONS], _host_id(), extra)
         except subprocess.CalledProcessError:
             pass  # e.g. a compiler without -march=native: the portable build
-    return _build(source, name, [opt], "")
+    return _build(source, name, [opt], "", extra)
 
 
-def _build(source: str, name: str, options: list[str], host_id: str) -> Path:
+def _build(source: str, name: str, options: list[str], host_id: str,
+           extra: list[str]) -> Path:
     cc = os.environ.get("CC", "cc")
-    digest = hashlib.sha256("\0".join([source, cc, *options, host_id]).encode()).hexdigest()
+    digest = hashlib.sha256("\0".join([source, cc, *options, *extra, host_id]).encode()
+                            ).hexdigest()
     cache = cache_dir()
     lib = cache / f"{name}_{digest[:20]}.so"
     if lib.exists():
@@ -99,7 +125,7 @@ def _build(source: str, name: str, options: list[str], host_id: str) -> Path:
         c_file.write_text(source)
         tmp_lib = Path(tmp, lib.name)
         subprocess.run([cc, *options, "-fPIC", "-shared", "-o", str(tmp_lib), str(c_file),
-                        "-lm"], check=True, capture_output=True, timeout=600)
+                        *extra, "-lm"], check=True, capture_output=True, timeout=600)
         os.replace(tmp_lib, lib)  # atomic: concurrent builders agree on the content
     return lib
 
@@ -108,7 +134,7 @@ _LOADED: dict = {}  # (name, opt, source) -> the library or None, once per proce
 
 
 def load_shared(source: str, name: str, functions: dict, fallback: str,
-                opt: str = "-O2") -> ctypes.CDLL | None:
+                opt: str = "-O2", mujoco: bool = False) -> ctypes.CDLL | None:
     """`compile_shared`'s library loaded once per process, its functions' signatures set.
 
     Args:
@@ -117,6 +143,7 @@ def load_shared(source: str, name: str, functions: dict, fallback: str,
         functions: Function name -> ``(argtypes, restype)``.
         fallback: What the caller runs instead, for the warning without a compiler.
         opt: The optimisation option.
+        mujoco: The source calls MuJoCo's C API (`compile_shared`).
 
     Returns:
         The library, or None (logged once) when there is no working compiler or the source
@@ -125,7 +152,7 @@ def load_shared(source: str, name: str, functions: dict, fallback: str,
     key = (name, opt, source)
     if key not in _LOADED:
         try:
-            lib = ctypes.CDLL(str(compile_shared(source, name, opt)))
+            lib = ctypes.CDLL(str(compile_shared(source, name, opt, mujoco=mujoco)))
             for fun_name, (argtypes, restype) in functions.items():
                 fun = getattr(lib, fun_name)
                 fun.argtypes, fun.restype = list(argtypes), restype

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from scenarios.listeners_c import compiled_forces
 from scenarios.simulator import Simulator
 
 __all__ = ["NormalForceRecorder"]
@@ -25,14 +26,18 @@ class NormalForceRecorder:
 
     Args:
         sim: The simulator; the recorder adds itself as a step listener (`close` removes it).
+        compiled: Sum in C (`scenarios.listeners_c`, the same bits), if a compiler is there;
+            False: in Python.
     """
 
-    def __init__(self, sim: Simulator):
+    def __init__(self, sim: Simulator, compiled: bool = True):
         self._sim = sim
         model = sim.model
         wheel_of_geom = np.full(model.ngeom, -1)
         wheel_of_geom[sim.index.wheel_geoms] = np.arange(4)
         self._wheel_of_geom = wheel_of_geom.tolist()  # read per contact: Python ints
+        self._wheel_of_geom_c = wheel_of_geom.astype(np.int64)  # kept alive: the C reads it
+        self._record = compiled_forces() if compiled else None
         self._time = np.zeros(_CHUNK)
         self._force = np.zeros((_CHUNK, 4))
         self._n = 0
@@ -44,6 +49,12 @@ class NormalForceRecorder:
             self._time = np.concatenate([self._time, np.zeros(_CHUNK)])
             self._force = np.concatenate([self._force, np.zeros((_CHUNK, 4))])
         d = sim.data
+        if self._record is not None:  # the loop below in C (`scenarios.listeners_c`)
+            self._record(d._address, self._wheel_of_geom_c.ctypes.data,
+                         self._force.ctypes.data + self._force.strides[0] * self._n)
+            self._time[self._n] = t
+            self._n += 1
+            return
         # A handful of contacts: a loop over Python numbers costs half of numpy's calls on
         # arrays that small. Each wheel's sum in contact order, from 0.0, as `np.add.at`.
         wheel_of = self._wheel_of_geom

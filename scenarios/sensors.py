@@ -5,7 +5,8 @@ it samples the streams that are due (each at its own rate, on the 2 ms grid), fr
 instant the step started at (to which MuJoCo's accelerations and forces belong), adds the
 errors of `models.sensing.ChannelSpec` and queues the reading until its latency has passed.
 `readings` hands the controller what has been delivered by a tick, as
-`models.sensing.SensorReadings`.
+`models.sensing.SensorReadings`. Both run in C where a compiler is there
+(`scenarios.listeners_c`: the same bits, a fifth of the cost), else in the Python below.
 
 What each sensor measures (the truth before the errors):
 
@@ -28,6 +29,8 @@ What each sensor measures (the truth before the errors):
 
 from __future__ import annotations
 
+import functools
+
 import mujoco
 import numpy as np
 
@@ -42,6 +45,7 @@ from models.sensing import (
     cylinder_areas,
 )
 from scenarios.errors import SimulatorError
+from scenarios.listeners_c import N_STREAMS, compiled_delivery, compiled_sensors
 from scenarios.simulator import Simulator
 
 __all__ = ["BACK_PRESSURE", "SensorSimulator"]
@@ -64,10 +68,13 @@ class _Stream:
         transform: Maps the recorded truths (k, m) to the measured quantity (k, n); None:
             identity (m = n).
         m: Width of the recorded truth (default n).
+        counts, slot: The readings waiting are ``counts[slot]`` (int64 array shared with
+            the compiled listener, `scenarios.listeners_c`); None: the stream's own.
     """
 
     def __init__(self, spec: ChannelSpec, n: int, dt: float, rng: np.random.Generator,
-                 transform=None, m: int | None = None):
+                 transform=None, m: int | None = None, counts: np.ndarray | None = None,
+                 slot: int = 0):
         self.spec = spec
         self.every = max(1, int(round(1.0 / (spec.rate * dt))))
         self.latency = spec.latency
@@ -81,14 +88,29 @@ class _Stream:
         self.transform = transform
         self.times = np.zeros(256)
         self.truths = np.zeros((256, n if m is None else m))
+        self._counts = np.zeros(1, np.int64) if counts is None else counts
+        self._slot = slot
         self.count = 0
+
+    @property
+    def count(self) -> int:
+        """Readings recorded and not delivered yet."""
+        return int(self._counts[self._slot])
+
+    @count.setter
+    def count(self, value: int) -> None:
+        self._counts[self._slot] = value
+
+    def grow(self) -> None:
+        """Twice the room for readings (a new buffer: the compiled listener's pointers change)."""
+        self.times = np.concatenate([self.times, np.zeros_like(self.times)])
+        self.truths = np.concatenate([self.truths, np.zeros_like(self.truths)])
 
     def record(self, t: float, truth) -> None:
         """Record the true value measured at ``t``."""
         c = self.count
         if c == self.times.shape[0]:
-            self.times = np.concatenate([self.times, np.zeros_like(self.times)])
-            self.truths = np.concatenate([self.truths, np.zeros_like(self.truths)])
+            self.grow()
         self.times[c] = t
         self.truths[c] = truth
         self.count = c + 1
@@ -143,35 +165,40 @@ class SensorSimulator:
     Args:
         sim: The simulator (the sensors attach as a step listener; `close` detaches them).
         spec: The sensor suite (``spec.oracle`` suites have no sensors: refused).
+        compiled: Record in C (`scenarios.listeners_c`, the same bits), if a compiler is
+            there; False: in Python.
 
     Raises:
         SimulatorError: An oracle suite, or a spec that is not a `SensorSpec`.
     """
 
-    def __init__(self, sim: Simulator, spec: SensorSpec):
+    def __init__(self, sim: Simulator, spec: SensorSpec, compiled: bool = True):
         if not isinstance(spec, SensorSpec) or spec.oracle:
             raise SimulatorError(f"SensorSimulator needs a SensorSpec with sensors, got "
                                  f"{getattr(spec, 'name', spec)!r}")
         self.sim, self.spec = sim, spec
         rng = np.random.default_rng(spec.seed)
         dt = sim.timestep
-        self._acc = _Stream(spec.imu.accelerometer, 3, dt, rng)
-        self._gyro = _Stream(spec.imu.gyroscope, 3, dt, rng)
-        self._pos_lin = _Stream(spec.stroke, 6, dt, rng)
-        self._pos_ang = _Stream(spec.angle, 3, dt, rng)
+        counts = self._counts = np.zeros(N_STREAMS, np.int64)  # in `listeners_c`'s order
+        self._acc = _Stream(spec.imu.accelerometer, 3, dt, rng, counts=counts, slot=0)
+        self._gyro = _Stream(spec.imu.gyroscope, 3, dt, rng, counts=counts, slot=1)
+        self._pos_lin = _Stream(spec.stroke, 6, dt, rng, counts=counts, slot=2)
+        self._pos_ang = _Stream(spec.angle, 3, dt, rng, counts=counts, slot=3)
         self._press = _Stream(spec.pressure, 2 * N_PRESSURE, dt, rng,
-                              transform=self.chamber_pressures, m=N_PRESSURE)
-        self._wheels = _Stream(spec.wheel_speed, 2, dt, rng)
-        self._drive = _Stream(spec.drive_torque, 2, dt, rng)
+                              transform=self.chamber_pressures, m=N_PRESSURE, counts=counts,
+                              slot=4)
+        self._wheels = _Stream(spec.wheel_speed, 2, dt, rng, counts=counts, slot=5)
+        self._drive = _Stream(spec.drive_torque, 2, dt, rng, counts=counts, slot=6)
         links = spec.link_accelerometers
-        self._link = (_Stream(links[0].accelerometer, 3 * len(links), dt, rng) if links
-                      else None)
+        self._link = (_Stream(links[0].accelerometer, 3 * len(links), dt, rng, counts=counts,
+                              slot=7) if links else None)
         self._link_bodies = [_body_id(sim, a.body) for a in links]
         self._link_points = [np.asarray(a.position, float) for a in links]
         self._link_f = np.zeros(3 * len(links))
         self._acc6, self._vel6 = np.zeros(6), np.zeros(6)  # MuJoCo's outputs, every step
         self._streams = (self._acc, self._gyro, self._pos_lin, self._pos_ang, self._press,
                          self._wheels, self._drive) + ((self._link,) if links else ())
+        self._slots = (*self._streams[:7], self._link)  # by slot of `listeners_c`
         ix = sim.index
         self._p_floats = tuple(np.asarray(spec.imu.position, float).tolist())
         self._g = sim.machine.gravity
@@ -184,6 +211,8 @@ class SensorSimulator:
         self._press_act = ix.actuators[[names.index(c) for c in PRESSURE_CYLINDERS]]
         self._areas = cylinder_areas(sim.machine)
         self._step = 0
+        self._compiled = self._bind_compiled(compiled)
+        self._delivery = self._bind_delivery(rng)
         self._prime()
         sim.add_step_listener(self)
 
@@ -198,10 +227,47 @@ class SensorSimulator:
         self(self.sim, qpos, qvel, t - latency)
         self._step = 0
 
+    def _bind_compiled(self, compiled: bool):
+        """The arguments of `listeners_c.SENSORS_C` after the step's own; None: Python."""
+        record = compiled_sensors() if compiled else None
+        if record is None:
+            return None
+        ix = np.concatenate([[self._base], self._base_dof, self._axes_qpos, self._press_act,
+                             self._wheel_dof, self._wheel_act, self._link_bodies]).astype(
+                                 np.int64)
+        par = np.concatenate([self._p_floats, [self._g], *self._link_points, np.zeros(0)])
+        every = np.array([1 if s is None else s.every for s in self._slots], np.int64)
+        # Filled by `_buffers`: capacities, times' and truths' addresses (they change on growth)
+        caps, times, truths = (np.zeros(N_STREAMS, np.int64), np.zeros(N_STREAMS, np.uint64),
+                               np.zeros(N_STREAMS, np.uint64))
+        self._c_arrays = (ix, par, every, caps, times, truths)  # kept alive: the C reads them
+        self._buffers()
+        return record, (every.ctypes.data, self._counts.ctypes.data, caps.ctypes.data,
+                        times.ctypes.data, truths.ctypes.data, ix.ctypes.data,
+                        par.ctypes.data, len(self._link_bodies))
+
+    def _buffers(self) -> None:
+        """The compiled listener's capacities and buffer addresses, after a growth."""
+        _, _, _, caps, times, truths = self._c_arrays
+        for k, s in enumerate(self._slots):
+            if s is not None:
+                caps[k] = s.times.shape[0]
+                times[k] = s.times.ctypes.data
+                truths[k] = s.truths.ctypes.data
+
     def __call__(self, sim: Simulator, qpos, qvel, t: float) -> None:
         """Sample the streams due at the step that started at ``t`` (a step listener)."""
         n = self._step
         self._step += 1
+        if self._compiled is not None:
+            record, args = self._compiled
+            while record(sim.model._address, sim.data._address, qpos.ctypes.data,
+                         qvel.ctypes.data, t, n, *args):  # a stream is full
+                for s in self._streams:
+                    if s.count == s.times.shape[0]:
+                        s.grow()
+                self._buffers()
+            return
         d = sim.data
         acc, gyro = self._acc, self._gyro
         acc_due, gyro_due = n % acc.every == 0, n % gyro.every == 0
@@ -271,8 +337,74 @@ class SensorSimulator:
         p_b[pushing] = BACK_PRESSURE
         return out.reshape(f.shape[:-1] + (2 * N_PRESSURE,))
 
+    def _bind_delivery(self, rng: np.random.Generator):
+        """`listeners_c.DELIVER_C`'s functions and arguments; None: `_Stream.deliver`."""
+        passes = compiled_delivery() if self._compiled is not None else None
+        if passes is None or max(s.n for s in self._streams) > 64:
+            return None
+        slots = self._slots
+
+        def per_slot(value, dtype=float) -> np.ndarray:
+            return np.array([0 if s is None else value(s) for s in slots], dtype)
+
+        latency, walk = per_slot(lambda s: s.latency), per_slot(lambda s: s.walk)
+        noise, res = per_slot(lambda s: s.spec.noise), per_slot(lambda s: s.spec.resolution)
+        width, twidth = per_slot(lambda s: s.n, np.int64), per_slot(
+            lambda s: s.truths.shape[1], np.int64)
+        scale, bias = (per_slot(lambda s: s.scale.ctypes.data, np.uint64),
+                       per_slot(lambda s: s.bias.ctypes.data, np.uint64))
+        scaled = per_slot(lambda s: s._scaled, np.int32)
+        # the order the Python path draws its normals in (`readings`)
+        ordered = (self._pos_lin, self._pos_ang, self._acc, self._gyro, self._press,
+                   self._wheels, self._drive) + (() if self._link is None else (self._link,))
+        order = np.array([slots.index(s) for s in ordered], np.int64)
+        k = np.zeros(N_STREAMS, np.int64)
+        areas = np.ascontiguousarray(self._areas, float)
+        _, _, _, _, times, truths = self._c_arrays
+        self._d_arrays = (latency, walk, noise, res, width, twidth, scale, bias, scaled, order,
+                          k, areas)  # kept alive: the C reads them
+        count = functools.partial(passes[0], N_STREAMS, self._counts.ctypes.data,
+                                  times.ctypes.data, latency.ctypes.data)
+        count_tail = (width.ctypes.data, walk.ctypes.data, noise.ctypes.data, k.ctypes.data)
+        fill = functools.partial(
+            passes[1], len(ordered), order.ctypes.data, k.ctypes.data, self._counts.ctypes.data,
+            times.ctypes.data, truths.ctypes.data, width.ctypes.data, twidth.ctypes.data,
+            scale.ctypes.data, scaled.ctypes.data, bias.ctypes.data, walk.ctypes.data,
+            noise.ctypes.data, res.ctypes.data, slots.index(self._press), areas.ctypes.data,
+            BACK_PRESSURE)
+        return count, count_tail, fill, rng, k, ordered, [slots.index(s) for s in ordered]
+
+    def _deliver_compiled(self, tick: float) -> dict:
+        """Each stream's `Samples` by ``tick`` (`DELIVER_C`), by stream."""
+        count, count_tail, fill, rng, k, ordered, order = self._delivery
+        z = rng.standard_normal(count(tick, *count_tail))
+        ks = k.tolist()
+        sizes = [ks[i] for i in order]
+        out_t = np.empty(sum(sizes))
+        out_y = np.empty(sum(kk * s.n for kk, s in zip(sizes, ordered)))
+        fill(z.ctypes.data, out_t.ctypes.data, out_y.ctypes.data)
+        samples, first, first_y = {}, 0, 0
+        for s, kk in zip(ordered, sizes):
+            samples[s] = Samples.trusted(out_t[first:first + kk],
+                                         out_y[first_y:first_y + kk * s.n].reshape(kk, s.n))
+            first += kk
+            first_y += kk * s.n
+        return samples
+
     def readings(self, tick: float) -> SensorReadings:
         """What the sensors delivered by ``tick`` [s] since the previous call."""
+        if self._delivery is not None:
+            got = self._deliver_compiled(tick)
+            lin, ang = got[self._pos_lin], got[self._pos_ang]
+            n = min(len(lin), len(ang))
+            positions = Samples.trusted(lin.time[:n], np.concatenate(
+                (lin.value[:n], ang.value[:n]), axis=1))
+            return SensorReadings(
+                time=float(tick), specific_force=got[self._acc],
+                angular_rate=got[self._gyro], positions=positions,
+                pressures=got[self._press], wheel_speeds=got[self._wheels],
+                drive_torques=got[self._drive], servo_setpoint=self.sim.servo_setpoint,
+                link_specific_force=None if self._link is None else got[self._link])
         lin = self._pos_lin.deliver(tick)
         ang = self._pos_ang.deliver(tick)
         n = min(len(lin), len(ang))
