@@ -41,8 +41,8 @@ from estimators.suspension_response import stepped_forces
 from models.coordinates import N_INDEPENDENT
 from models.state import MachineState, frozen_array
 
-__all__ = ["StateUncertainty", "force_margin", "model_normal_forces", "normal_force_std",
-           "suspension_sensitivity"]
+__all__ = ["StateUncertainty", "closure_margin", "force_margin", "model_normal_forces",
+           "normal_force_std", "suspension_sensitivity"]
 
 _SUSPENSION_STEP = 100.0  # [N] the forces are affine in the cylinder forces: any step works
 
@@ -124,6 +124,51 @@ def suspension_sensitivity(estimator, state: MachineState) -> np.ndarray:
     return out
 
 
+def closure_margin(closure, model, state: MachineState, uncertainty: StateUncertainty,
+                   confidence: float) -> np.ndarray:
+    """``z sigma`` [N] (4,) of forces predicted by ``model``, corrected by ``closure``'s.
+
+    The closed loop's margin (`scenarios.closed_loop`): the controller predicts with
+    ``model`` and corrects by the load split ``closure`` measures.
+    `normal_force_std` of the closure's linearization at ``state`` with ``G = G_c - G_m``
+    (the acceleration errors enter only through the load split the two models disagree on;
+    ``G_c`` alone when ``model`` is ``closure``), the closure's suspension and payload
+    sensitivities, and `force_margin`. One compiled pass (`estimators.uncertainty_c`, the
+    same bits) where the closure has stepped suspension forces; else numpy.
+    """
+    lin = closure.linearize(state)
+    model_g = None if model is closure else model.linearize(state).G
+    fused = _compiled_margin() if hasattr(closure, "stepped_suspension_forces") else None
+    if fused is not None and state.suspension_force is not None:
+        stepped = closure.stepped_suspension_forces(state, _SUSPENSION_STEP)
+        d_m = (closure.payload_sensitivity(state) if hasattr(closure, "payload_sensitivity")
+               else None)
+        arrays = (lin.G, model_g, lin.d_qd, stepped, d_m, lin.in_contact)
+        if stepped is not None and all(a is None or a.flags.c_contiguous for a in arrays):
+            unc, margin = uncertainty, np.empty(4)
+            if not fused(lin.G.ctypes.data, None if model_g is None else model_g.ctypes.data,
+                         N_GENERALIZED, unc.acceleration.ctypes.data, lin.d_qd.ctypes.data,
+                         N_INDEPENDENT, unc.qd.ctypes.data, stepped.ctypes.data,
+                         _SUSPENSION_STEP, unc.suspension_force.ctypes.data,
+                         None if d_m is None else d_m.ctypes.data, unc.payload_mass,
+                         lin.in_contact.ctypes.data, _quantile(_confidence(confidence)),
+                         margin.ctypes.data):
+                return margin
+    if model_g is not None:
+        lin = dataclasses.replace(lin, G=lin.G - model_g)  # checks that it is finite
+    d_susp = suspension_sensitivity(closure, state)
+    d_m = (closure.payload_sensitivity(state) if hasattr(closure, "payload_sensitivity")
+           else None)
+    return force_margin(normal_force_std(lin, uncertainty, d_susp, d_m), confidence)
+
+
+@functools.cache
+def _compiled_margin():
+    from estimators.uncertainty_c import compiled_margin
+
+    return compiled_margin()
+
+
 def model_normal_forces(model, state: MachineState) -> np.ndarray:
     """``model.estimate(state).normal_forces`` [N] (4,), by ``model.normal_forces`` if any.
 
@@ -169,9 +214,13 @@ def force_margin(std: np.ndarray, confidence: float) -> np.ndarray:
         confidence: Probability that the true force exceeds ``estimate - margin``, in
             [0.5, 1).
     """
+    return _quantile(_confidence(confidence)) * np.asarray(std, float)
+
+
+def _confidence(confidence) -> float:
     if not (isinstance(confidence, (int, float)) and 0.5 <= confidence < 1.0):
         raise EstimatorError(f"confidence must be in [0.5, 1), got {confidence!r}")
-    return _quantile(float(confidence)) * np.asarray(std, float)
+    return float(confidence)
 
 
 @functools.lru_cache(maxsize=16)

@@ -16,9 +16,7 @@ metrics (`scenarios.metrics`) are MuJoCo's ground truth. The scenarios are in
 from __future__ import annotations
 
 import contextlib
-import dataclasses
 import gc
-import math
 import sys
 import time
 from collections import deque
@@ -27,8 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from estimators.linearization import ForceLinearization
-from estimators.uncertainty import force_margin, normal_force_std, suspension_sensitivity
+from estimators.uncertainty import closure_margin
 from models import build_reference_machine
 from models.log import ScenarioLog
 from models.state import MachineState
@@ -387,28 +384,7 @@ def uncertainty_margin(ctrl: MpcController, seen, confidence: float) -> np.ndarr
     if not (unc.acceleration.any() or unc.qd.any() or unc.suspension_force.any()
             or unc.payload_mass):
         return np.zeros(4)
-    closure = _closure(ctrl)
-    state = seen.state
-    lin = closure.linearize(state)
-    if closure is not ctrl.force_model:
-        lin = _with_load_split(lin, lin.G - ctrl.force_model.linearize(state).G)
-    d_susp = suspension_sensitivity(closure, state)
-    d_m = (closure.payload_sensitivity(state) if hasattr(closure, "payload_sensitivity")
-           else None)
-    return force_margin(normal_force_std(lin, unc, d_susp, d_m), confidence)
-
-
-def _with_load_split(lin: ForceLinearization, g: np.ndarray) -> ForceLinearization:
-    """``lin`` with ``G = g`` (4, 19), the other fields shared, not copied and checked again.
-
-    Both linearizations were checked when made; a finite difference of them is valid (what
-    `dataclasses.replace` would check, at a tenth of its cost every tick). A non-finite one
-    goes through the constructor, which names it.
-    """
-    if not math.isfinite(g.sum()):
-        return dataclasses.replace(lin, G=g)
-    return ForceLinearization.trusted(lin.normal_forces, g, lin.g0, lin.d_q, lin.d_qd,
-                                      lin.in_contact, lin.mode, lin.clipped, lin.time)
+    return closure_margin(_closure(ctrl), ctrl.force_model, seen.state, unc, confidence)
 
 
 def _closure(ctrl: MpcController):

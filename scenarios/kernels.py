@@ -14,6 +14,7 @@ import time
 from collections.abc import Callable, Iterable
 
 from estimators import NormalForceEstimator
+from estimators.uncertainty_c import compiled_margin
 from models.description import Machine
 
 __all__ = ["COMPILE_NOTICE", "warm_estimator_kernels"]
@@ -25,6 +26,8 @@ def warm_estimator_kernels(machines: Iterable[Machine],
                            notice: Callable[[str], None] | None = None,
                            notice_after: float = 0.5) -> float:
     """Build every estimator kernel of ``machines`` now (compiled C, or CasADi's VM).
+
+    And the margin's compiled pass (`estimators.uncertainty_c`), machine-independent.
 
     Args:
         machines: The machines whose kernels the run will use (e.g. before and after a
@@ -45,6 +48,7 @@ def warm_estimator_kernels(machines: Iterable[Machine],
     try:
         for machine in machines:
             NormalForceEstimator(machine, strokes="clip").warm()
+        compiled_margin()  # the closed loop's margin (`estimators.uncertainty_c`)
     finally:
         if timer is not None:
             timer.cancel()

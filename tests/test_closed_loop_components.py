@@ -339,27 +339,3 @@ def test_frozen_heap_keeps_the_loop_out_of_the_collector():
     assert gc.get_freeze_count() == 0
 
 
-def test_margin_load_split_shares_the_checked_fields():
-    """The margin's ``G_c - G_m`` linearization equals `dataclasses.replace`'s field by field;
-    a non-finite difference is refused as the constructor refuses it."""
-    from estimators.errors import EstimatorError
-    from scenarios.closed_loop import _with_load_split
-
-    rng = np.random.default_rng(5)
-    lin = ForceLinearization(rng.normal(size=4), rng.normal(size=(4, 19)), rng.normal(size=4),
-                             rng.normal(size=(4, 13)), rng.normal(size=(4, 13)),
-                             np.array([True, True, False, True]), "cylinder-force",
-                             ("lift",), 1.25)
-    g = lin.G - rng.normal(size=(4, 19))
-    fast, slow = _with_load_split(lin, g), dataclasses.replace(lin, G=g)
-    for f in dataclasses.fields(ForceLinearization):
-        a, b = getattr(fast, f.name), getattr(slow, f.name)
-        assert type(a) is type(b)
-        if isinstance(a, np.ndarray):
-            assert a.tobytes() == b.tobytes() and not a.flags.writeable
-        else:
-            assert a == b
-    bad = g.copy()  # g is the result's own G now, read-only
-    bad[1, 3] = np.nan
-    with pytest.raises(EstimatorError):
-        _with_load_split(lin, bad)
