@@ -13,6 +13,7 @@ from estimators.observer import (
     CONTACT_TICKS,
     Observer,
 )
+from estimators.observer.contacts import ContactTracker
 from estimators.observer.payload_rls import EVENT_TICKS, EXPECTED_PICK_TICKS
 from estimators.payload import PayloadEstimator
 from models import build_reference_machine
@@ -128,15 +129,18 @@ def test_contact_flags_right_where_the_force_is_clear():
     assert wrong == 0
 
 
-def test_a_lifted_wheel_comes_back_after_its_ticks_or_at_once_on_landing():
+@pytest.mark.parametrize("compiled", [True, False])
+def test_a_lifted_wheel_comes_back_after_its_ticks_or_at_once_on_landing(compiled):
     """The flags' state machine: off below `CONTACT_OFF_N`; back after `CONTACT_TICKS`
-    ticks above `CONTACT_ON_N`, or at once above `CONTACT_LANDING_N` (an impact)."""
-    obs = _observer(build_reference_machine())
+    ticks above `CONTACT_ON_N`, or at once above `CONTACT_LANDING_N` (an impact); in C
+    and in Python."""
+    tracker = ContactTracker(0.6, 10.0, True, compiled)
     heavy, between = 1e4, 0.5 * (CONTACT_ON_N + CONTACT_LANDING_N)
 
     def tick(rl):
-        obs._contacts(np.array([heavy, rl, heavy, heavy]))
-        return obs._in_contact[1]
+        flags, _, _ = tracker.update(np.array([heavy, rl, heavy, heavy]))
+        assert flags.tolist() == tracker.in_contact
+        return tracker.in_contact[1]
 
     assert tick(heavy)
     assert not tick(0.5 * CONTACT_OFF_N)  # lifts at once
@@ -234,7 +238,7 @@ def test_crane_accelerations_from_the_pressures():
 
 def test_ground_normal_of_the_touching_wheels():
     """The plane through three or four wheel centres on a tilted plane gives its normal."""
-    from estimators.observer.observer import _ground_normal
+    from estimators.observer._vec3 import ground_normal as _ground_normal
     from models.rotations import rpy_rotation
 
     tilt = rpy_rotation(0.3, 0.2, -0.15)  # a plane tilted in pitch and roll

@@ -11,8 +11,6 @@ results hold the same values, field for field, as the constructors would make.
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
 from models.coordinates import N_INDEPENDENT
@@ -25,7 +23,7 @@ __all__ = ["StateBuffer", "wheel_contacts", "with_fields"]
 # the rows of a (3, 13) block; the suspension forces last.
 _POSITION, _ROTATION, _TWIST, _ACCELERATION = slice(0, 3), slice(3, 12), slice(12, 18), \
     slice(18, 24)
-_MOTION = slice(12, 24)
+_BASE = slice(3, 24)
 _JOINTS = slice(24, 24 + 3 * N_INDEPENDENT)
 _SUSPENSION = slice(_JOINTS.stop, _JOINTS.stop + 2)
 _SIZE = _SUSPENSION.stop
@@ -42,10 +40,9 @@ class StateBuffer:
         self._buf = np.zeros(_SIZE)
         self.joints = self._buf[_JOINTS].reshape(3, N_INDEPENDENT)
 
-    def set_base(self, rotation: np.ndarray, motion) -> None:
-        """The base's rotation (3, 3) and [twist (6); acceleration (6)] (12,)."""
-        self._buf[_ROTATION] = rotation.reshape(-1)
-        self._buf[_MOTION] = motion
+    def set_base(self, fields: np.ndarray) -> None:
+        """The base's rotation (9, row-major), twist (6) and acceleration (6), (21,)."""
+        self._buf[_BASE] = fields
 
     def set_suspension(self, forces: np.ndarray) -> None:
         """The two suspension cylinders' forces [N], the first two of ``forces``."""
@@ -85,16 +82,14 @@ def with_fields(state: MachineState, **changes) -> MachineState:
     return new
 
 
-def wheel_contacts(in_contact: np.ndarray, longitudinal: list, point: np.ndarray,
-                   normal: np.ndarray, geometry_finite: bool) -> WheelContacts:
-    """`WheelContacts` whose force is ``longitudinal`` along fb x (4 floats [N]).
+def wheel_contacts(in_contact: np.ndarray, force: np.ndarray, point: np.ndarray,
+                   normal: np.ndarray, finite: bool) -> WheelContacts:
+    """`WheelContacts` of fresh arrays: taken over (frozen, not copied).
 
-    ``in_contact`` bool (4,), ``point`` and ``normal`` float (4, 3): taken over (frozen, not
-    copied); ``geometry_finite``: whether those two are finite (the caller's test).
+    ``in_contact`` bool (4,), ``force``, ``point`` and ``normal`` float (4, 3); ``finite``:
+    whether the last three are finite (the caller's test).
     """
-    force = np.zeros((4, 3))
-    force[:, 0] = longitudinal
-    if not (geometry_finite and all(map(math.isfinite, longitudinal))):
+    if not finite:
         return WheelContacts(in_contact, force, point, normal)
     for a in (in_contact, force, point, normal):
         a.flags.writeable = False

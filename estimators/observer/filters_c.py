@@ -18,13 +18,16 @@ import ctypes
 
 from models.cbuild import load_shared
 
-__all__ = ["BASE_STATE", "FILTERS_C", "compiled_filters"]
+__all__ = ["BASE_FIELDS", "BASE_STATE", "FILTERS_C", "compiled_filters"]
 
-# The chassis filter's state buffer: places of its fields.
-BASE_STATE = {"rotation": slice(0, 9), "alpha": slice(9, 12), "last_rate": slice(12, 15),
-              "odometry": slice(15, 18), "v": slice(18, 21), "w": slice(21, 24),
-              "f": slice(24, 27), "age": 27}
-BASE_STATE_SIZE = 28
+# The chassis filter's state buffer: places of its fields. The first 21 are a
+# `MachineState`'s base fields after its position (rotation row-major, twist [v; w],
+# acceleration [v_dot; alpha]): the observer copies them in one slice.
+BASE_STATE = {"rotation": slice(0, 9), "v": slice(9, 12), "w": slice(12, 15),
+              "v_dot": slice(15, 18), "alpha": slice(18, 21), "last_rate": slice(21, 24),
+              "odometry": slice(24, 27), "f": slice(27, 30), "age": 30}
+BASE_FIELDS = slice(0, 21)
+BASE_STATE_SIZE = 31
 # Its constants: lever arm p (3), g, wheel radius, the three time constants.
 BASE_CONSTANTS_SIZE = 8
 
@@ -76,16 +79,21 @@ static void orthonormal(double* r) {
   r[6] = z0; r[7] = z1; r[8] = z2;
 }
 
-/* BaseFilter.update after its input checks: s the state (BASE_STATE), c the constants
-   (p, g, wheel radius, tau_alpha, tau_odometry, attitude time constant), in = dt, the
-   tick's mean rate (3) and specific force (3), wheel flag, left, right. */
+/* BaseFilter.update after its first tick's checks: s the state (BASE_STATE), c the
+   constants (p, g, wheel radius, tau_alpha, tau_odometry, attitude time constant), in = dt,
+   the tick's mean rate (3) and specific force (3), wheel flag, left, right (used when the
+   flag is set and both are finite). Returns 1, the state untouched, if a mean is not
+   finite. */
 int base_step(double* s, const double* c, const double* in) {
-  double *R = s, *al = s + 9, *lr = s + 12, *od = s + 15, *v = s + 18, *w = s + 21;
-  double *f = s + 24;
+  double *R = s, *v = s + 9, *w = s + 12, *vd = s + 15, *al = s + 18, *lr = s + 21;
+  double *od = s + 24, *f = s + 27;
   const double *p = c;
   const double dt = in[0], wx = in[1], wy = in[2], wz = in[3];
   const double fx = in[4], fy = in[5], fz = in[6];
   double e[9], c1x, c1y, c1z, cx, cy, cz, c2x, c2y, c2z, vx, vy, vz;
+  int i;
+  for (i = 1; i < 7; ++i)
+    if (!isfinite(in[i])) return 1;
   if (dt > 0) {
     double a;
     rot_exp(wx * dt, wy * dt, wz * dt, e);
@@ -103,7 +111,9 @@ int base_step(double* s, const double* c, const double* in) {
   c2x = wy * cz - wz * cy; c2y = wz * cx - wx * cz; c2z = wx * cy - wy * cx;
   f[0] = fx - c1x - c2x; f[1] = fy - c1y - c2y; f[2] = fz - c1z - c2z;
   vx = v[0]; vy = v[1]; vz = v[2];
-  if (in[7] != 0.0) { vx = c[4] * 0.5 * (in[8] + in[9]); vy = 0.0; vz = 0.0; }
+  if (in[7] != 0.0 && isfinite(in[8]) && isfinite(in[9])) {
+    vx = c[4] * 0.5 * (in[8] + in[9]); vy = 0.0; vz = 0.0;
+  }
   if (dt > 0) {
     double cc = dt / (c[6] + dt), gx, gy, gz, b, n, ux, uy, uz, x, y, z, t;
     od[0] = od[0] + cc * ((vx - v[0]) / dt - od[0]);
@@ -111,8 +121,8 @@ int base_step(double* s, const double* c, const double* in) {
     od[2] = od[2] + cc * ((vz - v[2]) / dt - od[2]);
     cx = wy * vz - wz * vy; cy = wz * vx - wx * vz; cz = wx * vy - wy * vx;
     gx = f[0] - od[0] - cx; gy = f[1] - od[1] - cy; gz = f[2] - od[2] - cz;
-    s[27] += dt;
-    t = 0.05 + s[27];
+    s[30] += dt;
+    t = 0.05 + s[30];
     b = dt / ((t < c[7] ? t : c[7]) + dt);
     n = norm3(gx, gy, gz);
     ux = gx / n; uy = gy / n; uz = gz / n;
@@ -122,6 +132,11 @@ int base_step(double* s, const double* c, const double* in) {
     orthonormal(R);
   }
   v[0] = vx; v[1] = vy; v[2] = vz;
+  /* BaseFilter._v_dot: f - w x v - g R^T e_z */
+  cx = wy * vz - wz * vy; cy = wz * vx - wx * vz; cz = wx * vy - wy * vx;
+  vd[0] = f[0] - cx - c[3] * R[6];
+  vd[1] = f[1] - cy - c[3] * R[7];
+  vd[2] = f[2] - cz - c[3] * R[8];
   return 0;
 }
 
