@@ -11,6 +11,8 @@ results hold the same values, field for field, as the constructors would make.
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 
 from models.coordinates import N_INDEPENDENT
@@ -27,6 +29,7 @@ _BASE = slice(3, 24)
 _JOINTS = slice(24, 24 + 3 * N_INDEPENDENT)
 _SUSPENSION = slice(_JOINTS.stop, _JOINTS.stop + 2)
 _SIZE = _SUSPENSION.stop
+_STATE_NAMES = tuple(f.name for f in dataclasses.fields(MachineState))
 
 
 class StateBuffer:
@@ -48,11 +51,14 @@ class StateBuffer:
         """The two suspension cylinders' forces [N], the first two of ``forces``."""
         self._buf[_SUSPENSION] = forces[:2]
 
-    def state(self, time: float, servo_setpoint: np.ndarray) -> MachineState:
+    def state(self, time: float, servo_setpoint: np.ndarray,
+              rotation_valid: bool = False) -> MachineState:
         """The `MachineState` of the buffer (taken over: not written afterwards).
 
         ``servo_setpoint``: a read-only checked array (`SensorReadings`'), shared; a writable
-        one, or a non-finite field, takes the validating constructor.
+        one, or a non-finite field, takes the validating constructor. ``rotation_valid``:
+        the rotation passed `check_rotation`'s test (`BaseFilter.rotation_valid`); False:
+        tested here.
         """
         buf = self._buf
         buf.flags.writeable = False  # views made from now on are read-only too
@@ -63,8 +69,13 @@ class StateBuffer:
         if servo_setpoint.flags.writeable or not np.isfinite(buf).all():
             return MachineState(*fields, float(time), None, buf[_SUSPENSION],
                                 servo_setpoint)
-        check_rotation("base_rotation", rotation)
-        return MachineState._trusted(*fields, time, None, buf[_SUSPENSION], servo_setpoint)
+        if not rotation_valid:
+            check_rotation("base_rotation", rotation)
+        # `MachineState._trusted` less its freezing: every view of `buf` is read-only
+        new = object.__new__(MachineState)
+        new.__dict__.update(zip(_STATE_NAMES, (*fields, float(time), None, buf[_SUSPENSION],
+                                               servo_setpoint)))
+        return new
 
 
 def with_fields(state: MachineState, **changes) -> MachineState:

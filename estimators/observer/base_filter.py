@@ -34,6 +34,7 @@ from estimators.observer import filters_c
 from estimators.observer._vec3 import cross, norm
 from models.cbuild import bind
 from models.rotations import cross3
+from models.state import ROTATION_TOLERANCE
 
 __all__ = ["ANGULAR_ACCELERATION_TIME_CONSTANT", "ATTITUDE_TIME_CONSTANT", "BaseFilter",
            "ODOMETRY_ACCELERATION_TIME_CONSTANT"]
@@ -41,6 +42,7 @@ __all__ = ["ANGULAR_ACCELERATION_TIME_CONSTANT", "ATTITUDE_TIME_CONSTANT", "Base
 ATTITUDE_TIME_CONSTANT = 2.0  # [s] the accelerometer's pull on the attitude
 ANGULAR_ACCELERATION_TIME_CONSTANT = 0.03  # [s]
 ODOMETRY_ACCELERATION_TIME_CONSTANT = 0.05  # [s] low-pass of the odometry's speed change
+_ROTATION_VALID = filters_c.BASE_STATE["rotation_valid"]
 _EYE = np.eye(3)
 _EYE.flags.writeable = False
 
@@ -92,10 +94,11 @@ class BaseFilter:
             self._state = np.zeros(filters_c.BASE_STATE_SIZE)
             self._state[at["rotation"]] = _EYE.reshape(-1)
             self._state[at["f"]] = self._f
+            self._state[at["rotation_valid"]] = 1.0
             self._consts = np.array([*self.p, self.g, self.r_wheel,
                                      ANGULAR_ACCELERATION_TIME_CONSTANT,
                                      ODOMETRY_ACCELERATION_TIME_CONSTANT,
-                                     ATTITUDE_TIME_CONSTANT])
+                                     ATTITUDE_TIME_CONSTANT, ROTATION_TOLERANCE])
             self._in = np.zeros(10)
             self._c = bind(lib.base_step, self._state, self._consts, self._in)
             self._fields = self._state[filters_c.BASE_FIELDS]
@@ -210,6 +213,14 @@ class BaseFilter:
     def rate(self) -> np.ndarray:
         """The last tick's mean angular rate [rad/s] in fb, (3,)."""
         return np.array(self._floats("w"))
+
+    @property
+    def rotation_valid(self) -> bool:
+        """Whether `rotation` passed `models.state.check_rotation`'s test (in C, its step's).
+
+        False: failed, not finite, or not known (without C): the caller checks it.
+        """
+        return self._c is not None and self._state[_ROTATION_VALID] != 0.0
 
     def base_fields(self) -> np.ndarray:
         """[rotation (9, row-major); `twist` (6); `acceleration` (6)], (21,).

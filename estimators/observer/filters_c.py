@@ -25,11 +25,12 @@ __all__ = ["BASE_FIELDS", "BASE_STATE", "FILTERS_C", "compiled_filters"]
 # acceleration [v_dot; alpha]): the observer copies them in one slice.
 BASE_STATE = {"rotation": slice(0, 9), "v": slice(9, 12), "w": slice(12, 15),
               "v_dot": slice(15, 18), "alpha": slice(18, 21), "last_rate": slice(21, 24),
-              "odometry": slice(24, 27), "f": slice(27, 30), "age": 30}
+              "odometry": slice(24, 27), "f": slice(27, 30), "age": 30, "rotation_valid": 31}
 BASE_FIELDS = slice(0, 21)
-BASE_STATE_SIZE = 31
-# Its constants: lever arm p (3), g, wheel radius, the three time constants.
-BASE_CONSTANTS_SIZE = 8
+BASE_STATE_SIZE = 32
+# Its constants: lever arm p (3), g, wheel radius, the three time constants,
+# `models.state.ROTATION_TOLERANCE`.
+BASE_CONSTANTS_SIZE = 9
 
 FILTERS_C = r"""
 #include <math.h>
@@ -79,8 +80,28 @@ static void orthonormal(double* r) {
   r[6] = z0; r[7] = z1; r[8] = z2;
 }
 
+/* models.state.check_rotation's test (its expressions, in its order): 1.0 if r passes. */
+static double rotation_valid(const double* r, double tol) {
+  double a = r[0], b = r[1], c = r[2], d = r[3], e = r[4], f = r[5], g = r[6], h = r[7];
+  double i = r[8], m = 0.0, err = 0.0, x[6], det;
+  int k;
+  for (k = 0; k < 9; ++k) {
+    if (!isfinite(r[k])) return 0.0;
+    if (fabs(r[k]) > m) m = fabs(r[k]);
+  }
+  if (!(m <= 1.0 + tol)) return 0.0;
+  x[0] = fabs(a * a + b * b + c * c - 1.0); x[1] = fabs(d * d + e * e + f * f - 1.0);
+  x[2] = fabs(g * g + h * h + i * i - 1.0); x[3] = fabs(a * d + b * e + c * f);
+  x[4] = fabs(a * g + b * h + c * i); x[5] = fabs(d * g + e * h + f * i);
+  for (k = 0; k < 6; ++k)
+    if (x[k] > err) err = x[k];
+  det = a * (e * i - f * h) - b * (d * i - f * g) + c * (d * h - e * g);
+  return (err <= tol && det > 0) ? 1.0 : 0.0;
+}
+
 /* BaseFilter.update after its first tick's checks: s the state (BASE_STATE), c the
-   constants (p, g, wheel radius, tau_alpha, tau_odometry, attitude time constant), in = dt,
+   constants (p, g, wheel radius, tau_alpha, tau_odometry, attitude time constant, the
+   rotation's tolerance), in = dt,
    the tick's mean rate (3) and specific force (3), wheel flag, left, right (used when the
    flag is set and both are finite). Returns 1, the state untouched, if a mean is not
    finite. */
@@ -137,6 +158,7 @@ int base_step(double* s, const double* c, const double* in) {
   vd[0] = f[0] - cx - c[3] * R[6];
   vd[1] = f[1] - cy - c[3] * R[7];
   vd[2] = f[2] - cz - c[3] * R[8];
+  s[31] = rotation_valid(R, c[8]);
   return 0;
 }
 

@@ -293,7 +293,7 @@ class Observer:
         q = joints[0, :N_SERVO_AXES]
         clip(q, self._q_lo, self._q_hi, out=q)
         buf.set_suspension(forces)
-        state = buf.state(t, r.servo_setpoint)
+        state = buf.state(t, r.servo_setpoint, base.rotation_valid)
         if self.links is not None:  # the crane's accelerations from the link accelerometers
             state = with_fields(state, qdd=self.links.accelerations(state,
                                                                      r.link_specific_force))
