@@ -68,31 +68,6 @@ def test_joint_filter_in_c_is_the_numpy_filter():
     assert np.abs(fp.x[:, 2]).max() > 0.01  # accelerations were estimated
 
 
-def test_cylinder_forces_in_c_are_numpys():
-    """Random pressures, 1 to 7 samples a tick (past the bound buffer's 8 rows once): the
-    same bits; a NaN raises in both."""
-    from estimators.errors import EstimatorError
-    from estimators.observer import Observer
-    from estimators.payload import PayloadEstimator
-    from models import build_reference_machine
-    from models.sensor_suites import sensor_suite
-
-    machine = build_reference_machine()
-    spec = sensor_suite("realistic", 0)
-    closure = PayloadEstimator(machine, fourth="cylinder-force", strokes="clip")
-    oc = Observer(machine, spec, closure)
-    op = Observer(machine, spec, closure, compiled=False)
-    assert oc._forces_c is not None and op._forces_c is None
-    rng = np.random.default_rng(11)
-    for k in [*range(1, 8), 12, 3]:
-        p = rng.uniform(0.0, 2.5e7, (k, 10))
-        np.testing.assert_array_equal(oc._cylinder_forces(p), op._cylinder_forces(p))
-    p[1, 3] = np.nan
-    for obs in (oc, op):
-        with pytest.raises(EstimatorError, match="pressure"):
-            obs._cylinder_forces(p)
-
-
 def test_base_step_tests_the_rotation_as_check_rotation():
     """The step's flag (`BaseFilter.rotation_valid`) is `check_rotation`'s verdict on
     proper rotations, ones drifted about the tolerance, reflections, large entries; False

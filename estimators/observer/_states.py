@@ -18,7 +18,7 @@ import numpy as np
 from models.coordinates import N_INDEPENDENT
 from models.state import MachineState, WheelContacts, check_rotation
 
-__all__ = ["StateBuffer", "wheel_contacts", "with_fields"]
+__all__ = ["STATE_SIZE", "StateBuffer", "wheel_contacts", "with_fields"]
 
 # The float fields' places in a `StateBuffer`: the base's position (always zero: the
 # observer does not know it), rotation (row-major), twist, acceleration; then q, qd, qdd as
@@ -28,19 +28,23 @@ _POSITION, _ROTATION, _TWIST, _ACCELERATION = slice(0, 3), slice(3, 12), slice(1
 _BASE = slice(3, 24)
 _JOINTS = slice(24, 24 + 3 * N_INDEPENDENT)
 _SUSPENSION = slice(_JOINTS.stop, _JOINTS.stop + 2)
-_SIZE = _SUSPENSION.stop
+STATE_SIZE = _SUSPENSION.stop
 _STATE_NAMES = tuple(f.name for f in dataclasses.fields(MachineState))
 
 
 class StateBuffer:
     """One tick's state fields in one array, filled in place, then frozen into a state.
 
+    Args:
+        values: The fields in this layout (`STATE_SIZE`,), a fresh array taken over; None:
+            zeros.
+
     Attributes:
         joints: The (3, 13) block of q, qd and qdd (rows), to be written.
     """
 
-    def __init__(self):
-        self._buf = np.zeros(_SIZE)
+    def __init__(self, values: np.ndarray | None = None):
+        self._buf = np.zeros(STATE_SIZE) if values is None else values
         self.joints = self._buf[_JOINTS].reshape(3, N_INDEPENDENT)
 
     def set_base(self, fields: np.ndarray) -> None:

@@ -122,8 +122,7 @@ class BaseFilter:
         if not all(map(math.isfinite, w + f_p)):
             raise EstimatorError("IMU samples hold NaN or inf")
         if not self._levelled:  # first tick: level the attitude on gravity at once
-            self._levelled = True
-            self._rotation = _level(f_arr)
+            self.level(f_arr)
         alpha = self._alpha
         if dt > 0:
             self._rotation = self._rotation @ _exp(wx * dt, wy * dt, wz * dt)
@@ -183,11 +182,19 @@ class BaseFilter:
         if not self._levelled:  # first tick: level the attitude on gravity at once
             if not np.isfinite(inp[1:7]).all():
                 raise EstimatorError("IMU samples hold NaN or inf")
-            self._levelled = True
-            self._state[filters_c.BASE_STATE["rotation"]] = _level(f.copy()).reshape(-1)
+            self.level(f)
         if self._c():
             raise EstimatorError("IMU samples hold NaN or inf")
         self._last_time = time
+
+    def level(self, specific_force: np.ndarray) -> None:
+        """Level the attitude on the (finite) mean specific force [m/s^2] (3,) (yaw zero)."""
+        self._levelled = True
+        rotation = _level(np.array(specific_force, float))
+        if self._c is not None:
+            self._state[filters_c.BASE_STATE["rotation"]] = rotation.reshape(-1)
+        else:
+            self._rotation = rotation
 
     def _floats(self, name: str) -> list:
         """The field ``name`` (alpha, f, v, w) as floats: C's state buffer's, or Python's."""

@@ -1,6 +1,7 @@
 """The observer's chassis and joint filters in C: one call each per control tick.
 
-(And the tick's mean cylinder forces from the chamber pressures, `cylinder_forces`.)
+(And the tick's mean cylinder forces from the chamber pressures, `cylinder_forces`; and
+`observer_tick`, which runs those with the observer's checks and wheels in one call: `_tick`.)
 
 `base_filter.BaseFilter` and `joint_filter.JointFilter` are a few hundred floating-point
 operations a tick, which Python spends ~70 us on (float arithmetic and numpy calls on
@@ -162,16 +163,21 @@ int base_step(double* s, const double* c, const double* in) {
   return 0;
 }
 
-/* JointFilter.predict transposed: out (3, n) the positions, velocities and accelerations
-   dt after the state x (n, 3). */
-int joint_predict(const double* x, long n, double* out, double dt) {
+/* JointFilter.predict transposed into rows of `stride`: out (3, stride) the positions,
+   velocities and accelerations of the n axes dt after the state x (n, 3). */
+static void predict_into(const double* x, long n, double* out, long stride, double dt) {
   long i;
   for (i = 0; i < n; ++i) {
     const double* xi = x + 3 * i;
     out[i] = xi[0] + dt * xi[1] + 0.5 * dt * dt * xi[2];
-    out[n + i] = xi[1] + dt * xi[2];
-    out[2 * n + i] = xi[2];
+    out[stride + i] = xi[1] + dt * xi[2];
+    out[2 * stride + i] = xi[2];
   }
+}
+
+/* JointFilter.predict transposed: out (3, n). */
+int joint_predict(const double* x, long n, double* out, double dt) {
+  predict_into(x, n, out, n, dt);
   return 0;
 }
 
@@ -212,15 +218,99 @@ int joint_step(double* x, long n, const double* F, const double* K, const double
   }
   return 0;
 }
+
+/* Observer._update's first part (`_tick.TickPass`): the streams' checks, the chassis and
+   joint filters, the wheels, the cylinder forces and the state's float fields, in one call.
+   sc (in): base dt, the observer's dt, the joints' prediction dt, the wheels' acceleration
+   time constant, the row counts of the IMU rates and forces, positions, pressures, wheel
+   speeds and drive torques, 1.0 once levelled, 1.0 once the joints started, 1.0 once a
+   pressure came. The samples' buffers in that order, each of `rows` rows. wheels (12): the
+   wheels' angles, rates, accelerations; forces (5): the cylinders' (kept when none come);
+   out: the `StateBuffer` layout (65). Returns 0; 1 a non-finite wheel speed or drive torque;
+   2 a non-finite IMU mean; 3 a non-finite position; 4 a non-finite cylinder force (the
+   earlier steps done, as the Python code's order); 5: not levelled (`in` holds the means,
+   nothing else done). */
+int observer_tick(const double* sc, double* s, const double* c, double* in, double* x,
+                  const double* F, const double* K, double* wheels, const double* aa,
+                  const double* ab, double* forces, double* out, const double* lo,
+                  const double* hi, const double* rates, const double* spec, const double* z,
+                  const double* p, const double* ws, const double* drive) {
+  const long kw = (long)sc[4], kf = (long)sc[5], kz = (long)sc[6], kp = (long)sc[7];
+  const long kws = (long)sc[8], kd = (long)sc[9];
+  const double dt = sc[1];
+  double *angle = wheels, *rate = wheels + 4, *acc = wheels + 8, f[5];
+  long i, j;
+  for (i = 0; i < 2 * kws; ++i)
+    if (!isfinite(ws[i])) return 1;
+  for (i = 0; i < 2 * kd; ++i)
+    if (!isfinite(drive[i])) return 1;
+  if (kw > 0 && kf > 0) {  /* mean(axis=0): row after row, then the division */
+    for (j = 0; j < 3; ++j) { in[1 + j] = rates[j]; in[4 + j] = spec[j]; }
+    for (i = 1; i < kw; ++i)
+      for (j = 0; j < 3; ++j) in[1 + j] = in[1 + j] + rates[3 * i + j];
+    for (i = 1; i < kf; ++i)
+      for (j = 0; j < 3; ++j) in[4 + j] = in[4 + j] + spec[3 * i + j];
+    for (j = 0; j < 3; ++j) {
+      in[1 + j] = in[1 + j] / (double)kw;
+      in[4 + j] = in[4 + j] / (double)kf;
+    }
+    for (j = 1; j < 7; ++j)
+      if (!isfinite(in[j])) return 2;
+    if (sc[10] == 0.0) return 5;
+    in[0] = sc[0];
+    in[7] = kws > 0 ? 1.0 : 0.0;
+    if (kws > 0) { in[8] = ws[2 * kws - 2]; in[9] = ws[2 * kws - 1]; }
+    base_step(s, c, in);
+  }
+  for (i = 0; i < 9 * kz; ++i)
+    if (!isfinite(z[i])) return 3;
+  if (kz > 0) {
+    if (sc[11] == 0.0)
+      for (i = 0; i < 9; ++i) x[3 * i] = z[i];
+    joint_step(x, 9, F, K, z, kz);
+  }
+  if (kws > 0) {
+    double r[4] = {ws[2 * kws - 2], ws[2 * kws - 2], ws[2 * kws - 1], ws[2 * kws - 1]};
+    if (dt > 0) {
+      double a = dt / (sc[3] + dt);
+      for (i = 0; i < 4; ++i) acc[i] = acc[i] + a * ((r[i] - rate[i]) / dt - acc[i]);
+    }
+    for (i = 0; i < 4; ++i) rate[i] = r[i];
+  }
+  for (i = 0; i < 4; ++i) angle[i] = angle[i] + dt * rate[i];
+  if (kp > 0) {
+    if (cylinder_forces(aa, ab, f, p, kp)) return 4;
+    for (i = 0; i < 5; ++i) forces[i] = f[i];
+  }
+  /* the state: position zero, the base's fields, q qd qdd (3, 13), the suspension */
+  for (i = 0; i < 3; ++i) out[i] = 0.0;
+  for (i = 0; i < 21; ++i) out[3 + i] = s[i];
+  predict_into(x, 9, out + 24, 13, sc[2]);
+  for (i = 0; i < 4; ++i) {
+    out[24 + 9 + i] = angle[i];
+    out[24 + 13 + 9 + i] = rate[i];
+    out[24 + 26 + 9 + i] = acc[i];
+  }
+  for (i = 0; i < 9; ++i) {  /* np.clip's: NaN stays */
+    double q = out[24 + i];
+    if (!isnan(q)) q = q > lo[i] ? q : lo[i];
+    if (!isnan(q)) q = q < hi[i] ? q : hi[i];
+    out[24 + i] = q;
+  }
+  out[63] = sc[12] != 0.0 ? forces[0] : 0.0;
+  out[64] = sc[12] != 0.0 ? forces[1] : 0.0;
+  return 0;
+}
 """
 
 def compiled_filters():
-    """The loaded `FILTERS_C` (its four functions), or None without a compiler."""
+    """The loaded `FILTERS_C` (its five functions), or None without a compiler."""
     return load_shared(FILTERS_C, "observer_filters", {
         "base_step": ([ctypes.c_void_p] * 3, ctypes.c_int),
         "joint_step": ([ctypes.c_void_p, ctypes.c_long, ctypes.c_void_p, ctypes.c_void_p,
                         ctypes.c_void_p, ctypes.c_long], ctypes.c_int),
         "joint_predict": ([ctypes.c_void_p, ctypes.c_long, ctypes.c_void_p, ctypes.c_double],
                           ctypes.c_int),
-        "cylinder_forces": ([ctypes.c_void_p] * 4 + [ctypes.c_long], ctypes.c_int)},
+        "cylinder_forces": ([ctypes.c_void_p] * 4 + [ctypes.c_long], ctypes.c_int),
+        "observer_tick": ([ctypes.c_void_p] * 20, ctypes.c_int)},
         "Python")

@@ -40,6 +40,7 @@ from estimators.errors import EstimatorError
 from estimators.linearization import N_GENERALIZED
 from estimators.observer import filters_c, link_fusion
 from estimators.observer._states import StateBuffer, wheel_contacts, with_fields
+from estimators.observer._tick import TickPass
 from estimators.observer.base_filter import ANGULAR_ACCELERATION_TIME_CONSTANT, BaseFilter
 from estimators.observer.contacts import (
     CONTACT_LANDING_N,
@@ -52,7 +53,6 @@ from estimators.observer.crane_pressures import SLIDING_SPEED, CranePressures
 from estimators.observer.joint_filter import JointFilter
 from estimators.observer.payload_rls import EXPECTED_PICK_TICKS, PayloadRLS, without_seal_friction
 from estimators.uncertainty import StateUncertainty, model_normal_forces
-from models.cbuild import bind
 from models.coordinates import N_INDEPENDENT
 from models.description import Machine
 from models.numeric import clip
@@ -187,13 +187,14 @@ class Observer:
             compiled)
         # Constant per tick: areas, ranges, the error model (checked once), the crane rows.
         self._area_a, self._area_b = areas[:, 0].copy(), areas[:, 1].copy()
-        self._filters_c = filters_c.compiled_filters() if compiled else None
-        self._forces_c = None
-        if self._filters_c is not None:
-            self._forces = np.zeros(len(PRESSURE_CYLINDERS))
-            self._bind_forces(8)
         self._q_lo = machine.coordinates.lower[:N_SERVO_AXES]
         self._q_hi = machine.coordinates.upper[:N_SERVO_AXES]
+        lib = filters_c.compiled_filters() if compiled else None
+        self._tick = None  # the state's first part in one C call (`_tick`), else Python
+        if lib is not None and self.base._c is not None and self.joints._c is not None:
+            self._tick = TickPass(lib, self.base, self.joints, areas, self._q_lo,
+                                  self._q_hi, WHEEL_ACCELERATION_TIME_CONSTANT)
+            self.contacts.wheel_acceleration = self._tick.wheels[8:]  # read in place
         accel_std, qd_std = self._uncertainty_const
         self._uncertainty = StateUncertainty(
             acceleration=accel_std, qd=qd_std,
@@ -255,44 +256,17 @@ class Observer:
             return dataclasses.replace(self._last, stale=True)
 
     def _update(self, r: SensorReadings) -> ObserverEstimate:
-        wheel_speeds, drive_torques = r.wheel_speeds.value, r.drive_torques.value
-        if not (np.isfinite(wheel_speeds).all() and np.isfinite(drive_torques).all()):
-            raise EstimatorError("wheel-speed or drive-torque readings hold NaN or inf")
         t = r.time
         dt = 0.0 if self._last_time is None else t - self._last_time
-        wheels = wheel_speeds[-1] if wheel_speeds.shape[0] else None
-        base = self.base
-        base.update(t, r.angular_rate.value, r.specific_force.value, wheels)
-        positions, p = r.positions, r.pressures.value
-        n_pos, n_press = positions.value.shape[0], p.shape[0]
-        stale = n_pos == 0 or n_press == 0
-        if n_pos:
-            self.joints.update(positions.value)
-            x = self.joints.predict_rows(max(t - positions.time[-1], 0.0))
+        base, drive_torques = self.base, r.drive_torques.value
+        stale = r.positions.value.shape[0] == 0 or r.pressures.value.shape[0] == 0
+        if self._tick is not None:
+            buf = StateBuffer(self._tick.run(r, dt))
+            if r.pressures.value.shape[0]:
+                self._suspension = self._tick.forces.copy()
+            forces = self._suspension if self._suspension is not None else _NO_FORCES
         else:
-            x = self.joints.predict_rows(0.0)
-        if wheels is not None:
-            left, right = wheels.tolist()
-            rate = [left, left, right, right]  # FL, RL, FR, RR
-            if dt > 0:  # low-passed: the pick-ups' counts are coarse
-                a = dt / (WHEEL_ACCELERATION_TIME_CONSTANT + dt)
-                self._wheel_acc = [acc + a * ((w - w0) / dt - acc) for acc, w, w0
-                                   in zip(self._wheel_acc, rate, self._wheel_rate)]
-            self._wheel_rate = rate
-            self.contacts.wheel_acceleration = self._wheel_acc
-        self._wheel_angle = [q + dt * w for q, w in zip(self._wheel_angle, self._wheel_rate)]
-        if n_press:
-            self._suspension = self._cylinder_forces(p)
-        forces = self._suspension if self._suspension is not None else _NO_FORCES
-        # The state's float fields in one buffer: q, qd, qdd are the rows of `joints`.
-        buf = StateBuffer()
-        buf.set_base(base.base_fields())
-        joints = buf.joints
-        joints[:, :N_SERVO_AXES] = x
-        joints[:, N_SERVO_AXES:] = (self._wheel_angle, self._wheel_rate, self._wheel_acc)
-        q = joints[0, :N_SERVO_AXES]
-        clip(q, self._q_lo, self._q_hi, out=q)
-        buf.set_suspension(forces)
+            buf, forces = self._state_fields(r, dt)
         state = buf.state(t, r.servo_setpoint, base.rotation_valid)
         if self.links is not None:  # the crane's accelerations from the link accelerometers
             state = with_fields(state, qdd=self.links.accelerations(state,
@@ -330,35 +304,59 @@ class Observer:
         self._last = ObserverEstimate(state, mass, std, self.payload.event, unc, four, stale)
         return self._last
 
+    def _state_fields(self, r: SensorReadings, dt: float) -> tuple[StateBuffer, np.ndarray]:
+        """The state's float fields and the cylinder forces [N] (5,), in Python (`_tick`).
+
+        ``dt``: the time since the last tick [s].
+        """
+        wheel_speeds, drive_torques = r.wheel_speeds.value, r.drive_torques.value
+        if not (np.isfinite(wheel_speeds).all() and np.isfinite(drive_torques).all()):
+            raise EstimatorError("wheel-speed or drive-torque readings hold NaN or inf")
+        t = r.time
+        wheels = wheel_speeds[-1] if wheel_speeds.shape[0] else None
+        base = self.base
+        base.update(t, r.angular_rate.value, r.specific_force.value, wheels)
+        positions, p = r.positions, r.pressures.value
+        if positions.value.shape[0]:
+            self.joints.update(positions.value)
+            x = self.joints.predict_rows(max(t - positions.time[-1], 0.0))
+        else:
+            x = self.joints.predict_rows(0.0)
+        if wheels is not None:
+            left, right = wheels.tolist()
+            rate = [left, left, right, right]  # FL, RL, FR, RR
+            if dt > 0:  # low-passed: the pick-ups' counts are coarse
+                a = dt / (WHEEL_ACCELERATION_TIME_CONSTANT + dt)
+                self._wheel_acc = [acc + a * ((w - w0) / dt - acc) for acc, w, w0
+                                   in zip(self._wheel_acc, rate, self._wheel_rate)]
+            self._wheel_rate = rate
+            self.contacts.wheel_acceleration = self._wheel_acc
+        self._wheel_angle = [q + dt * w for q, w in zip(self._wheel_angle, self._wheel_rate)]
+        if p.shape[0]:
+            self._suspension = self._cylinder_forces(p)
+        forces = self._suspension if self._suspension is not None else _NO_FORCES
+        # The state's float fields in one buffer: q, qd, qdd are the rows of `joints`.
+        buf = StateBuffer()
+        buf.set_base(base.base_fields())
+        joints = buf.joints
+        joints[:, :N_SERVO_AXES] = x
+        joints[:, N_SERVO_AXES:] = (self._wheel_angle, self._wheel_rate, self._wheel_acc)
+        q = joints[0, :N_SERVO_AXES]
+        clip(q, self._q_lo, self._q_hi, out=q)
+        buf.set_suspension(forces)
+        return buf, forces
+
     def _cylinder_forces(self, p: np.ndarray) -> np.ndarray:
         """`models.sensing.cylinder_force` [N] (5,), the mean over the tick's samples (k, 10).
-
-        In C (`filters_c.cylinder_forces`: numpy's operations and order, the same bits)
-        when compiled: the samples are copied into a bound buffer (cheaper than their
-        address).
 
         Raises:
             EstimatorError: A force is not finite.
         """
-        k = p.shape[0]
-        if self._forces_c is None:
-            forces = np.add.reduce(p[:, 0::2] * self._area_a - p[:, 1::2] * self._area_b,
-                                   0) / k
-            if not np.isfinite(forces).all():
-                raise EstimatorError("pressure readings hold NaN or inf")
-            return forces
-        if k > self._pressures.shape[0]:
-            self._bind_forces(2 * k)
-        self._pressures[:k] = p
-        if self._forces_c(k):
+        forces = np.add.reduce(p[:, 0::2] * self._area_a - p[:, 1::2] * self._area_b,
+                               0) / p.shape[0]
+        if not np.isfinite(forces).all():
             raise EstimatorError("pressure readings hold NaN or inf")
-        return self._forces.copy()
-
-    def _bind_forces(self, rows: int) -> None:
-        """`filters_c.cylinder_forces` bound to a buffer of ``rows`` pressure samples."""
-        self._pressures = np.zeros((rows, 2 * len(PRESSURE_CYLINDERS)))
-        self._forces_c = bind(self._filters_c.cylinder_forces, self._area_a, self._area_b,
-                              self._forces, self._pressures)
+        return forces
 
     def _filtered(self, dt: float, measured, f0, y):
         """The payload regression's three sides through one first-order low-pass.
