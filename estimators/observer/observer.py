@@ -119,8 +119,9 @@ class Observer:
         initial_payload: Prior of the payload [kg] (the empty grapple's mass is a fair one);
             None: the description's.
         initial_payload_std: Its std [kg].
-        compiled: Run the filters' and the fit's arithmetic in C (`filters_c`,
-            `fusion_c`: the same results to round-off) when a C compiler is there; False:
+        compiled: Run the filters', the fit's and the contacts' arithmetic in C
+            (`filters_c`, `fusion_c`, `contacts_c`: the same results to round-off; the
+            state's first part in one call, `_tick`) when a C compiler is there; False:
             Python and numpy.
     """
 
