@@ -309,6 +309,56 @@ def test_a_nan_reading_is_held_for_its_tick_and_the_observer_recovers(stream):
         assert np.isfinite(e.payload_mass) and np.isfinite(e.payload_std)
 
 
+@pytest.mark.parametrize("compiled", [True, False])
+def test_a_position_spike_is_a_fault_held_for_its_tick(compiled):
+    """One stroke sample 50 m off (a wire break): refused before the joint filter sees it,
+    so the payload estimate and the state carry on as before; without the gate it went
+    through the filter's derivatives into the payload filter (mass NaN, every later tick
+    stale in the compiled path)."""
+    from estimators.observer import POSITION_FAULT
+
+    machine = build_reference_machine()
+    sim = Simulator(machine, T.side_slope(-5.0))
+    sim.reset(None, (8.0, 0.0, 0.0))
+    sensors = SensorSimulator(sim, sensor_suite("realistic", 3))
+    obs = Observer(machine, sensor_suite("realistic", 3),
+                   PayloadEstimator(machine, fourth="cylinder-force", strokes="clip"),
+                   compiled=compiled)
+    sim.set_command(cylinder_rates={"slew": 0.1}, wheel_speeds=(0.5, 0.5))
+    masses = []
+    for k in range(80):
+        sim.step(5)
+        r = sensors.readings(sim.time)
+        if k == 40:
+            s = r.positions
+            value = s.value.copy()
+            value[-1, 2] += 50.0
+            r = dataclasses.replace(r, positions=Samples(s.time, value))
+            with pytest.raises(EstimatorError, match="sensor fault"):
+                obs._update(r)
+            assert POSITION_FAULT.startswith("a position sample")
+        e = obs.update(r)
+        assert e.stale == (k == 40), k
+        masses.append(e.payload_mass)
+        assert np.all(np.isfinite(e.state.qdd)) and np.isfinite(e.payload_std)
+    assert np.max(np.abs(np.diff(masses[35:50]))) < 20.0  # no jump through the spike
+
+
+def test_payload_rls_takes_no_step_it_cannot_compute():
+    """Non-finite regression sides, or a step that overflows, leave the mass and its
+    variance as they were (no NaN gets in)."""
+    from estimators.observer.payload_rls import PayloadRLS
+
+    rls = PayloadRLS(150.0, 50.0, [2e3, 2e3], [100.0, 100.0])
+    mass, p = rls.mass, rls.P
+    rls.update(1.0, 0.01, [8e4, 6e4], [np.nan, 5e4], [90.0, 50.0])
+    assert (rls.mass, rls.P) == (mass, p)
+    rls.update(1.01, 0.01, [8e4, 6e4], [7e4, 5e4], [1e200, 1e200])
+    assert (rls.mass, rls.P) == (mass, p)
+    rls.update(1.02, 0.01, [8e4, 6e4], [7e4, 5e4], [90.0, 50.0])
+    assert rls.mass != mass and np.isfinite(rls.mass) and rls.P > 0
+
+
 def test_payload_rls_covariance_stays_positive_at_a_huge_regressor():
     """A machine lying on its side (a tip-over a run must still report) gives the crane's
     regression 1e10 N/kg: ``p - p k'y`` then rounds below zero, and the mass's std was the

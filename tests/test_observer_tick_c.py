@@ -73,7 +73,7 @@ def test_tick_pass_is_the_filters_calls():
         if k == 20:  # ranges of +-1 mm, +-1 mrad about the axes' positions now
             q = out[0].state.q[:9]
             lo, hi = q - 1e-3, q + 1e-3
-            fast._tick._consts[2][:], fast._tick._consts[3][:] = lo, hi  # bound: in place
+            fast._tick._consts[2][:9], fast._tick._consts[3][:9] = lo, hi  # bound: in place
             for obs in (calls, python):
                 obs._q_lo, obs._q_hi = lo.copy(), hi.copy()
         if isinstance(out[0], str):

@@ -17,7 +17,7 @@ import numpy as np
 from estimators.errors import EstimatorError
 from estimators.observer._states import STATE_SIZE
 from estimators.observer.base_filter import BaseFilter
-from estimators.observer.joint_filter import JointFilter
+from estimators.observer.joint_filter import POSITION_FAULT, JointFilter
 from models.cbuild import bind
 from models.sensing import SensorReadings
 
@@ -25,7 +25,7 @@ __all__ = ["TickPass"]
 
 _ERRORS = {1: "wheel-speed or drive-torque readings hold NaN or inf",
            2: "IMU samples hold NaN or inf", 3: "position samples hold NaN or inf",
-           4: "pressure readings hold NaN or inf"}
+           4: "pressure readings hold NaN or inf", 6: POSITION_FAULT}
 _LEVEL = 5  # `observer_tick`: the IMU's means are in, the attitude is not levelled yet
 _CHANNELS = (3, 3, 9, 10, 2, 2)  # the streams' (`_streams`)
 
@@ -44,6 +44,8 @@ class TickPass:
         base: The chassis filter (compiled). joints: The joint filter (compiled, 9 axes).
         areas: The cylinders' (A_A, A_B) [m^2], (5, 2).
         lower, upper: The servo axes' ranges (9,): the state's q is clipped into them.
+        gate_lower, gate_upper: The position samples' gate (9,): a sample outside is a
+            sensor fault (`POSITION_FAULT`), refused before the joint filter sees it.
         wheel_time_constant: The wheels' acceleration low-pass [s].
 
     Attributes:
@@ -52,7 +54,8 @@ class TickPass:
     """
 
     def __init__(self, lib, base: BaseFilter, joints: JointFilter, areas: np.ndarray,
-                 lower: np.ndarray, upper: np.ndarray, wheel_time_constant: float):
+                 lower: np.ndarray, upper: np.ndarray, gate_lower: np.ndarray,
+                 gate_upper: np.ndarray, wheel_time_constant: float):
         self.base, self.joints, self._lib = base, joints, lib
         self.wheels = np.zeros(12)
         self.forces = np.zeros(5)
@@ -61,7 +64,8 @@ class TickPass:
         self._sc[3] = wheel_time_constant
         self._has_forces = False  # a tick brought pressures (`forces` holds theirs)
         self._consts = (np.ascontiguousarray(areas[:, 0]), np.ascontiguousarray(areas[:, 1]),
-                        np.array(lower, float), np.array(upper, float))
+                        np.concatenate([lower, gate_lower]).astype(float),
+                        np.concatenate([upper, gate_upper]).astype(float))
         self._bind(16)
 
     def _bind(self, rows: int) -> None:
@@ -105,7 +109,7 @@ class TickPass:
             code = self._c()
         if code not in (1, 2) and counts[0] and counts[1]:
             base._last_time = t
-        if code in (0, 4) and kz:
+        if code in (0, 4) and kz:  # (6: the joint filter has not seen the samples)
             joints.initialized = True
         if code:
             raise EstimatorError(_ERRORS[code])

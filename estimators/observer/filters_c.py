@@ -227,9 +227,10 @@ int joint_step(double* x, long n, const double* F, const double* K, const double
    pressure came. The samples' buffers in that order, each of `rows` rows. wheels (12): the
    wheels' angles, rates, accelerations; forces (5): the cylinders' (kept when none come);
    out: the `StateBuffer` layout (65). Returns 0; 1 a non-finite wheel speed or drive torque;
-   2 a non-finite IMU mean; 3 a non-finite position; 4 a non-finite cylinder force (the
-   earlier steps done, as the Python code's order); 5: not levelled (`in` holds the means,
-   nothing else done). */
+   2 a non-finite IMU mean; 3 a non-finite position; 6 a position outside its gate (lo[9 +
+   i], hi[9 + i]; the ranges of the clip are lo[i], hi[i]); 4 a non-finite cylinder force
+   (the earlier steps done, as the Python code's order); 5: not levelled (`in` holds the
+   means, nothing else done). */
 int observer_tick(const double* sc, double* s, const double* c, double* in, double* x,
                   const double* F, const double* K, double* wheels, const double* aa,
                   const double* ab, double* forces, double* out, const double* lo,
@@ -264,6 +265,8 @@ int observer_tick(const double* sc, double* s, const double* c, double* in, doub
   }
   for (i = 0; i < 9 * kz; ++i)
     if (!isfinite(z[i])) return 3;
+  for (i = 0; i < 9 * kz; ++i)  /* the gate: lo, hi hold it after the ranges */
+    if (z[i] < lo[9 + i % 9] || z[i] > hi[9 + i % 9]) return 6;
   if (kz > 0) {
     if (sc[11] == 0.0)
       for (i = 0; i < 9; ++i) x[3 * i] = z[i];

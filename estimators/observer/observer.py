@@ -50,7 +50,7 @@ from estimators.observer.contacts import (
     ContactTracker,
 )
 from estimators.observer.crane_pressures import SLIDING_SPEED, CranePressures
-from estimators.observer.joint_filter import JointFilter
+from estimators.observer.joint_filter import POSITION_FAULT, POSITION_GATE, JointFilter
 from estimators.observer.payload_rls import EXPECTED_PICK_TICKS, PayloadRLS, without_seal_friction
 from estimators.uncertainty import StateUncertainty, model_normal_forces
 from models.coordinates import N_INDEPENDENT
@@ -190,11 +190,13 @@ class Observer:
         self._area_a, self._area_b = areas[:, 0].copy(), areas[:, 1].copy()
         self._q_lo = machine.coordinates.lower[:N_SERVO_AXES]
         self._q_hi = machine.coordinates.upper[:N_SERVO_AXES]
+        span = POSITION_GATE * (self._q_hi - self._q_lo)
+        self._gate = (self._q_lo - span, self._q_hi + span)
         lib = filters_c.compiled_filters() if compiled else None
         self._tick = None  # the state's first part in one C call (`_tick`), else Python
         if lib is not None and self.base._c is not None and self.joints._c is not None:
             self._tick = TickPass(lib, self.base, self.joints, areas, self._q_lo,
-                                  self._q_hi, WHEEL_ACCELERATION_TIME_CONSTANT)
+                                  self._q_hi, *self._gate, WHEEL_ACCELERATION_TIME_CONSTANT)
             self.contacts.wheel_acceleration = self._tick.wheels[8:]  # read in place
         accel_std, qd_std = self._uncertainty_const
         self._uncertainty = StateUncertainty(
@@ -319,7 +321,11 @@ class Observer:
         base.update(t, r.angular_rate.value, r.specific_force.value, wheels)
         positions, p = r.positions, r.pressures.value
         if positions.value.shape[0]:
-            self.joints.update(positions.value)
+            z = positions.value
+            if (np.isfinite(z).all() and (np.logical_or.reduce(z < self._gate[0], None)
+                                          or np.logical_or.reduce(z > self._gate[1], None))):
+                raise EstimatorError(POSITION_FAULT)
+            self.joints.update(z)
             x = self.joints.predict_rows(max(t - positions.time[-1], 0.0))
         else:
             x = self.joints.predict_rows(0.0)
