@@ -13,6 +13,7 @@ from estimators.observer import (
     CONTACT_TICKS,
     Observer,
 )
+from estimators.observer.contacts import ContactTracker
 from estimators.observer.payload_rls import EVENT_TICKS, EXPECTED_PICK_TICKS
 from estimators.payload import PayloadEstimator
 from models import build_reference_machine
@@ -128,15 +129,18 @@ def test_contact_flags_right_where_the_force_is_clear():
     assert wrong == 0
 
 
-def test_a_lifted_wheel_comes_back_after_its_ticks_or_at_once_on_landing():
+@pytest.mark.parametrize("compiled", [True, False])
+def test_a_lifted_wheel_comes_back_after_its_ticks_or_at_once_on_landing(compiled):
     """The flags' state machine: off below `CONTACT_OFF_N`; back after `CONTACT_TICKS`
-    ticks above `CONTACT_ON_N`, or at once above `CONTACT_LANDING_N` (an impact)."""
-    obs = _observer(build_reference_machine())
+    ticks above `CONTACT_ON_N`, or at once above `CONTACT_LANDING_N` (an impact); in C
+    and in Python."""
+    tracker = ContactTracker(0.6, 10.0, True, compiled)
     heavy, between = 1e4, 0.5 * (CONTACT_ON_N + CONTACT_LANDING_N)
 
     def tick(rl):
-        obs._contacts(np.array([heavy, rl, heavy, heavy]))
-        return obs._in_contact[1]
+        flags, _, _ = tracker.update(np.array([heavy, rl, heavy, heavy]))
+        assert flags.tolist() == tracker.in_contact
+        return tracker.in_contact[1]
 
     assert tick(heavy)
     assert not tick(0.5 * CONTACT_OFF_N)  # lifts at once
@@ -234,7 +238,7 @@ def test_crane_accelerations_from_the_pressures():
 
 def test_ground_normal_of_the_touching_wheels():
     """The plane through three or four wheel centres on a tilted plane gives its normal."""
-    from estimators.observer.observer import _ground_normal
+    from estimators.observer._vec3 import ground_normal as _ground_normal
     from models.rotations import rpy_rotation
 
     tilt = rpy_rotation(0.3, 0.2, -0.15)  # a plane tilted in pitch and roll
@@ -303,6 +307,56 @@ def test_a_nan_reading_is_held_for_its_tick_and_the_observer_recovers(stream):
                   st.contacts.force_in_fb, e.forces_four):
             assert np.all(np.isfinite(a)), k
         assert np.isfinite(e.payload_mass) and np.isfinite(e.payload_std)
+
+
+@pytest.mark.parametrize("compiled", [True, False])
+def test_a_position_spike_is_a_fault_held_for_its_tick(compiled):
+    """One stroke sample 50 m off (a wire break): refused before the joint filter sees it,
+    so the payload estimate and the state carry on as before; without the gate it went
+    through the filter's derivatives into the payload filter (mass NaN, every later tick
+    stale in the compiled path)."""
+    from estimators.observer import POSITION_FAULT
+
+    machine = build_reference_machine()
+    sim = Simulator(machine, T.side_slope(-5.0))
+    sim.reset(None, (8.0, 0.0, 0.0))
+    sensors = SensorSimulator(sim, sensor_suite("realistic", 3))
+    obs = Observer(machine, sensor_suite("realistic", 3),
+                   PayloadEstimator(machine, fourth="cylinder-force", strokes="clip"),
+                   compiled=compiled)
+    sim.set_command(cylinder_rates={"slew": 0.1}, wheel_speeds=(0.5, 0.5))
+    masses = []
+    for k in range(80):
+        sim.step(5)
+        r = sensors.readings(sim.time)
+        if k == 40:
+            s = r.positions
+            value = s.value.copy()
+            value[-1, 2] += 50.0
+            r = dataclasses.replace(r, positions=Samples(s.time, value))
+            with pytest.raises(EstimatorError, match="sensor fault"):
+                obs._update(r)
+            assert POSITION_FAULT.startswith("a position sample")
+        e = obs.update(r)
+        assert e.stale == (k == 40), k
+        masses.append(e.payload_mass)
+        assert np.all(np.isfinite(e.state.qdd)) and np.isfinite(e.payload_std)
+    assert np.max(np.abs(np.diff(masses[35:50]))) < 20.0  # no jump through the spike
+
+
+def test_payload_rls_takes_no_step_it_cannot_compute():
+    """Non-finite regression sides, or a step that overflows, leave the mass and its
+    variance as they were (no NaN gets in)."""
+    from estimators.observer.payload_rls import PayloadRLS
+
+    rls = PayloadRLS(150.0, 50.0, [2e3, 2e3], [100.0, 100.0])
+    mass, p = rls.mass, rls.P
+    rls.update(1.0, 0.01, [8e4, 6e4], [np.nan, 5e4], [90.0, 50.0])
+    assert (rls.mass, rls.P) == (mass, p)
+    rls.update(1.01, 0.01, [8e4, 6e4], [7e4, 5e4], [1e200, 1e200])
+    assert (rls.mass, rls.P) == (mass, p)
+    rls.update(1.02, 0.01, [8e4, 6e4], [7e4, 5e4], [90.0, 50.0])
+    assert rls.mass != mass and np.isfinite(rls.mass) and rls.P > 0
 
 
 def test_payload_rls_covariance_stays_positive_at_a_huge_regressor():

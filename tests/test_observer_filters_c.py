@@ -68,26 +68,36 @@ def test_joint_filter_in_c_is_the_numpy_filter():
     assert np.abs(fp.x[:, 2]).max() > 0.01  # accelerations were estimated
 
 
-def test_cylinder_forces_in_c_are_numpys():
-    """Random pressures, 1 to 7 samples a tick (past the bound buffer's 8 rows once): the
-    same bits; a NaN raises in both."""
-    from estimators.errors import EstimatorError
-    from estimators.observer import Observer
-    from estimators.payload import PayloadEstimator
-    from models import build_reference_machine
-    from models.sensor_suites import sensor_suite
+def test_base_step_tests_the_rotation_as_check_rotation():
+    """The step's flag (`BaseFilter.rotation_valid`) is `check_rotation`'s verdict on
+    proper rotations, ones drifted about the tolerance, reflections, large entries; False
+    (the caller checks then) with a NaN or inf."""
+    from models.state import ROTATION_TOLERANCE, StateError, check_rotation
 
-    machine = build_reference_machine()
-    spec = sensor_suite("realistic", 0)
-    closure = PayloadEstimator(machine, fourth="cylinder-force", strokes="clip")
-    oc = Observer(machine, spec, closure)
-    op = Observer(machine, spec, closure, compiled=False)
-    assert oc._forces_c is not None and op._forces_c is None
-    rng = np.random.default_rng(11)
-    for k in [*range(1, 8), 12, 3]:
-        p = rng.uniform(0.0, 2.5e7, (k, 10))
-        np.testing.assert_array_equal(oc._cylinder_forces(p), op._cylinder_forces(p))
-    p[1, 3] = np.nan
-    for obs in (oc, op):
-        with pytest.raises(EstimatorError, match="pressure"):
-            obs._cylinder_forces(p)
+    f = BaseFilter(np.array([0.8, -0.3, 1.1]), 9.81, 0.55)
+    rng = np.random.default_rng(4)
+    verdicts = set()
+    for k in range(600):
+        r = rpy_rotation(*rng.uniform(-3.0, 3.0, 3))
+        kind = k % 6
+        if kind == 1:  # drift of about the tolerance
+            r = r + rng.uniform(0.2, 2.0) * ROTATION_TOLERANCE * rng.standard_normal((3, 3))
+        elif kind == 2:
+            r = r * np.array([1.0, 1.0, -1.0])  # det -1
+        elif kind == 3:
+            r = r * (1.0 + rng.uniform(0.0, 3.0) * ROTATION_TOLERANCE)
+        elif kind == 4:
+            r[rng.integers(3), rng.integers(3)] = rng.choice([np.nan, np.inf, 1.5])
+        f._state[:9] = r.reshape(-1)
+        f._in[:] = (0.0, 0.1, 0.0, 0.0, 0.0, 0.0, 9.8, 0.0, 0.0, 0.0)  # dt 0: R unchanged
+        assert f._c() == 0
+        np.testing.assert_array_equal(f.rotation, r)
+        try:
+            with np.errstate(invalid="ignore"):  # its det of a NaN matrix
+                check_rotation("r", r)
+            valid = bool(np.isfinite(r).all())
+        except StateError:
+            valid = False
+        assert f.rotation_valid == valid, (k, r)
+        verdicts.add((kind, valid))
+    assert {(1, True), (1, False), (3, True), (3, False), (2, False)} <= verdicts

@@ -1,5 +1,6 @@
 """The observer: the machine's sensor streams turned into the state the estimator reads."""
 
+from estimators.observer.joint_filter import POSITION_FAULT, POSITION_GATE
 from estimators.observer.observer import (
     CONTACT_LANDING_N,
     CONTACT_OFF_N,
@@ -10,4 +11,4 @@ from estimators.observer.observer import (
 )
 
 __all__ = ["CONTACT_LANDING_N", "CONTACT_OFF_N", "CONTACT_ON_N", "CONTACT_TICKS", "Observer",
-           "ObserverEstimate"]
+           "ObserverEstimate", "POSITION_FAULT", "POSITION_GATE"]

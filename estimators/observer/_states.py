@@ -11,51 +11,58 @@ results hold the same values, field for field, as the constructors would make.
 
 from __future__ import annotations
 
-import math
+import dataclasses
 
 import numpy as np
 
 from models.coordinates import N_INDEPENDENT
 from models.state import MachineState, WheelContacts, check_rotation
 
-__all__ = ["StateBuffer", "wheel_contacts", "with_fields"]
+__all__ = ["STATE_SIZE", "StateBuffer", "wheel_contacts", "with_fields"]
 
 # The float fields' places in a `StateBuffer`: the base's position (always zero: the
 # observer does not know it), rotation (row-major), twist, acceleration; then q, qd, qdd as
 # the rows of a (3, 13) block; the suspension forces last.
 _POSITION, _ROTATION, _TWIST, _ACCELERATION = slice(0, 3), slice(3, 12), slice(12, 18), \
     slice(18, 24)
-_MOTION = slice(12, 24)
+_BASE = slice(3, 24)
 _JOINTS = slice(24, 24 + 3 * N_INDEPENDENT)
 _SUSPENSION = slice(_JOINTS.stop, _JOINTS.stop + 2)
-_SIZE = _SUSPENSION.stop
+STATE_SIZE = _SUSPENSION.stop
+_STATE_NAMES = tuple(f.name for f in dataclasses.fields(MachineState))
 
 
 class StateBuffer:
     """One tick's state fields in one array, filled in place, then frozen into a state.
 
+    Args:
+        values: The fields in this layout (`STATE_SIZE`,), a fresh array taken over; None:
+            zeros.
+
     Attributes:
         joints: The (3, 13) block of q, qd and qdd (rows), to be written.
     """
 
-    def __init__(self):
-        self._buf = np.zeros(_SIZE)
+    def __init__(self, values: np.ndarray | None = None):
+        self._buf = np.zeros(STATE_SIZE) if values is None else values
         self.joints = self._buf[_JOINTS].reshape(3, N_INDEPENDENT)
 
-    def set_base(self, rotation: np.ndarray, motion) -> None:
-        """The base's rotation (3, 3) and [twist (6); acceleration (6)] (12,)."""
-        self._buf[_ROTATION] = rotation.reshape(-1)
-        self._buf[_MOTION] = motion
+    def set_base(self, fields: np.ndarray) -> None:
+        """The base's rotation (9, row-major), twist (6) and acceleration (6), (21,)."""
+        self._buf[_BASE] = fields
 
     def set_suspension(self, forces: np.ndarray) -> None:
         """The two suspension cylinders' forces [N], the first two of ``forces``."""
         self._buf[_SUSPENSION] = forces[:2]
 
-    def state(self, time: float, servo_setpoint: np.ndarray) -> MachineState:
+    def state(self, time: float, servo_setpoint: np.ndarray,
+              rotation_valid: bool = False) -> MachineState:
         """The `MachineState` of the buffer (taken over: not written afterwards).
 
         ``servo_setpoint``: a read-only checked array (`SensorReadings`'), shared; a writable
-        one, or a non-finite field, takes the validating constructor.
+        one, or a non-finite field, takes the validating constructor. ``rotation_valid``:
+        the rotation passed `check_rotation`'s test (`BaseFilter.rotation_valid`); False:
+        tested here.
         """
         buf = self._buf
         buf.flags.writeable = False  # views made from now on are read-only too
@@ -66,8 +73,13 @@ class StateBuffer:
         if servo_setpoint.flags.writeable or not np.isfinite(buf).all():
             return MachineState(*fields, float(time), None, buf[_SUSPENSION],
                                 servo_setpoint)
-        check_rotation("base_rotation", rotation)
-        return MachineState._trusted(*fields, time, None, buf[_SUSPENSION], servo_setpoint)
+        if not rotation_valid:
+            check_rotation("base_rotation", rotation)
+        # `MachineState._trusted` less its freezing: every view of `buf` is read-only
+        new = object.__new__(MachineState)
+        new.__dict__.update(zip(_STATE_NAMES, (*fields, float(time), None, buf[_SUSPENSION],
+                                               servo_setpoint)))
+        return new
 
 
 def with_fields(state: MachineState, **changes) -> MachineState:
@@ -85,16 +97,14 @@ def with_fields(state: MachineState, **changes) -> MachineState:
     return new
 
 
-def wheel_contacts(in_contact: np.ndarray, longitudinal: list, point: np.ndarray,
-                   normal: np.ndarray, geometry_finite: bool) -> WheelContacts:
-    """`WheelContacts` whose force is ``longitudinal`` along fb x (4 floats [N]).
+def wheel_contacts(in_contact: np.ndarray, force: np.ndarray, point: np.ndarray,
+                   normal: np.ndarray, finite: bool) -> WheelContacts:
+    """`WheelContacts` of fresh arrays: taken over (frozen, not copied).
 
-    ``in_contact`` bool (4,), ``point`` and ``normal`` float (4, 3): taken over (frozen, not
-    copied); ``geometry_finite``: whether those two are finite (the caller's test).
+    ``in_contact`` bool (4,), ``force``, ``point`` and ``normal`` float (4, 3); ``finite``:
+    whether the last three are finite (the caller's test).
     """
-    force = np.zeros((4, 3))
-    force[:, 0] = longitudinal
-    if not (geometry_finite and all(map(math.isfinite, longitudinal))):
+    if not finite:
         return WheelContacts(in_contact, force, point, normal)
     for a in (in_contact, force, point, normal):
         a.flags.writeable = False

@@ -34,6 +34,7 @@ from estimators.observer import filters_c
 from estimators.observer._vec3 import cross, norm
 from models.cbuild import bind
 from models.rotations import cross3
+from models.state import ROTATION_TOLERANCE
 
 __all__ = ["ANGULAR_ACCELERATION_TIME_CONSTANT", "ATTITUDE_TIME_CONSTANT", "BaseFilter",
            "ODOMETRY_ACCELERATION_TIME_CONSTANT"]
@@ -41,6 +42,7 @@ __all__ = ["ANGULAR_ACCELERATION_TIME_CONSTANT", "ATTITUDE_TIME_CONSTANT", "Base
 ATTITUDE_TIME_CONSTANT = 2.0  # [s] the accelerometer's pull on the attitude
 ANGULAR_ACCELERATION_TIME_CONSTANT = 0.03  # [s]
 ODOMETRY_ACCELERATION_TIME_CONSTANT = 0.05  # [s] low-pass of the odometry's speed change
+_ROTATION_VALID = filters_c.BASE_STATE["rotation_valid"]
 _EYE = np.eye(3)
 _EYE.flags.writeable = False
 
@@ -76,8 +78,7 @@ class BaseFilter:
         self.p = np.asarray(imu_position, float)
         self.g = float(gravity)
         self.r_wheel = float(wheel_radius)
-        self.rotation = np.eye(3)
-        self.rate = np.zeros(3)
+        self._rotation = np.eye(3)
         self._levelled = False
         self._odometry_acceleration = (0.0, 0.0, 0.0)
         self._last_rate: tuple | None = None
@@ -89,13 +90,19 @@ class BaseFilter:
         lib = filters_c.compiled_filters() if compiled else None
         self._c = None
         if lib is not None:  # the state in C's buffer (`filters_c.BASE_STATE`)
+            at = filters_c.BASE_STATE
             self._state = np.zeros(filters_c.BASE_STATE_SIZE)
+            self._state[at["rotation"]] = _EYE.reshape(-1)
+            self._state[at["f"]] = self._f
+            self._state[at["rotation_valid"]] = 1.0
             self._consts = np.array([*self.p, self.g, self.r_wheel,
                                      ANGULAR_ACCELERATION_TIME_CONSTANT,
                                      ODOMETRY_ACCELERATION_TIME_CONSTANT,
-                                     ATTITUDE_TIME_CONSTANT])
+                                     ATTITUDE_TIME_CONSTANT, ROTATION_TOLERANCE])
             self._in = np.zeros(10)
             self._c = bind(lib.base_step, self._state, self._consts, self._in)
+            self._fields = self._state[filters_c.BASE_FIELDS]
+            self._fields.flags.writeable = False  # C writes it; readers copy
 
     def update(self, time: float, rates: np.ndarray, forces: np.ndarray,
                wheel_speeds: np.ndarray | None) -> None:
@@ -103,6 +110,10 @@ class BaseFilter:
         n_w, n_f = rates.shape[0], forces.shape[0]
         if n_w == 0 or n_f == 0:
             return  # nothing new: keep the state (the caller flags the gap)
+        dt = 0.0 if self._last_time is None else max(time - self._last_time, 0.0)
+        if self._c is not None:
+            self._update_c(time, dt, rates, forces, n_w, n_f, wheel_speeds)
+            return
         # `mean(axis=0)`: the same sum (numpy's own reduction) over the same count
         w_arr = np.add.reduce(rates, 0) / n_w
         f_arr = np.add.reduce(forces, 0) / n_f
@@ -110,25 +121,16 @@ class BaseFilter:
         f_p = f_arr.tolist()
         if not all(map(math.isfinite, w + f_p)):
             raise EstimatorError("IMU samples hold NaN or inf")
-        dt = 0.0 if self._last_time is None else max(time - self._last_time, 0.0)
         if not self._levelled:  # first tick: level the attitude on gravity at once
-            self._levelled = True
-            self.rotation = _level(f_arr)
-            if self._c is not None:
-                self._state[filters_c.BASE_STATE["rotation"]] = self.rotation.reshape(-1)
-        if self._c is not None:
-            self._update_c(time, dt, w, f_p, wheel_speeds)
-            self.rate = w_arr
-            return
+            self.level(f_arr)
         alpha = self._alpha
         if dt > 0:
-            self.rotation = self.rotation @ _exp(wx * dt, wy * dt, wz * dt)
+            self._rotation = self._rotation @ _exp(wx * dt, wy * dt, wz * dt)
             a = dt / (ANGULAR_ACCELERATION_TIME_CONSTANT + dt)
             (ax, ay, az), (lx, ly, lz) = alpha, self._last_rate
             alpha = self._alpha = (ax + a * ((wx - lx) / dt - ax), ay + a * ((wy - ly) / dt - ay),
                                    az + a * ((wz - lz) / dt - az))
         self._w = self._last_rate = w
-        self.rate = w_arr
         p = self.p.tolist()
         (c1x, c1y, c1z), (c2x, c2y, c2z) = cross(alpha, p), cross(w, cross(w, p))
         fx, fy, fz = f_p
@@ -154,67 +156,127 @@ class BaseFilter:
             b = dt / (min(ATTITUDE_TIME_CONSTANT, 0.05 + self._age) + dt)
             n = norm((gx, gy, gz))
             up_meas = (gx / n, gy / n, gz / n)
-            up_est = self.rotation[2].tolist()  # R^T e_z
+            up_est = self._rotation[2].tolist()  # R^T e_z
             # Rotate the estimate by a share of the small angle between the up directions.
             x, y, z = cross(up_meas, up_est)
-            self.rotation = _orthonormal(self.rotation @ _exp(b * x, b * y, b * z))
+            self._rotation = _orthonormal(self._rotation @ _exp(b * x, b * y, b * z))
         self._v = velocity
         self._last_time = time
 
-    def _update_c(self, time: float, dt: float, w: list, f_p: list,
-                  wheel_speeds: np.ndarray | None) -> None:
-        """`update`'s arithmetic after its checks, in C (`filters_c.base_step`)."""
-        inp, st, at = self._in, self._state, filters_c.BASE_STATE
-        wheel = (0.0, 0.0, 0.0)
-        if wheel_speeds is not None:
-            left, right = wheel_speeds.tolist()
-            if math.isfinite(left) and math.isfinite(right):
-                wheel = (1.0, left, right)
-        inp[:] = (dt, *w, *f_p, *wheel)
-        self._c()
-        self.rotation = st[at["rotation"]].reshape(3, 3).copy()
-        values = st.tolist()
-        self._alpha = tuple(values[at["alpha"]])
-        self._w = self._last_rate = w
-        self._f = tuple(values[at["f"]])
-        self._v = tuple(values[at["v"]])
-        self._age = values[at["age"]]
+    def _update_c(self, time: float, dt: float, rates: np.ndarray, forces: np.ndarray,
+                  n_w: int, n_f: int, wheel_speeds: np.ndarray | None) -> None:
+        """`update` in C (`filters_c.base_step`): the means written into its input buffer."""
+        inp = self._in
+        inp[0] = dt
+        # `mean(axis=0)` as the Python path's: numpy's reduction, then the division
+        w, f = inp[1:4], inp[4:7]
+        np.add.reduce(rates, 0, out=w)
+        np.divide(w, n_w, out=w)
+        np.add.reduce(forces, 0, out=f)
+        np.divide(f, n_f, out=f)
+        if wheel_speeds is None:
+            inp[7] = 0.0
+        else:
+            inp[7] = 1.0
+            inp[8:10] = wheel_speeds
+        if not self._levelled:  # first tick: level the attitude on gravity at once
+            if not np.isfinite(inp[1:7]).all():
+                raise EstimatorError("IMU samples hold NaN or inf")
+            self.level(f)
+        if self._c():
+            raise EstimatorError("IMU samples hold NaN or inf")
         self._last_time = time
+
+    def level(self, specific_force: np.ndarray) -> None:
+        """Level the attitude on the (finite) mean specific force [m/s^2] (3,) (yaw zero)."""
+        self._levelled = True
+        rotation = _level(np.array(specific_force, float))
+        if self._c is not None:
+            self._state[filters_c.BASE_STATE["rotation"]] = rotation.reshape(-1)
+        else:
+            self._rotation = rotation
+
+    def _floats(self, name: str) -> list:
+        """The field ``name`` (alpha, f, v, w) as floats: C's state buffer's, or Python's."""
+        if self._c is not None:
+            return self._state[filters_c.BASE_STATE[name]].tolist()
+        return list(getattr(self, "_" + name))
+
+    @property
+    def rotation(self) -> np.ndarray:
+        """The attitude world <- fb, (3, 3)."""
+        if self._c is not None:
+            return self._state[filters_c.BASE_STATE["rotation"]].reshape(3, 3).copy()
+        return self._rotation
+
+    @property
+    def up(self) -> list:
+        """``R^T e_z``, the third row of `rotation`, as floats (3,)."""
+        if self._c is not None:
+            return self._state[6:9].tolist()
+        return self._rotation[2].tolist()
+
+    @property
+    def rate(self) -> np.ndarray:
+        """The last tick's mean angular rate [rad/s] in fb, (3,)."""
+        return np.array(self._floats("w"))
+
+    @property
+    def rotation_valid(self) -> bool:
+        """Whether `rotation` passed `models.state.check_rotation`'s test (in C, its step's).
+
+        False: failed, not finite, or not known (without C): the caller checks it.
+        """
+        return self._c is not None and self._state[_ROTATION_VALID] != 0.0
+
+    def base_fields(self) -> np.ndarray:
+        """[rotation (9, row-major); `twist` (6); `acceleration` (6)], (21,).
+
+        With C its buffer's view (read-only; the next `update` writes it: copy to keep).
+        """
+        if self._c is not None:
+            return self._fields
+        return np.array([*self._rotation.reshape(-1).tolist(), *self.motion()])
 
     @property
     def angular_acceleration(self) -> np.ndarray:
         """[rad/s^2] in fb, (3,)."""
-        return np.array(self._alpha)
+        return np.array(self._floats("alpha"))
 
     @property
     def specific_force(self) -> np.ndarray:
         """The specific force at the fb origin [m/s^2] in fb, (3,)."""
-        return np.array(self._f)
+        return np.array(self._floats("f"))
 
     @property
     def velocity(self) -> np.ndarray:
         """The odometry's linear velocity [m/s] in fb, (3,)."""
-        return np.array(self._v)
+        return np.array(self._floats("v"))
 
     @property
     def twist(self) -> np.ndarray:
         """[v; w] in fb, (6,)."""
-        return np.array((*self._v, *self._w))
+        return np.array(self._floats("v") + self._floats("w"))
 
     def motion(self) -> list:
         """[`twist`; `acceleration`] as floats, (12,): the same numbers, no arrays made."""
-        return [*self._v, *self._w, *self._v_dot(), *self._alpha]
+        return self._floats("v") + self._floats("w") + self._v_dot() + self._floats("alpha")
 
     @property
     def acceleration(self) -> np.ndarray:
         """The twist derivative the dynamics get (module docstring), (6,)."""
-        return np.array([*self._v_dot(), *self._alpha])
+        return np.array(self._v_dot() + self._floats("alpha"))
 
     def _v_dot(self) -> list:
-        """The linear part of `acceleration`: ``f - w x v - g R^T e_z`` as floats, (3,)."""
-        up = self.rotation[2].tolist()
+        """The linear part of `acceleration`: ``f - w x v - g R^T e_z`` as floats, (3,).
+
+        (C writes it at the end of its step, the same operations.)
+        """
+        if self._c is not None:
+            return self._state[filters_c.BASE_STATE["v_dot"]].tolist()
         g = self.g
-        return [fi - ci - g * ui for fi, ci, ui in zip(self._f, cross(self._w, self._v), up)]
+        return [fi - ci - g * ui
+                for fi, ci, ui in zip(self._f, cross(self._w, self._v), self.up)]
 
 
 def _orthonormal(r: np.ndarray) -> np.ndarray:

@@ -24,9 +24,16 @@ from estimators.errors import EstimatorError
 from estimators.observer import filters_c
 from models.cbuild import bind
 
-__all__ = ["JOINT_JERK_DENSITY", "JointFilter"]
+__all__ = ["JOINT_JERK_DENSITY", "POSITION_FAULT", "POSITION_GATE", "JointFilter"]
 
 JOINT_JERK_DENSITY = 1.0  # [unit/s^3/sqrt(Hz)] white jerk of the axes' motion model
+# A position sample further outside its axis's range than this fraction of the range's span
+# is a sensor fault (a wire break, a spike), not a position: the observer refuses the tick's
+# readings before the filter sees them (a few millimetres past an end stop, where MuJoCo's
+# soft limits and the sensor's noise can put a stroke, are not; the state's q is clipped).
+POSITION_GATE = 0.1
+POSITION_FAULT = (f"a position sample lies outside its axis's range by more than "
+                  f"{POSITION_GATE:.0%} of the span: a sensor fault")
 
 
 class JointFilter:

@@ -9,15 +9,16 @@ Once per control tick (`Observer.update`) it takes the readings delivered since 
   run over every sample, predicted to the tick), the wheels' angles and speeds from the
   wheel-motor speeds;
 * the suspension cylinder forces from their chamber pressures (mean over the tick);
-* the contact flags from the forces themselves: a wheel whose estimated normal force falls
-  below `CONTACT_OFF_N` is out of contact until its four-wheel estimate has stayed above
-  `CONTACT_ON_N` for `CONTACT_TICKS` ticks (a wheel bouncing off the ground reads high
-  before it lands) or exceeds `CONTACT_LANDING_N` once (an impact; `docs/sensors.md`); the
-  estimator then solves the three-wheel system of Sec. III-B. The contact points are the
-  wheels' lowest points (the estimator's geometry), the friction forces zero: no per-wheel
-  measurement exists, and the estimator takes the tangential forces the dynamics require at
-  the contacts' mean height (`estimators.full_dynamics`), except the longitudinal forces,
-  which each side's drive torque gives (`_longitudinal`);
+* the contact flags from the forces themselves (`contacts.ContactTracker`): a wheel whose
+  estimated normal force falls below `CONTACT_OFF_N` is out of contact until its four-wheel
+  estimate has stayed above `CONTACT_ON_N` for `CONTACT_TICKS` ticks (a wheel bouncing off
+  the ground reads high before it lands) or exceeds `CONTACT_LANDING_N` once (an impact;
+  `docs/sensors.md`); the estimator then solves the three-wheel system of Sec. III-B. The
+  contact points are the wheels' lowest points (the estimator's geometry), the friction
+  forces zero: no per-wheel measurement exists, and the estimator takes the tangential
+  forces the dynamics require at the contacts' mean height (`estimators.full_dynamics`),
+  except the longitudinal forces, which each side's drive torque gives
+  (`ContactTracker.longitudinal`);
 * the payload mass from the lift and tilt cylinder pressures (`payload_rls.PayloadRLS`),
   with pick and release events;
 * `uncertainty`: the standard deviations of its errors (`estimators.uncertainty`).
@@ -39,14 +40,19 @@ from estimators.errors import EstimatorError
 from estimators.linearization import N_GENERALIZED
 from estimators.observer import filters_c, link_fusion
 from estimators.observer._states import StateBuffer, wheel_contacts, with_fields
-from estimators.observer._vec3 import ground_normal as _ground_normal
-from estimators.observer._vec3 import norm
+from estimators.observer._tick import TickPass
 from estimators.observer.base_filter import ANGULAR_ACCELERATION_TIME_CONSTANT, BaseFilter
+from estimators.observer.contacts import (
+    CONTACT_LANDING_N,
+    CONTACT_OFF_N,
+    CONTACT_ON_N,
+    CONTACT_TICKS,
+    ContactTracker,
+)
 from estimators.observer.crane_pressures import SLIDING_SPEED, CranePressures
-from estimators.observer.joint_filter import JointFilter
+from estimators.observer.joint_filter import POSITION_FAULT, POSITION_GATE, JointFilter
 from estimators.observer.payload_rls import EXPECTED_PICK_TICKS, PayloadRLS, without_seal_friction
 from estimators.uncertainty import StateUncertainty, model_normal_forces
-from models.cbuild import bind
 from models.coordinates import N_INDEPENDENT
 from models.description import Machine
 from models.numeric import clip
@@ -62,10 +68,6 @@ from models.state import N_SERVO_AXES, MachineState
 __all__ = ["CONTACT_LANDING_N", "CONTACT_OFF_N", "CONTACT_ON_N", "CONTACT_TICKS", "Observer",
            "ObserverEstimate"]
 
-CONTACT_OFF_N = 300.0  # [N] below this a wheel is leaving the ground (at once)
-CONTACT_ON_N = 800.0  # [N] above this on `CONTACT_TICKS` ticks in a row it is back
-CONTACT_TICKS = 3
-CONTACT_LANDING_N = 2000.0  # [N] above this once, a lifted wheel has landed (an impact)
 WHEEL_ACCELERATION_TIME_CONSTANT = 0.05  # [s]
 _LIFT, _TILT = 3, 4  # independent coordinates of the lift and tilt cylinders
 SLIDING_FRICTION_STD = 0.2  # std of a sliding seal's friction about its rating [-]
@@ -74,7 +76,7 @@ EVENT_VARIANCE_SCALE = 0.1  # filtered over raw innovation variance: 0.01 still,
 _PRESS_LIFT_TILT = [PRESSURE_CYLINDERS.index("lift"), PRESSURE_CYLINDERS.index("tilt")]
 _NO_FORCES = np.zeros(5)  # [N] the cylinders' forces before any pressure reading
 _NO_FORCES.flags.writeable = False
-_ONES = np.ones(4)  # the first tick's "previous" forces (`_longitudinal`: an even split)
+_ONES = np.ones(4)  # the first tick's "previous" forces (`ContactTracker.longitudinal`: even)
 _ALL_FOUR = np.ones(4, bool)  # the flags' estimate: every wheel down (shared, read-only)
 _ALL_FOUR.flags.writeable = False
 # Per tick the observer works on a handful of numbers: where numpy's per-call cost (~1 us)
@@ -117,8 +119,9 @@ class Observer:
         initial_payload: Prior of the payload [kg] (the empty grapple's mass is a fair one);
             None: the description's.
         initial_payload_std: Its std [kg].
-        compiled: Run the filters' and the fit's arithmetic in C (`filters_c`,
-            `fusion_c`: the same results to round-off) when a C compiler is there; False:
+        compiled: Run the filters', the fit's and the contacts' arithmetic in C
+            (`filters_c`, `fusion_c`, `contacts_c`: the same results to round-off; the
+            state's first part in one call, `_tick`) when a C compiler is there; False:
             Python and numpy.
     """
 
@@ -175,25 +178,26 @@ class Observer:
         self._wheel_rate = [0.0] * 4
         self._wheel_acc = [0.0] * 4
         self._suspension = None
-        self._drive: list | None = None
         wheel = machine.body(machine.wheels[0])
-        self._wheel_inertia = float(wheel.inertia.inertia[1, 1] + wheel.joint.armature)
-        self._in_contact = [True] * 4
-        self._above = [0] * 4
         self._last_time: float | None = None
         self._last: ObserverEstimate | None = None
         self._uncertainty_const = self._uncertainty_parts()
-        self._sphere_wheels = bool(getattr(getattr(force_model, "tree", None),
-                                           "wheel_is_sphere", True))
+        self.contacts = ContactTracker(
+            machine.wheel_radius, float(wheel.inertia.inertia[1, 1] + wheel.joint.armature),
+            bool(getattr(getattr(force_model, "tree", None), "wheel_is_sphere", True)),
+            compiled)
         # Constant per tick: areas, ranges, the error model (checked once), the crane rows.
         self._area_a, self._area_b = areas[:, 0].copy(), areas[:, 1].copy()
-        self._filters_c = filters_c.compiled_filters() if compiled else None
-        self._forces_c = None
-        if self._filters_c is not None:
-            self._forces = np.zeros(len(PRESSURE_CYLINDERS))
-            self._bind_forces(8)
         self._q_lo = machine.coordinates.lower[:N_SERVO_AXES]
         self._q_hi = machine.coordinates.upper[:N_SERVO_AXES]
+        span = POSITION_GATE * (self._q_hi - self._q_lo)
+        self._gate = (self._q_lo - span, self._q_hi + span)
+        lib = filters_c.compiled_filters() if compiled else None
+        self._tick = None  # the state's first part in one C call (`_tick`), else Python
+        if lib is not None and self.base._c is not None and self.joints._c is not None:
+            self._tick = TickPass(lib, self.base, self.joints, areas, self._q_lo,
+                                  self._q_hi, *self._gate, WHEEL_ACCELERATION_TIME_CONSTANT)
+            self.contacts.wheel_acceleration = self._tick.wheels[8:]  # read in place
         accel_std, qd_std = self._uncertainty_const
         self._uncertainty = StateUncertainty(
             acceleration=accel_std, qd=qd_std,
@@ -255,44 +259,18 @@ class Observer:
             return dataclasses.replace(self._last, stale=True)
 
     def _update(self, r: SensorReadings) -> ObserverEstimate:
-        wheel_speeds, drive_torques = r.wheel_speeds.value, r.drive_torques.value
-        if not (np.isfinite(wheel_speeds).all() and np.isfinite(drive_torques).all()):
-            raise EstimatorError("wheel-speed or drive-torque readings hold NaN or inf")
         t = r.time
         dt = 0.0 if self._last_time is None else t - self._last_time
-        wheels = wheel_speeds[-1] if wheel_speeds.shape[0] else None
-        base = self.base
-        base.update(t, r.angular_rate.value, r.specific_force.value, wheels)
-        positions, p = r.positions, r.pressures.value
-        n_pos, n_press = positions.value.shape[0], p.shape[0]
-        stale = n_pos == 0 or n_press == 0
-        if n_pos:
-            self.joints.update(positions.value)
-            x = self.joints.predict_rows(max(t - positions.time[-1], 0.0))
+        base, drive_torques = self.base, r.drive_torques.value
+        stale = r.positions.value.shape[0] == 0 or r.pressures.value.shape[0] == 0
+        if self._tick is not None:
+            buf = StateBuffer(self._tick.run(r, dt))
+            if r.pressures.value.shape[0]:
+                self._suspension = self._tick.forces.copy()
+            forces = self._suspension if self._suspension is not None else _NO_FORCES
         else:
-            x = self.joints.predict_rows(0.0)
-        if wheels is not None:
-            left, right = wheels.tolist()
-            rate = [left, left, right, right]  # FL, RL, FR, RR
-            if dt > 0:  # low-passed: the pick-ups' counts are coarse
-                a = dt / (WHEEL_ACCELERATION_TIME_CONSTANT + dt)
-                self._wheel_acc = [acc + a * ((w - w0) / dt - acc) for acc, w, w0
-                                   in zip(self._wheel_acc, rate, self._wheel_rate)]
-            self._wheel_rate = rate
-        self._wheel_angle = [q + dt * w for q, w in zip(self._wheel_angle, self._wheel_rate)]
-        if n_press:
-            self._suspension = self._cylinder_forces(p)
-        forces = self._suspension if self._suspension is not None else _NO_FORCES
-        # The state's float fields in one buffer: q, qd, qdd are the rows of `joints`.
-        buf = StateBuffer()
-        buf.set_base(base.rotation, base.motion())
-        joints = buf.joints
-        joints[:, :N_SERVO_AXES] = x
-        joints[:, N_SERVO_AXES:] = (self._wheel_angle, self._wheel_rate, self._wheel_acc)
-        q = joints[0, :N_SERVO_AXES]
-        clip(q, self._q_lo, self._q_hi, out=q)
-        buf.set_suspension(forces)
-        state = buf.state(t, r.servo_setpoint)
+            buf, forces = self._state_fields(r, dt)
+        state = buf.state(t, r.servo_setpoint, base.rotation_valid)
         if self.links is not None:  # the crane's accelerations from the link accelerometers
             state = with_fields(state, qdd=self.links.accelerations(state,
                                                                      r.link_specific_force))
@@ -310,23 +288,18 @@ class Observer:
             state = with_fields(state, qdd=self.crane.accelerations(state, forces, mass))
         self.force_model.payload_mass = mass
         if drive_torques.shape[0]:
-            self._drive = (np.add.reduce(drive_torques, 0) / drive_torques.shape[0]).tolist()
+            self.contacts.set_drive(drive_torques)
         # The wheels' centres from the geometry (without contacts the estimator gives their
         # lowest points), the contact points below them along the ground's normal, then the
         # four-wheel forces at those points for the flags.
-        lowest = self.force_model.contact_points(state)
-        points, normal = self._contact_points(lowest, base.rotation)
-        normals = np.empty((4, 3))
-        normals[:] = normal
-        finite = bool(np.isfinite(points).all()) and all(map(math.isfinite, normal))
         previous = self._last.forces_four if self._last is not None else _ONES
-        all_four = wheel_contacts(_ALL_FOUR, self._longitudinal(previous), points, normals,
-                                  finite)
+        points, normals, force, finite, force_finite = self.contacts.points(
+            self.force_model.contact_points(state), base.up, previous)
+        all_four = wheel_contacts(_ALL_FOUR, force, points, normals, finite and force_finite)
         four = np.asarray(model_normal_forces(
             self.force_model, with_fields(state, contacts=all_four)), float)
-        self._contacts(four)
-        contacts = wheel_contacts(np.array(self._in_contact), self._longitudinal(four), points,
-                                  normals, finite)
+        flags, force, force_finite = self.contacts.update(four)
+        contacts = wheel_contacts(flags, force, points, normals, finite and force_finite)
         state = with_fields(state, contacts=contacts)
         std = self.payload.std
         unc = self._uncertainty.with_payload_mass(std)
@@ -334,35 +307,63 @@ class Observer:
         self._last = ObserverEstimate(state, mass, std, self.payload.event, unc, four, stale)
         return self._last
 
+    def _state_fields(self, r: SensorReadings, dt: float) -> tuple[StateBuffer, np.ndarray]:
+        """The state's float fields and the cylinder forces [N] (5,), in Python (`_tick`).
+
+        ``dt``: the time since the last tick [s].
+        """
+        wheel_speeds, drive_torques = r.wheel_speeds.value, r.drive_torques.value
+        if not (np.isfinite(wheel_speeds).all() and np.isfinite(drive_torques).all()):
+            raise EstimatorError("wheel-speed or drive-torque readings hold NaN or inf")
+        t = r.time
+        wheels = wheel_speeds[-1] if wheel_speeds.shape[0] else None
+        base = self.base
+        base.update(t, r.angular_rate.value, r.specific_force.value, wheels)
+        positions, p = r.positions, r.pressures.value
+        if positions.value.shape[0]:
+            z = positions.value
+            if (np.isfinite(z).all() and (np.logical_or.reduce(z < self._gate[0], None)
+                                          or np.logical_or.reduce(z > self._gate[1], None))):
+                raise EstimatorError(POSITION_FAULT)
+            self.joints.update(z)
+            x = self.joints.predict_rows(max(t - positions.time[-1], 0.0))
+        else:
+            x = self.joints.predict_rows(0.0)
+        if wheels is not None:
+            left, right = wheels.tolist()
+            rate = [left, left, right, right]  # FL, RL, FR, RR
+            if dt > 0:  # low-passed: the pick-ups' counts are coarse
+                a = dt / (WHEEL_ACCELERATION_TIME_CONSTANT + dt)
+                self._wheel_acc = [acc + a * ((w - w0) / dt - acc) for acc, w, w0
+                                   in zip(self._wheel_acc, rate, self._wheel_rate)]
+            self._wheel_rate = rate
+            self.contacts.wheel_acceleration = self._wheel_acc
+        self._wheel_angle = [q + dt * w for q, w in zip(self._wheel_angle, self._wheel_rate)]
+        if p.shape[0]:
+            self._suspension = self._cylinder_forces(p)
+        forces = self._suspension if self._suspension is not None else _NO_FORCES
+        # The state's float fields in one buffer: q, qd, qdd are the rows of `joints`.
+        buf = StateBuffer()
+        buf.set_base(base.base_fields())
+        joints = buf.joints
+        joints[:, :N_SERVO_AXES] = x
+        joints[:, N_SERVO_AXES:] = (self._wheel_angle, self._wheel_rate, self._wheel_acc)
+        q = joints[0, :N_SERVO_AXES]
+        clip(q, self._q_lo, self._q_hi, out=q)
+        buf.set_suspension(forces)
+        return buf, forces
+
     def _cylinder_forces(self, p: np.ndarray) -> np.ndarray:
         """`models.sensing.cylinder_force` [N] (5,), the mean over the tick's samples (k, 10).
-
-        In C (`filters_c.cylinder_forces`: numpy's operations and order, the same bits)
-        when compiled: the samples are copied into a bound buffer (cheaper than their
-        address).
 
         Raises:
             EstimatorError: A force is not finite.
         """
-        k = p.shape[0]
-        if self._forces_c is None:
-            forces = np.add.reduce(p[:, 0::2] * self._area_a - p[:, 1::2] * self._area_b,
-                                   0) / k
-            if not np.isfinite(forces).all():
-                raise EstimatorError("pressure readings hold NaN or inf")
-            return forces
-        if k > self._pressures.shape[0]:
-            self._bind_forces(2 * k)
-        self._pressures[:k] = p
-        if self._forces_c(k):
+        forces = np.add.reduce(p[:, 0::2] * self._area_a - p[:, 1::2] * self._area_b,
+                               0) / p.shape[0]
+        if not np.isfinite(forces).all():
             raise EstimatorError("pressure readings hold NaN or inf")
-        return self._forces.copy()
-
-    def _bind_forces(self, rows: int) -> None:
-        """`filters_c.cylinder_forces` bound to a buffer of ``rows`` pressure samples."""
-        self._pressures = np.zeros((rows, 2 * len(PRESSURE_CYLINDERS)))
-        self._forces_c = bind(self._filters_c.cylinder_forces, self._area_a, self._area_b,
-                              self._forces, self._pressures)
+        return forces
 
     def _filtered(self, dt: float, measured, f0, y):
         """The payload regression's three sides through one first-order low-pass.
@@ -380,63 +381,3 @@ class Observer:
             self._regression = [z + a * (n - z) for z, n in zip(self._regression, now)]
         z = self._regression
         return z[:2], z[2:4], z[4:]
-
-    def _longitudinal(self, forces: np.ndarray) -> list:
-        """Each wheel's longitudinal ground force [N] (fb x), from its side's drive torque.
-
-        A wheel's spin balance gives the ground's force ``f_x = (tau - I_w w_dot) / r``; a
-        side's two wheels share one motor, so its torque gives their sum, split in
-        proportion to their normal forces. The bogie balances need the sum per side (the
-        contacts lie at about the same depth below the pivot); without it, skid-steer
-        turning costs the cylinder-force row 6.5 % of the static wheel load (measured on
-        the flat run), with it 0.8 %.
-        """
-        out = [0.0] * 4
-        if self._drive is None:
-            return out
-        r = self.machine.wheel_radius
-        fz = forces.tolist()
-        acc = self._wheel_acc
-        for side, (a, b) in enumerate(((0, 1), (2, 3))):
-            total = (self._drive[side] - self._wheel_inertia * (acc[a] + acc[b])) / r
-            fa, fb = max(fz[a], 0.0), max(fz[b], 0.0)  # NaN stays, as np.maximum's
-            s = fa + fb
-            share = (fa / s, fb / s) if s > 0 else (0.5, 0.5)
-            out[a], out[b] = total * share[0], total * share[1]
-        return out
-
-    def _contact_points(self, lowest: np.ndarray,
-                        rotation: np.ndarray) -> tuple[np.ndarray, list]:
-        """Each wheel's contact point in fb (4, 3), and the ground's normal (3,).
-
-        The estimator's geometry gives the wheel's point lowest along gravity (in the
-        wheel's plane for disc wheels, their axes being fb's y), hence its centre; the
-        contact point is the centre less a radius along the ground's normal. On a
-        plane, the centres of the wheels that touch it lie on a parallel plane one radius
-        above it, so the normal of the plane through the touching wheels' centres (three:
-        exact; four: the diagonals' cross product) is the ground's; with fewer than three
-        touching, the chassis normal (measured against MuJoCo's: `docs/sensors.md`).
-        """
-        up = rotation[2].tolist()
-        if not self._sphere_wheels:
-            up[1] = 0.0
-            n = norm(up)
-            up = [v / n for v in up]
-        r = self.machine.wheel_radius
-        r_up = [r * v for v in up]  # on floats: `lowest + r * up` as numpy would round it
-        centre = [[a + b for a, b in zip(row, r_up)] for row in lowest.tolist()]
-        normal = _ground_normal(centre, self._in_contact)
-        if not self._sphere_wheels:  # a disc touches in its own plane
-            normal[1] = 0.0
-            n = norm(normal)
-            normal = [v / n for v in normal]
-        r_normal = [r * v for v in normal]
-        return np.array([[a - b for a, b in zip(row, r_normal)] for row in centre]), normal
-
-    def _contacts(self, forces: np.ndarray) -> None:
-        f = forces.tolist()
-        self._above = above = [n + 1 if x > CONTACT_ON_N else 0 for n, x in zip(self._above, f)]
-        self._in_contact = [(c and x >= CONTACT_OFF_N)
-                            or (not c and (n >= CONTACT_TICKS or x > CONTACT_LANDING_N))
-                            for c, x, n in zip(self._in_contact, f, above)]
-

@@ -126,6 +126,8 @@ class PayloadRLS:
         if _insensitive(y0, y1) or not (math.isfinite(m0) and math.isfinite(m1)):
             return
         f00, f01 = _floats(f0)
+        if not (math.isfinite(f00) and math.isfinite(f01)):
+            return  # no information (the caller's state was not finite)
         mass = self.mass
         nu = [m0 - f00 - y0 * mass, m1 - f01 - y1 * mass]
         r = self.R.tolist()
@@ -154,10 +156,14 @@ class PayloadRLS:
             self._run = 0
         # one step (with the reset covariance after an event: moves the mass to the new load)
         k0, k1 = (p * _gain(y0, y1, p, r[0], r[1], [y0, y1])).tolist()
-        self.mass = mass + float(k0 * nu[0] + k1 * nu[1])
-        self.P = float(p - p * (k0 * y0 + k1 * y1))
-        if not self.P > 0 and p > 0:  # round-off: p k'y ~ p when y'R^-1 y p >> 1
-            self.P = 1.0 / (1.0 / p + y0 * y0 / r[0] + y1 * y1 / r[1])  # the same, exactly
+        new_mass = mass + float(k0 * nu[0] + k1 * nu[1])
+        new_p = float(p - p * (k0 * y0 + k1 * y1))
+        if not new_p > 0 and p > 0:  # round-off: p k'y ~ p when y'R^-1 y p >> 1
+            new_p = 1.0 / (1.0 / p + y0 * y0 / r[0] + y1 * y1 / r[1])  # the same, exactly
+        if not (math.isfinite(new_mass) and math.isfinite(new_p)):
+            self._run = 0  # a step the arithmetic cannot take (overflow): no update
+            return
+        self.mass, self.P = new_mass, new_p
         if event:
             self.event = "pick" if self.mass > self._recent[0][1] else "release"
             self.event_time = time
