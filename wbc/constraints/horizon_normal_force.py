@@ -19,7 +19,7 @@ from wbc.force_models.protocol import (
     linearize_forces,
     linearized_contact_flags,
 )
-from wbc.mpc.prediction import nominal_state
+from wbc.mpc.prediction import nominal_state, predict_base_rotations
 
 __all__ = ["HorizonNormalForceConstraint"]
 
@@ -183,10 +183,17 @@ class HorizonNormalForceConstraint(ForceRowsConstraint):
         np.add(ctx.free_positions, pred.Lq @ u, out=qn[1:])  # `CondensedPrediction.trajectory`
         np.add(ctx.free_velocities, pred.Lv @ u, out=vn[1:])
         steps = self._structure(ctx).steps
-        lins = []
-        for j in steps:
-            st = ctx.state if j == 0 else nominal_state(ctx.state, start[j], qn[j], vn[j])
-            lins.append(linearize_forces(self.model, st))
+        st = ctx.state
+        lins = [linearize_forces(self.model, st)]  # steps[0] = 0: the measured state
+        later = steps[1:]
+        batch = getattr(self.model, "linearize_states", None)
+        if batch is not None and later.size:  # the later nodes in one compiled call
+            t = start[later]
+            nodes = batch(st, t, predict_base_rotations(st, t), qn[later], vn[later])
+            if nodes is not None:
+                return steps, lins + nodes, qn, vn
+        for j in later:
+            lins.append(linearize_forces(self.model, nominal_state(st, start[j], qn[j], vn[j])))
         return steps, lins, qn, vn
 
     def forces_map(self, ctx, in_contact=None) -> tuple[np.ndarray, np.ndarray]:
