@@ -94,14 +94,14 @@ class _Nodes:
                             lay.acceleration.stop - lay.acceleration.start, lay.q.start,
                             lay.qd.start, lay.qdd.start, cond, total], np.int64)
         self.max_cond = np.array([SINGULAR_CONDITION])
-        self.bounds = None  # the estimator's `range_bounds` (kept alive: pointed at)
+        self.ranges = self.bounds = None  # an estimator's ``_bounds``, `range_bounds`
         self._lib, self._kernel = lib, kernel
 
-    def bound(self, bounds) -> callable:
-        """The C call on these buffers for the coordinates' ``bounds`` (lower, upper)."""
-        if self.bounds is not bounds:
-            self.bounds = bounds
-            arrays = (self.template, self.rot, self.qa, self.va, self.dt, *bounds)
+    def bound(self, est) -> callable:
+        """The C call on these buffers for ``est``'s coordinate ranges."""
+        if self.ranges is not est._bounds:
+            self.ranges, self.bounds = est._bounds, range_bounds(est)  # kept: pointed at
+            arrays = (self.template, self.rot, self.qa, self.va, self.dt, *self.bounds)
             self.pointers = (ctypes.c_void_p * len(arrays))(*(a.ctypes.data for a in arrays))
             iw, w = self._kernel.workspace()
             self.call = bind(self._lib.linearize_rows, self._kernel.address, self.pointers,
@@ -156,7 +156,7 @@ def linearize_states(est, state: MachineState, dt: np.ndarray, rotation: np.ndar
     nodes.va[:n] = qd_head
     nodes.dt[:n] = dt
     nodes.iv[0] = n
-    if nodes.bound(range_bounds(est))() != 0:
+    if nodes.bound(est)() != 0:
         return None
     rows = nodes.out[:n].copy()
     rows.flags.writeable = False
