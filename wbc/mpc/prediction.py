@@ -160,10 +160,10 @@ def predict_base_pose(state: MachineState, t: float) -> tuple[np.ndarray, np.nda
 
 def predict_base_rotations(state: MachineState, times: np.ndarray) -> np.ndarray:
     """The rotations (world <- fb) of `predict_base_pose` at ``times`` [s] (n,): (n, 3, 3)."""
-    start = _start_pose(state)
+    start, twist = _start_pose(state), state.base_twist
     rotations = np.empty((len(times), 3, 3))
-    for k, motion in enumerate(np.multiply.outer(times, state.base_twist)):  # twist * t
-        rotations[k] = (start * pin.exp6(motion)).rotation
+    for k, t in enumerate(times.tolist()):
+        rotations[k] = (start * pin.exp6(twist * t)).rotation
     return rotations
 
 
