@@ -16,9 +16,11 @@ state, which clips, counts or raises as it does.
 from __future__ import annotations
 
 import ctypes
+from collections.abc import Callable
 
 import numpy as np
 
+from estimators._kernel_calls import Compiled
 from estimators._row_views import LINEARIZATION_VIEWS, ROW_CHECKS
 from estimators._symbolic import LAYOUT
 from estimators.batch import SINGULAR_CONDITION, range_bounds
@@ -97,7 +99,7 @@ class _Nodes:
         self.ranges = self.bounds = None  # an estimator's ``_bounds``, `range_bounds`
         self._lib, self._kernel = lib, kernel
 
-    def bound(self, est) -> callable:
+    def bound(self, est) -> Callable[[], int]:
         """The C call on these buffers for ``est``'s coordinate ranges."""
         if self.ranges is not est._bounds:
             self.ranges, self.bounds = est._bounds, range_bounds(est)  # kept: pointed at
@@ -146,8 +148,10 @@ def linearize_states(est, state: MachineState, dt: np.ndarray, rotation: np.ndar
     calls = est._calls.__dict__
     nodes = calls.get("linearize_rows")
     if nodes is None or nodes.capacity < n or nodes.m != m:
-        nodes = calls["linearize_rows"] = _Nodes(lib, est._kernels.kernel("nf_derivatives"),
-                                                 n, m)
+        kernel = est._kernels.kernel("nf_derivatives")
+        if not isinstance(kernel, Compiled):  # it did not compile: CasADi's VM
+            return None
+        nodes = calls["linearize_rows"] = _Nodes(lib, kernel, n, m)
     sel, flags = est._pack(nodes.template, state, est.D, est.beta, nodes.raw)
     if sel.tipping:
         return None

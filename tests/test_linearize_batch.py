@@ -11,7 +11,10 @@ from models import build_reference_machine
 from models.coordinates import WHEELS
 from models.state import WheelContacts
 from testkit.estimator_states import random_state
+from testkit.plant import KinematicPlant, make_state
+from wbc import ControllerConfig, JointGoal, MpcController
 from wbc.axes import N_AXES
+from wbc.controllers.registry import estimator_models
 from wbc.mpc.prediction import nominal_state, predict_base_rotations
 
 MACHINE = build_reference_machine()
@@ -104,3 +107,40 @@ def test_the_caches_are_not_touched(est):
     dt, rot, q, qd = _nodes(state, rng)
     est.linearize_states(state, dt, rot, q, qd)
     assert est.linearize(state) is lin
+
+
+class _OneByOne:
+    """The model without `linearize_states`: the constraint's per-node path."""
+
+    def __init__(self, model):
+        self.model = model
+
+    def estimate(self, state):
+        return self.model.estimate(state)
+
+    def linearize(self, state):
+        return self.model.linearize(state)
+
+
+def test_the_mpc_nodes_are_those_of_one_call_per_node(machine):
+    model, feedback = estimator_models(machine, "full")
+    ctrl = MpcController(machine, ControllerConfig(), force_model=model, feedback=feedback)
+    st = make_state(machine)
+    ctrl.set_goal(JointGoal(crane=st.q[2:9] + 0.1))
+    plant = KinematicPlant(st, 0.01)
+    for _ in range(4):
+        plant.apply(ctrl.step(plant.state))
+    ctx = ctrl.context(plant.state)
+    con = ctrl.force_constraint
+    steps, lins, qn, vn = con.linearize(ctx)
+    assert len(steps) > 1 and lins[1].__dict__["_row"].base is lins[-1].__dict__["_row"].base
+    con.model = _OneByOne(model)
+    try:
+        steps_ref, lins_ref, qn_ref, vn_ref = con.linearize(ctx)
+    finally:
+        con.model = model
+    np.testing.assert_array_equal(steps, steps_ref)
+    np.testing.assert_array_equal(qn, qn_ref)
+    for a, b in zip(lins, lins_ref, strict=True):
+        np.testing.assert_array_equal(a.__dict__["_row"], b.__dict__["_row"])
+        assert (a.mode, a.time, a.clipped) == (b.mode, b.time, b.clipped)

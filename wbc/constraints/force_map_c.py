@@ -167,7 +167,8 @@ class CompiledForceMap:
     """`FORCE_MAP_C` with the buffers of one constraint (not shared between threads).
 
     `evaluate` copies a tick's inputs into buffers that a block of pointers points at (kept
-    while the horizon's structure stays the same) and writes fresh ``A``, ``b``.
+    while the horizon's structure stays the same) and writes fresh ``A``, ``b`` (views of one
+    new block).
     """
 
     def __init__(self, fun):

@@ -176,6 +176,10 @@ class HorizonNormalForceConstraint(ForceRowsConstraint):
                                       np.ndarray]:
         """Evaluate the model along the nominal trajectory.
 
+        The nodes after now in one compiled call where the model offers one
+        (``linearize_states``, `estimators.payload.PayloadEstimator`: no `MachineState` per
+        node, the same numbers), else one `nominal_state` each.
+
         Returns:
             (steps j, linearizations, nominal positions (N + 1, 9), nominal velocities
             (N + 1, 9)) with node 0 the measured state (its measured axes, which may differ
