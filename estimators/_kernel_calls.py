@@ -100,6 +100,8 @@ class Compiled:
                                  + [ctypes.c_void_p] * 3
                                  + [ctypes.c_longlong, ctypes.c_void_p, ctypes.c_void_p])
         self._gather.restype = ctypes.c_int
+        # The kernel itself, for C code that calls it (`estimators.linearize_batch`).
+        self.address = ctypes.cast(getattr(lib, self.name), ctypes.c_void_p).value
         self._call = getattr(lib, self.name + "_call")
         self._call.argtypes = [ctypes.c_void_p]
         self._call.restype = ctypes.c_int
@@ -132,6 +134,11 @@ class Compiled:
     def bound_call(self):
         """A no-argument callable evaluating this thread's buffers (the fastest path)."""
         return self._work().call
+
+    def workspace(self) -> tuple[np.ndarray, np.ndarray]:
+        """This thread's work arrays (integer, float) of the kernel: a C caller's ``iw, w``."""
+        loc = self._work()
+        return loc.iw, loc.w
 
     def batch(self, inp: np.ndarray, out: np.ndarray) -> None:
         """Evaluate the rows of ``inp`` (C-contiguous (n, n_in)) into ``out`` (n, n_out)."""

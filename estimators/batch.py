@@ -9,6 +9,7 @@ contact modes come from a table of the 16 contact patterns, indexed in each chun
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Mapping, Sequence
 
 import numpy as np
@@ -24,7 +25,7 @@ from models.errors import StateError
 from models.reference_machine import MAX_PAYLOAD_MASS
 from models.state_batch import StateBatch
 
-__all__ = ["as_batch", "estimate_batch", "pack_rows", "validate_batch"]
+__all__ = ["as_batch", "estimate_batch", "pack_rows", "range_bounds", "validate_batch"]
 
 SINGULAR_CONDITION = 1e12  # 1-norm condition number above which a system counts as singular
 _ZEROS12, _ZEROS4, _ONES4, _ZEROS2 = np.zeros(12), np.zeros(4), np.ones(4), np.zeros(2)
@@ -49,7 +50,7 @@ def estimate_batch(est, states, *, strict: bool = True, chunk: int = 4096,
     # rows (in its thread), so the serial part of a batch stays small.
     table = fd.select_systems(_PATTERNS, est.fourth, sb.suspension_force is not None)
     pattern = np.empty(n, np.uint8)  # bit k: wheel k in contact
-    bounds = _range_bounds(est)
+    bounds = range_bounds(est)
     out_of_range = []  # chunks with a coordinate outside its range: not evaluated
     threaded = threads > 1 and kernel is not None and n > chunk
     size = int(chunk)
@@ -120,7 +121,7 @@ def validate_batch(est, sb: StateBatch) -> None:
     """Raise `EstimatorInputError` for a stroke out of its chain's range in ``sb``.
 
     Shapes, finiteness and the rotations were checked when the `StateBatch` was built.
-    (`estimate_batch` tests every row against `_range_bounds` as it evaluates it, and calls
+    (`estimate_batch` tests every row against `range_bounds` as it evaluates it, and calls
     this only when one leaves a range.)
     """
     for (name, unit, i, lo, hi), (_, lo_tol, hi_tol) in zip(est._ranges, est._bounds):
@@ -133,16 +134,23 @@ def validate_batch(est, sb: StateBatch) -> None:
                 + range_message(name, unit, i, float(x[k]), (lo, hi)))
 
 
-def _range_bounds(est) -> tuple[np.ndarray, np.ndarray]:
+def range_bounds(est) -> tuple[np.ndarray, np.ndarray]:
     """(lower, upper) bounds of q's coordinates, shape (13,) each, with the tolerance.
 
     +-inf where a coordinate has no range; the packer's widened bounds
     (`packing.RANGE_TOLERANCE`), as `validate_batch` and the per-state check use.
+    Read-only, made once per set of bounds.
     """
+    return _bounds_arrays(est._bounds)
+
+
+@functools.lru_cache(maxsize=8)
+def _bounds_arrays(bounds: tuple) -> tuple[np.ndarray, np.ndarray]:
     n = LAYOUT.q.stop - LAYOUT.q.start
     lower, upper = np.full(n, -np.inf), np.full(n, np.inf)
-    for i, lo, hi in est._bounds:
+    for i, lo, hi in bounds:
         lower[i], upper[i] = max(lower[i], lo), min(upper[i], hi)
+    lower.flags.writeable = upper.flags.writeable = False
     return lower, upper
 
 

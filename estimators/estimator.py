@@ -137,15 +137,12 @@ class NormalForceEstimator:
                 break
         else:
             return state, ()
-        bad = self._packer.out_of_range(q)
         if self.strokes == "raise":
-            name, unit, i, lo, hi = bad[0]
+            name, unit, i, lo, hi = self._packer.out_of_range(q)[0]
             raise EstimatorInputError(range_message(name, unit, i, float(q[i]), (lo, hi)))
-        q = q.copy()
-        for name, _, i, lo, hi in bad:
-            q[i] = min(max(q[i], lo), hi)
+        q, names = self._packer.clipped(q)
         self.n_clipped += 1
-        return state.replace(q=q), tuple(name for name, *_ in bad)
+        return state.replace(q=q), names
 
     def _fill(self, inp: np.ndarray, state: MachineState) -> fd.Selectors:
         """Pack ``state`` into a kernel input row; returns the `Selectors` used."""

@@ -67,6 +67,18 @@ class RowPacker:
         return [r for r, (i, lo, hi) in zip(self.ranges, self.bounds)
                 if not lo <= values[i] <= hi]
 
+    def clipped(self, q: np.ndarray) -> tuple[np.ndarray, tuple[str, ...]]:
+        """A copy of ``q`` with every coordinate outside its range set to the nearest end.
+
+        Returns:
+            The clipped coordinates and the names of the ranges they left (empty: none).
+        """
+        bad = self.out_of_range(q)
+        q = q.copy()
+        for _, _, i, lo, hi in bad:
+            q[i] = min(max(q[i], lo), hi)
+        return q, tuple(name for name, *_ in bad)
+
     def selectors(self, in_contact: np.ndarray, has_cylinder_force: bool, d: float,
                   beta: float) -> tuple[np.ndarray, fd.Selectors, np.ndarray]:
         """(packed selector block with D and beta, `Selectors`, read-only contact flags)."""

@@ -25,6 +25,7 @@ import numpy as np
 
 from estimators.estimator import NormalForceEstimator
 from estimators.linearization import ForceLinearization
+from estimators.linearize_batch import linearize_states
 from estimators.results import Estimate
 from estimators.suspension_response import stepped_forces
 from models.description import Machine
@@ -206,6 +207,18 @@ class PayloadEstimator:
         result = self._est.linearize(state)
         self._last = (state, key, result)
         return result
+
+    def linearize_states(self, state: MachineState, dt: np.ndarray, rotation: np.ndarray,
+                         q_head: np.ndarray, qd_head: np.ndarray
+                         ) -> list[ForceLinearization] | None:
+        """`linearize` of ``state`` moved on by ``dt`` (n,) to other poses and coordinates.
+
+        One compiled call for the n states at the current payload mass
+        (`estimators.linearize_batch.linearize_states`, which has the arguments): a
+        controller's nominal trajectory. None where they must be linearized one by one.
+        The states are new ones: no cache is read or written.
+        """
+        return linearize_states(self._est, state, dt, rotation, q_head, qd_head)
 
     def normal_forces_batch(self, batch, payload, strict: bool = False) -> np.ndarray:
         """Normal forces [N] (N, 4) of a `StateBatch`, each row at its own payload [kg] (N,).

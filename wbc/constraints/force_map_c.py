@@ -37,6 +37,12 @@ NW, NA, NQ = 4, N_AXES, N_INDEPENDENT  # wheels, axes, coordinates (as in FORCE_
 NG = 6 + NQ  # accelerations: base twist, coordinates
 IV = {name: k for k, name in enumerate(_I_NAMES)}  # places in the headers
 DV = {name: k for k, name in enumerate(_D_NAMES)}
+_ROW_HEADER = slice(IV["row_len"], IV["off_g0"] + 1)  # row length, then the offsets
+_TERM_FLAGS = slice(IV["zero_susp"], IV["drift"] + 1)  # which terms a tick has
+if _I_NAMES[_ROW_HEADER] != ("row_len", "off_g", "off_dq", "off_dqd", "off_g0") \
+        or _I_NAMES[_TERM_FLAGS] != ("zero_susp", "warp", "direction", "bias", "drift") \
+        or _D_NAMES != ("speed_scale", "brake_time", "s_prev"):
+    raise ImportError("the headers' order differs from what evaluate writes")
 
 FORCE_MAP_C = r"""
 #include <string.h>
@@ -161,7 +167,8 @@ class CompiledForceMap:
     """`FORCE_MAP_C` with the buffers of one constraint (not shared between threads).
 
     `evaluate` copies a tick's inputs into buffers that a block of pointers points at (kept
-    while the horizon's structure stays the same) and writes fresh ``A``, ``b``.
+    while the horizon's structure stays the same) and writes fresh ``A``, ``b`` (views of one
+    new block).
     """
 
     def __init__(self, fun):
@@ -222,29 +229,32 @@ class CompiledForceMap:
                 for name, (lo, hi) in _OWN_FIELDS.items():
                     rows[k, lo:hi] = np.ravel(getattr(lin, name))
             offsets = tuple(lo for lo, _ in _OWN_FIELDS.values())
-        iv[IV["row_len"]] = width
-        iv[IV["off_g"]:IV["off_g0"] + 1] = offsets
-        iv[IV["zero_susp"]] = zero_suspension
+        iv[_ROW_HEADER] = (width, *offsets)
+        iv[_TERM_FLAGS] = (zero_suspension, warp is not None, direction is not None,
+                           bias is not None, drift is not None)
         a["omega"][:] = ctx.state.qd[NA:NQ]
         a["free_q"][:] = ctx.free_positions
         a["free_v"][:] = ctx.free_velocities
         a["qn"][:] = qn
         a["vn"][:] = vn
         a["q0"][:] = ctx.q
-        for name, value in (("warp", warp), ("direction", direction), ("bias", bias),
-                            ("drift", drift)):
-            iv[IV[name]] = value is not None
-            if value is not None:
-                a[name][:] = value if name != "drift" else value[:struct.n_eval]
-        dv[DV["speed_scale"]] = ctx.speed_scale
-        dv[DV["brake_time"]] = 1.0 if brake_time is None else brake_time
-        dv[DV["s_prev"]] = s_prev
-        A = np.empty((NW * struct.n_eval, n))
-        b = np.empty(NW * struct.n_eval)
-        if self._fun(self.pointers, self._iv_at, self._dv_at, A.ctypes.data,
-                     b.ctypes.data) != 0:
+        if warp is not None:
+            a["warp"][:] = warp
+        if direction is not None:
+            a["direction"][:] = direction
+        if bias is not None:
+            a["bias"][:] = bias
+        if drift is not None:
+            a["drift"][:] = drift[:struct.n_eval]
+        dv[:] = (ctx.speed_scale, 1.0 if brake_time is None else brake_time, s_prev)
+        # A, then b, in one fresh block: one address to take, by ctypes' C calls (a third
+        # of ``out.ctypes.data``, which runs numpy's Python helper)
+        m = NW * struct.n_eval
+        out = np.empty(m * (n + 1))
+        at = ctypes.addressof(ctypes.c_char.from_buffer(out))
+        if self._fun(self.pointers, self._iv_at, self._dv_at, at, at + 8 * m * n) != 0:
             raise ValueError(f"force map: inconsistent sizes {iv[:4].tolist()}")
-        return A, b
+        return out[:m * n].reshape(m, n), out[m * n:]
 
 
 def _same(x, y) -> bool:

@@ -87,7 +87,7 @@ class ForceRowsConstraint(Constraint):
         self.drive_time_constant = float(drive_time_constant)
         self.last_forces_map: tuple[np.ndarray, np.ndarray] | None = None
         self.last_in_contact: np.ndarray | None = None
-        self._rows_cache: tuple | None = None  # (key, `_rows`)
+        self._rows_cache: tuple | None = None  # (key, `_rows`, nodes, later, layout)
 
     @abc.abstractmethod
     def forces_map(self, ctx, in_contact=None) -> tuple[np.ndarray, np.ndarray]:
@@ -135,12 +135,17 @@ class ForceRowsConstraint(Constraint):
         """
         nodes, later = self._constrained_nodes(ctx, n_nodes)
         lay = ctx.layout
-        key = (flags.tobytes(), nodes.tobytes(), later.tobytes(),
-               None if lay.slack is None else lay.slack.start, lay.n_slack)
-        if self._rows_cache is None or self._rows_cache[0] != key:
+        flag_bytes, cache = flags.tobytes(), self._rows_cache
+        if (cache is not None and cache[2] is nodes and cache[3] is later
+                and cache[4] is lay and cache[0][0] == flag_bytes):
+            key = cache[0]  # the same (kept, frozen) nodes and layout: no key to build
+        else:
+            key = (flag_bytes, nodes.tobytes(), later.tobytes(),
+                   None if lay.slack is None else lay.slack.start, lay.n_slack)
+        if cache is None or cache[0] != key:
             wheels = np.flatnonzero(flags)
             if wheels.size == 0:
-                self._rows_cache = (key, (None, wheels, None))
+                cache = (key, (None, wheels, None))
             else:
                 rows = (4 * nodes[:, None] + wheels[None, :]).ravel()
                 slack = None
@@ -151,8 +156,9 @@ class ForceRowsConstraint(Constraint):
                     if lay.n_slack >= 8:  # the later nodes' own slacks
                         col = col + 4 * np.repeat(later, wheels.size)
                     slack = (np.arange(col.size), col)
-                self._rows_cache = (key, (rows, wheels, slack))
-        rows, wheels, slack = self._rows_cache[1]
+                cache = (key, (rows, wheels, slack))
+        self._rows_cache = (*cache[:2], nodes, later, lay)
+        rows, wheels, slack = cache[1]
         if rows is None:
             return None, None, None
         # `np.tile(thresholds[wheels], nodes.size)`, written into its array at once

@@ -19,12 +19,13 @@ from wbc.force_models.protocol import (
     linearize_forces,
     linearized_contact_flags,
 )
-from wbc.mpc.prediction import nominal_state
+from wbc.mpc.prediction import nominal_state, predict_base_rotations
 
 __all__ = ["HorizonNormalForceConstraint"]
 
 _AXES_IN_A = slice(6, 6 + N_AXES)
 _MIN_SCALE = 0.05  # below this the drift is not attributed to the driving speed
+_all = np.logical_and.reduce  # `np.all` of a 1-D array without its Python dispatch
 
 
 _SUSPENSION_IN_A = slice(6 + SUSPENSION.start, 6 + SUSPENSION.stop)
@@ -124,7 +125,7 @@ class HorizonNormalForceConstraint(ForceRowsConstraint):
         # here, never inside a control tick.
         self._compiled_map = compiled_force_map()
         self.linearization_steps: np.ndarray = np.zeros(0, dtype=int)
-        self._structure_cache: tuple | None = None
+        self._structure_cache: tuple | None = None  # (key, structure, last context)
         self._warp_cache: tuple | None = None
 
     def _structure(self, ctx) -> SimpleNamespace:
@@ -138,9 +139,13 @@ class HorizonNormalForceConstraint(ForceRowsConstraint):
         scalar factors, `CondensedPrediction.Lq`, ``Lv``) and the constrained
         ``nodes`` with their ``later`` flags.
         """
-        key = (ctx.structure_key, self.n_linearizations, self.terminal_brake_time,
-               self.drive_time_constant, self.start_time)
-        if self._structure_cache is None or self._structure_cache[0] != key:
+        settings = (self.n_linearizations, self.terminal_brake_time, self.drive_time_constant,
+                    self.start_time)
+        cache = self._structure_cache
+        if cache is not None and cache[2] is ctx and cache[0][1:] == settings:
+            return cache[1]  # the context of the last call (a tick asks three times; frozen)
+        key = (ctx.structure_key, *settings)
+        if cache is None or cache[0] != key:
             lay, pred = ctx.layout, ctx.prediction
             N, na = lay.n_steps, lay.n_axes
             steps = np.unique(np.round(np.linspace(0, N - 1, self.n_linearizations))
@@ -156,7 +161,7 @@ class HorizonNormalForceConstraint(ForceRowsConstraint):
                 np.arange(n_u)[:, None, None], np.arange(4)[None, :, None], u_cols),
                 (n_eval, 4, lay.n)).ravel()
             nodes = np.flatnonzero(times[:n_eval] >= self.start_time - 1e-12)
-            self._structure_cache = (key, SimpleNamespace(
+            cache = (key, SimpleNamespace(
                 steps=steps, which=which, j=j, n_eval=n_eval, n_u=n_u, times=times,
                 since_j=(times[:n_eval] - times[j])[:, None],
                 decay=np.exp(-times[:n_eval] / self.drive_time_constant)[:, None],
@@ -164,11 +169,16 @@ class HorizonNormalForceConstraint(ForceRowsConstraint):
                 Pv=pred.Pv.reshape(N, na, lay.n)[:n_eval - 1], lq=pred.Lq, lv=pred.Lv,
                 nodes=nodes,
                 later=times[:n_eval][nodes] > ctx.dt / 2))
-        return self._structure_cache[1]
+        self._structure_cache = (*cache[:2], ctx)
+        return cache[1]
 
     def linearize(self, ctx) -> tuple[np.ndarray, list[ForceLinearization], np.ndarray,
                                       np.ndarray]:
         """Evaluate the model along the nominal trajectory.
+
+        The nodes after now in one compiled call where the model offers one
+        (``linearize_states``, `estimators.payload.PayloadEstimator`: no `MachineState` per
+        node, the same numbers), else one `nominal_state` each.
 
         Returns:
             (steps j, linearizations, nominal positions (N + 1, 9), nominal velocities
@@ -183,10 +193,17 @@ class HorizonNormalForceConstraint(ForceRowsConstraint):
         np.add(ctx.free_positions, pred.Lq @ u, out=qn[1:])  # `CondensedPrediction.trajectory`
         np.add(ctx.free_velocities, pred.Lv @ u, out=vn[1:])
         steps = self._structure(ctx).steps
-        lins = []
-        for j in steps:
-            st = ctx.state if j == 0 else nominal_state(ctx.state, start[j], qn[j], vn[j])
-            lins.append(linearize_forces(self.model, st))
+        st = ctx.state
+        lins = [linearize_forces(self.model, st)]  # steps[0] = 0: the measured state
+        later = steps[1:]
+        batch = getattr(self.model, "linearize_states", None)
+        if batch is not None and later.size:  # the later nodes in one compiled call
+            t = start[later]
+            nodes = batch(st, t, predict_base_rotations(st, t), qn[later], vn[later])
+            if nodes is not None:
+                return steps, lins + nodes, qn, vn
+        for j in later:
+            lins.append(linearize_forces(self.model, nominal_state(st, start[j], qn[j], vn[j])))
         return steps, lins, qn, vn
 
     def forces_map(self, ctx, in_contact=None) -> tuple[np.ndarray, np.ndarray]:
@@ -223,7 +240,7 @@ class HorizonNormalForceConstraint(ForceRowsConstraint):
         # without moving load (`lifted_wheel_thresholds` keeps the load it will need).
         if in_contact is None:
             in_contact = linearized_contact_flags(st, lins[0])
-        warp = ctx.warp if np.asarray(in_contact, dtype=bool).all() else None
+        warp = ctx.warp if _all(np.asarray(in_contact, dtype=bool)) else None
         drift = (ctx.warp_drift if warp is not None and ctx.warp_drift is not None
                  else None)
         s_prev = max(ctx.speed_scale, _MIN_SCALE)

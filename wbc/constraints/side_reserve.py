@@ -89,13 +89,10 @@ class SideReserveConstraint(Constraint):
     def compute(self, ctx) -> Inequality | None:
         """The rows of the sides with a reserve, after now; None: inactive."""
         fc = self.force_constraint
-        lay = ctx.layout
         sides = (self.reserve > 0).nonzero()[0]
         if (sides.size == 0 or fc.last_forces_map is None or fc.last_in_contact is None
                 or not _all(fc.last_in_contact)):
             return None
-        if lay.slack is None or lay.n_slack < 10:
-            raise ConfigurationError("SideReserveConstraint needs a layout with 10 slacks")
         A, b = fc.last_forces_map
         n_nodes = A.shape[0] // 4
         nodes, first, second, decay, slack = self._structure(ctx, n_nodes, sides)
@@ -119,9 +116,15 @@ class SideReserveConstraint(Constraint):
         (they do: the last ones);
         ``(first, second)``: the pairs' first and second wheels (slices, `SIDE_PAIRS`);
         ``decay``, ``exp(-t_k / T)`` per row; the slack entries of G.
+
+        Raises:
+            ConfigurationError: The layout has fewer than 10 slacks.
         """
         key = (ctx.structure_key, n_nodes, sides.tobytes(), ctx.dt, self.time_constant)
         if self._cache is None or self._cache[0] != key:
+            lay = ctx.layout
+            if lay.slack is None or lay.n_slack < 10:
+                raise ConfigurationError("SideReserveConstraint needs a layout with 10 slacks")
             nodes, times = self.nodes(ctx, n_nodes)
             pairs = SIDE_PAIRS[sides]  # (m, 2): a side's wheels, the sides' 2 apart
             first, second = (slice(int(pairs[0, w]), int(pairs[-1, w]) + 1, 2) for w in (0, 1))
@@ -129,6 +132,6 @@ class SideReserveConstraint(Constraint):
                   if nodes.size and nodes[-1] - nodes[0] == nodes.size - 1 else nodes)
             decay = np.repeat(np.exp(-times / self.time_constant), sides.size)
             slack = (np.arange(nodes.size * sides.size),
-                     ctx.layout.slack.start + 8 + np.tile(sides, nodes.size))
+                     lay.slack.start + 8 + np.tile(sides, nodes.size))
             self._cache = (key, (at, first, second, decay, slack))
         return self._cache[1]

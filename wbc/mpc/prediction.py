@@ -26,7 +26,8 @@ from wbc.axes import N_AXES
 from wbc.constraints.limits_c import compiled_brake
 from wbc.layout import VariableLayout
 
-__all__ = ["CondensedPrediction", "nominal_state", "predict_base_pose"]
+__all__ = ["CondensedPrediction", "nominal_state", "predict_base_pose",
+           "predict_base_rotations"]
 
 _ZEROS_6 = np.zeros(6)
 _ZEROS_6.flags.writeable = False
@@ -139,17 +140,31 @@ class _StartPose:
     kept: tuple | None = None
 
 
+def _start_pose(state: MachineState) -> pin.SE3:
+    """``T_0`` of ``state``, kept for the same state object (`_StartPose`)."""
+    kept = _StartPose.kept
+    if kept is None or kept[0] is not state:
+        kept = _StartPose.kept = (state, pin.SE3(state.base_rotation, state.base_position))
+    return kept[1]
+
+
 def predict_base_pose(state: MachineState, t: float) -> tuple[np.ndarray, np.ndarray]:
     """Pose of fb after ``t`` [s] at the state's constant twist: (position (3,), R (3, 3)).
 
     ``T(t) = T_0 exp(t [v; w])`` (right-multiplied: the twist is in fb). ``exp6`` of the
     6-vector is the one of its `pin.Motion` (the same function), without that object.
     """
-    kept = _StartPose.kept
-    if kept is None or kept[0] is not state:
-        kept = _StartPose.kept = (state, pin.SE3(state.base_rotation, state.base_position))
-    mt = kept[1] * pin.exp6(state.base_twist * t)
+    mt = _start_pose(state) * pin.exp6(state.base_twist * t)
     return mt.translation.copy(), mt.rotation.copy()
+
+
+def predict_base_rotations(state: MachineState, times: np.ndarray) -> np.ndarray:
+    """The rotations (world <- fb) of `predict_base_pose` at ``times`` [s] (n,): (n, 3, 3)."""
+    start, twist = _start_pose(state), state.base_twist
+    rotations = np.empty((len(times), 3, 3))
+    for k, t in enumerate(times.tolist()):
+        rotations[k] = (start * pin.exp6(twist * t)).rotation
+    return rotations
 
 
 def nominal_state(state: MachineState, t: float, q_axes: np.ndarray,
