@@ -406,7 +406,7 @@ class DaqpBackend:
             row_shift = a_all[n:] @ v
             upper[n:] += row_shift
             lower[n:] += row_shift
-            cost = np.zeros(n)
+            cost = None  # no linear term: DAQP skips its ``M v`` pass (0.02 ms), same bits
         clip(upper, -_BIG, _BIG, out=upper)
         clip(lower, -_BIG, _BIG, out=lower)
         a_all = np.ascontiguousarray(a_all)
