@@ -1,0 +1,178 @@
+"""`DaqpBackend`'s rows times the inverse factor in C: numpy's bits, from the factor's nonzeros.
+
+DAQP's rows of the least-distance form are ``G[kept] @ L^-T`` (`wbc.solvers.factor_rows`);
+the MPC's ``L^-T`` is 94 % zeros (per-axis chains along the horizon), which the BLAS product
+multiplies all the same: ~0.06 ms a tick for the ~120 kept rows outside constant blocks,
+with the gather of the kept rows. `PRODUCT_C` reads the factor by columns, its nonzeros
+only, eight rows at a time (one vector lane a row), and copies the constant blocks' rows from
+their kept products.
+
+The same bits as numpy's product: OpenBLAS's gemm kernels sum each entry over the inner
+dimension in order, one fused multiply-add a term from zero, and so does `PRODUCT_C`; the
+terms it leaves out are exact zeros (an entry of ``L^-T`` that is 0 times a finite ``G``
+entry), which leave a nonzero sum as it is. Two caveats, both checked: a kernel may sum a
+few edge columns in another order (OpenBLAS's small-matrix kernel does when fewer than five
+columns are left over), which changes nothing for a column of one nonzero term (the MPC's
+last columns, its slack variables); and another BLAS may sum otherwise. `compiled_product`
+therefore hands out the C product of a factor only if it reproduces numpy's product on probe
+rows of several row counts (the BLAS picks its kernel by size); else the caller stays with
+numpy. A zero sum may differ in its sign (a term that underflows to -0 before a left-out
+zero), which no comparison sees. A row with a non-finite entry makes the pass give up
+(numpy's product would spread its NaN to every column). `tests/test_product_c.py` compares
+the C product with numpy's on random and on recorded rows, bit for bit.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import functools
+
+import numpy as np
+
+from models.cbuild import load_shared
+
+__all__ = ["LANES", "PRODUCT_C", "CompiledProduct", "compiled_product"]
+
+LANES = 8  # rows multiplied together (one vector lane each)
+
+PRODUCT_C = r"""
+#include <math.h>
+#include <stdint.h>
+#include <string.h>
+#if defined(__AVX512F__)
+#include <immintrin.h>
+#endif
+#define LANES 8
+typedef double v8 __attribute__((vector_size(64)));
+
+/* c + a * b in every lane, one rounding (the BLAS's fused multiply-add). */
+static inline v8 fma8(v8 a, double b, v8 c) {
+#if defined(__AVX512F__)
+  return (v8)_mm512_fmadd_pd((__m512d)a, _mm512_set1_pd(b), (__m512d)c);
+#else
+  for (int l = 0; l < LANES; ++l) c[l] = fma(a[l], b, c[l]);
+  return c;
+#endif
+}
+
+/* The tile's rows (tile[k * LANES + l]: row l's entry k) times the factor, whose column j
+   has its nonzeros val[p] in rows row[p], p in [start[j], start[j+1]), rows increasing:
+   out[slot[l] * n + j] for the first `used` lanes. */
+static void flush(const double* tile, long used, const int64_t* slot, long n,
+                  const int64_t* start, const int64_t* row, const double* val, double* out) {
+  for (long j = 0; j < n; ++j) {
+    v8 acc = {0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0};
+    for (int64_t p = start[j]; p < start[j + 1]; ++p) {
+      v8 g;
+      memcpy(&g, tile + row[p] * LANES, sizeof g);
+      acc = fma8(g, val[p], acc);
+    }
+    for (long l = 0; l < used; ++l) out[slot[l] * n + j] = acc[l];
+  }
+}
+
+/* out[t] = G[kept[t]] @ factor for t < m_kept (out's rows n long): a row marked in
+   constant[] copied from products[kept[t]], the others multiplied. Returns 0; -1 if a
+   multiplied row has a non-finite entry (out then partly written). */
+int times_factor(const double* G, long ld, long n, const int64_t* kept, long m_kept,
+                 const unsigned char* constant, const double* products, long ld_products,
+                 const int64_t* start, const int64_t* row, const double* val, double* tile,
+                 int64_t* slot, double* out) {
+  long used = 0;
+  for (long t = 0; t < m_kept; ++t) {
+    const int64_t r = kept[t];
+    if (constant[r]) {
+      memcpy(out + t * n, products + r * ld_products, n * sizeof(double));
+      continue;
+    }
+    const double* g = G + r * ld;
+    for (long k = 0; k < n; ++k) {
+      if (!isfinite(g[k])) return -1;
+      tile[k * LANES + used] = g[k];
+    }
+    slot[used++] = t;
+    if (used == LANES) {
+      flush(tile, used, slot, n, start, row, val, out);
+      used = 0;
+    }
+  }
+  if (used) flush(tile, used, slot, n, start, row, val, out);  /* the other lanes: stale */
+  return 0;
+}
+"""
+
+# Row counts of the probe: numpy's product picks OpenBLAS's small-matrix kernel or its
+# blocked one by the size, and the rows it gets number from two to all of ``G``'s.
+_PROBE_ROWS = (2, 7, 24, 64, 96, 300)
+
+
+@functools.cache
+def _library():
+    """`PRODUCT_C` compiled and loaded once per process; None without a compiler."""
+    p, lg = ctypes.c_void_p, ctypes.c_long
+    return load_shared(PRODUCT_C, "daqp_product", {
+        "times_factor": ([p, lg, lg, p, lg, p, p, lg, p, p, p, p, p, p], ctypes.c_int)},
+        "numpy")
+
+
+class CompiledProduct:
+    """``times_factor`` for one factor ``inv_t`` (shape (n, n)): its nonzeros by column.
+
+    Holds the factor (the caller keys this object on it), its nonzeros and a tile of
+    `LANES` rows. Not shared between threads (each `DaqpBackend` makes its own).
+    """
+
+    def __init__(self, fun, inv_t: np.ndarray):
+        self.inv_t = inv_t
+        self.n = n = inv_t.shape[0]
+        columns = np.ascontiguousarray(inv_t.T)
+        nonzero = columns != 0
+        self.start = np.zeros(n + 1, dtype=np.int64)
+        np.cumsum(nonzero.sum(axis=1), out=self.start[1:])
+        self.row = np.nonzero(nonzero)[1].astype(np.int64)  # row-major: rows increasing
+        self.val = np.ascontiguousarray(columns[nonzero])
+        self.tile = np.zeros(n * LANES)  # stale lanes hold finite numbers
+        self.slot = np.empty(LANES, dtype=np.int64)
+        self._fun = fun
+        self._args = tuple(a.ctypes.data for a in (self.start, self.row, self.val, self.tile,
+                                                   self.slot))
+
+    def run(self, G: np.ndarray, kept: np.ndarray, constant: np.ndarray,
+            products: np.ndarray, out: np.ndarray) -> bool:
+        """``out[:] = G[kept] @ inv_t``, the rows ``constant`` marks from ``products``.
+
+        ``G``: float64 (m, n), unit column stride; ``kept``: int64 row indices, contiguous;
+        ``constant``: bool (m,), contiguous; ``products``: float64 (m, n), unit column
+        stride, the constant rows' products; ``out``: float64 (kept.size, n), C-contiguous.
+        False: a row to multiply has a non-finite entry (``out`` is then undefined).
+        """
+        return self._fun(G.ctypes.data, G.strides[0] // 8, self.n, kept.ctypes.data,
+                         kept.size, constant.ctypes.data, products.ctypes.data,
+                         products.strides[0] // 8, *self._args, out.ctypes.data) == 0
+
+
+def _reproduces_blas(product: CompiledProduct) -> bool:
+    """Whether ``product`` gives numpy's bits on random rows of every `_PROBE_ROWS` count."""
+    rng = np.random.default_rng(0)
+    n = product.n
+    for m in _PROBE_ROWS:
+        rows = rng.normal(size=(m, n)) * 10.0 ** rng.integers(-3, 4, size=(m, n))
+        out = np.empty((m, n))
+        if not (product.run(rows, np.arange(m, dtype=np.int64), np.zeros(m, dtype=bool),
+                            rows, out)
+                and np.array_equal(out, rows @ product.inv_t)):
+            return False
+    return True
+
+
+def compiled_product(inv_t: np.ndarray) -> CompiledProduct | None:
+    """The C product for the factor ``inv_t`` (shape (n, n)).
+
+    None without a compiler, for a factor with a non-finite entry, and where it does not
+    reproduce numpy's product (module docstring): the caller then multiplies with numpy.
+    """
+    lib = _library()
+    if lib is None or not np.isfinite(inv_t).all():
+        return None
+    product = CompiledProduct(lib.times_factor, np.ascontiguousarray(inv_t, dtype=float))
+    return product if _reproduces_blas(product) else None
