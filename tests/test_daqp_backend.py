@@ -107,6 +107,25 @@ def test_a_hessian_without_a_safe_factor_goes_to_daqp_as_it_is():
     np.testing.assert_allclose(x, np.r_[-0.5, -np.ones(n - 1)], atol=1e-9)
 
 
+def test_the_kept_factor_follows_the_hessians_values():
+    """The factor is kept for a Hessian equal to the last in value (a zero's sign aside,
+    as `np.array_equal` says), made again for another value or shape with the same bytes."""
+    backend = DaqpBackend()
+    H = np.diag(np.arange(1.0, 37.0))
+    H[0, 1] = H[1, 0] = 0.0
+    assert backend._factor(H) is None  # seen once
+    factor = backend._factor(H.copy())
+    assert factor is not None
+    flipped = H.copy()
+    flipped[0, 1] = -0.0  # other bytes, the same values
+    assert backend._factor(flipped) is factor
+    changed = H.copy()
+    changed[5, 5] = np.nextafter(changed[5, 5], 9.0)
+    assert backend._factor(changed) is None
+    assert backend._factor(changed) is not None
+    assert backend._factor(changed.reshape(18, 72)) is None  # the same bytes
+
+
 def test_warm_start_from_another_problem_is_still_right(corpus):
     """Multipliers of an unrelated QP of the same size: a poor start, the same answer."""
     mpc = [i for i, r in enumerate(corpus.records) if r["controller"] == "mpc-full"]

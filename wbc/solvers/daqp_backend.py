@@ -134,7 +134,7 @@ class DaqpBackend:
         self.warm_start = bool(warm_start)
         self.screen = bool(screen)
         self.least_distance = bool(least_distance)
-        self._hessian: np.ndarray | None = None  # the H whose factor is kept
+        self._hessian: tuple | None = None  # (the H whose factor is kept, its bytes)
         self._inv_factor: tuple | None = None  # (L^-T, identity) for that H
         self._factored = False  # the factor of that H tried
         self.form = "direct"  # the last solve's form: "direct" or "least-distance"
@@ -184,8 +184,12 @@ class DaqpBackend:
         own relative level, 1e-11 of the largest): DAQP then factorises, or regularises,
         it itself.
         """
-        if self._hessian is None or not np.array_equal(self._hessian, H):
-            self._hessian, self._inv_factor = np.array(H, dtype=float), None
+        kept = self._hessian  # the same bits are equal (a copy and a compare, half the
+        if kept is None or not (H.dtype == kept[0].dtype and H.shape == kept[0].shape  # time
+                                and H.tobytes() == kept[1]  # of array_equal), else values
+                                or np.array_equal(kept[0], H)):  # (+-0; a NaN: no factor)
+            H = np.array(H, dtype=float)
+            self._hessian, self._inv_factor = (H, H.tobytes()), None
             self._factored = False
             return None
         if not self._factored:

@@ -2,10 +2,10 @@
 
 DAQP's rows of the least-distance form are ``G[kept] @ L^-T`` (`wbc.solvers.factor_rows`);
 the MPC's ``L^-T`` is 94 % zeros (per-axis chains along the horizon), which the BLAS product
-multiplies all the same: ~0.06 ms a tick for the ~120 kept rows outside constant blocks,
+multiplies all the same: ~0.07 ms a tick for the ~120 kept rows outside constant blocks,
 with the gather of the kept rows. `PRODUCT_C` reads the factor by columns, its nonzeros
-only, eight rows at a time (one vector lane a row), and copies the constant blocks' rows from
-their kept products.
+only, sixteen rows at a time (one vector lane a row), and copies the constant blocks' rows
+from their kept products in the same pass: ~0.02 ms.
 
 The same bits as numpy's product: OpenBLAS's gemm kernels sum each entry over the inner
 dimension in order, one fused multiply-add a term from zero, and so does `PRODUCT_C`; the
@@ -31,9 +31,9 @@ import numpy as np
 
 from models.cbuild import load_shared
 
-__all__ = ["LANES", "PRODUCT_C", "CompiledProduct", "compiled_product"]
+__all__ = ["ROWS", "PRODUCT_C", "CompiledProduct", "compiled_product", "data_address"]
 
-LANES = 8  # rows multiplied together (one vector lane each)
+ROWS = 16  # rows multiplied together: a lane each of two vectors (`PRODUCT_C`'s VECS)
 
 PRODUCT_C = r"""
 #include <math.h>
@@ -43,6 +43,8 @@ PRODUCT_C = r"""
 #include <immintrin.h>
 #endif
 #define LANES 8
+#define VECS 2  /* vectors of rows in flight: independent sums, against the FMA's latency */
+#define ROWS (LANES * VECS)
 typedef double v8 __attribute__((vector_size(64)));
 
 /* c + a * b in every lane, one rounding (the BLAS's fused multiply-add). */
@@ -55,20 +57,40 @@ static inline v8 fma8(v8 a, double b, v8 c) {
 #endif
 }
 
-/* The tile's rows (tile[k * LANES + l]: row l's entry k) times the factor, whose column j
-   has its nonzeros val[p] in rows row[p], p in [start[j], start[j+1]), rows increasing:
-   out[slot[l] * n + j] for the first `used` lanes. */
-static void flush(const double* tile, long used, const int64_t* slot, long n,
-                  const int64_t* start, const int64_t* row, const double* val, double* out) {
+/* The tile's rows (tile[k * ROWS + l]: row l's entry k; nv vectors of them) times the
+   factor, whose column j has its nonzeros val[p] in rows row[p], p in [start[j],
+   start[j+1]), rows increasing: sums[j * ROWS + l] (the same layout). */
+static inline __attribute__((always_inline)) void columns(
+    const double* tile, const int nv, long n, const int64_t* start, const int64_t* row,
+    const double* val, double* sums) {
   for (long j = 0; j < n; ++j) {
-    v8 acc = {0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0};
+    v8 acc[VECS];
+    for (int w = 0; w < nv; ++w) acc[w] = (v8){0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0};
     for (int64_t p = start[j]; p < start[j + 1]; ++p) {
-      v8 g;
-      memcpy(&g, tile + row[p] * LANES, sizeof g);
-      acc = fma8(g, val[p], acc);
+      const double* t = tile + row[p] * ROWS;
+      for (int w = 0; w < nv; ++w) {
+        v8 g;
+        memcpy(&g, t + w * LANES, sizeof g);
+        acc[w] = fma8(g, val[p], acc[w]);
+      }
     }
-    for (long l = 0; l < used; ++l) out[slot[l] * n + j] = acc[l];
+    for (int w = 0; w < nv; ++w) memcpy(sums + j * ROWS + w * LANES, &acc[w], sizeof(v8));
   }
+}
+
+/* `columns` with as few vectors as hold the `used` rows (the others' lanes: stale), then
+   row l of the products to out[slot[l] * n]. */
+static void flush(const double* tile, long used, const int64_t* slot, long n,
+                  const int64_t* start, const int64_t* row, const double* val, double* sums,
+                  double* out) {
+  switch ((used + LANES - 1) / LANES) {
+    case 1: columns(tile, 1, n, start, row, val, sums); break;
+    case 2: columns(tile, 2, n, start, row, val, sums); break;
+    case 3: columns(tile, 3, n, start, row, val, sums); break;
+    default: columns(tile, VECS, n, start, row, val, sums);
+  }
+  for (long l = 0; l < used; ++l)
+    for (long j = 0; j < n; ++j) out[slot[l] * n + j] = sums[j * ROWS + l];
 }
 
 /* out[t] = G[kept[t]] @ factor for t < m_kept (out's rows n long): a row marked in
@@ -77,7 +99,7 @@ static void flush(const double* tile, long used, const int64_t* slot, long n,
 int times_factor(const double* G, long ld, long n, const int64_t* kept, long m_kept,
                  const unsigned char* constant, const double* products, long ld_products,
                  const int64_t* start, const int64_t* row, const double* val, double* tile,
-                 int64_t* slot, double* out) {
+                 double* sums, int64_t* slot, double* out) {
   long used = 0;
   for (long t = 0; t < m_kept; ++t) {
     const int64_t r = kept[t];
@@ -88,15 +110,15 @@ int times_factor(const double* G, long ld, long n, const int64_t* kept, long m_k
     const double* g = G + r * ld;
     for (long k = 0; k < n; ++k) {
       if (!isfinite(g[k])) return -1;
-      tile[k * LANES + used] = g[k];
+      tile[k * ROWS + used] = g[k];
     }
     slot[used++] = t;
-    if (used == LANES) {
-      flush(tile, used, slot, n, start, row, val, out);
+    if (used == ROWS) {
+      flush(tile, used, slot, n, start, row, val, sums, out);
       used = 0;
     }
   }
-  if (used) flush(tile, used, slot, n, start, row, val, out);  /* the other lanes: stale */
+  if (used) flush(tile, used, slot, n, start, row, val, sums, out);
   return 0;
 }
 """
@@ -106,12 +128,26 @@ int times_factor(const double* G, long ld, long n, const int64_t* kept, long m_k
 _PROBE_ROWS = (2, 7, 24, 64, 96, 300)
 
 
+_char_view = ctypes.c_char.from_buffer
+
+
+def data_address(a: np.ndarray) -> int:
+    """``a.ctypes.data``, a fifth of its cost (0.2 us) for a writable contiguous array.
+
+    The cost of a ctypes call with a few arrays is mostly their addresses' lookups.
+    """
+    try:
+        return ctypes.addressof(_char_view(a))
+    except (TypeError, ValueError, BufferError):  # read-only, strided or empty
+        return a.ctypes.data
+
+
 @functools.cache
 def _library():
     """`PRODUCT_C` compiled and loaded once per process; None without a compiler."""
     p, lg = ctypes.c_void_p, ctypes.c_long
     return load_shared(PRODUCT_C, "daqp_product", {
-        "times_factor": ([p, lg, lg, p, lg, p, p, lg, p, p, p, p, p, p], ctypes.c_int)},
+        "times_factor": ([p, lg, lg, p, lg, p, p, lg, p, p, p, p, p, p, p], ctypes.c_int)},
         "numpy")
 
 
@@ -119,7 +155,7 @@ class CompiledProduct:
     """``times_factor`` for one factor ``inv_t`` (shape (n, n)): its nonzeros by column.
 
     Holds the factor (the caller keys this object on it), its nonzeros and a tile of
-    `LANES` rows. Not shared between threads (each `DaqpBackend` makes its own).
+    `ROWS` rows. Not shared between threads (each `DaqpBackend` makes its own).
     """
 
     def __init__(self, fun, inv_t: np.ndarray):
@@ -131,11 +167,13 @@ class CompiledProduct:
         np.cumsum(nonzero.sum(axis=1), out=self.start[1:])
         self.row = np.nonzero(nonzero)[1].astype(np.int64)  # row-major: rows increasing
         self.val = np.ascontiguousarray(columns[nonzero])
-        self.tile = np.zeros(n * LANES)  # stale lanes hold finite numbers
-        self.slot = np.empty(LANES, dtype=np.int64)
+        self.tile = np.zeros(n * ROWS)  # stale lanes hold finite numbers
+        self.sums = np.empty(n * ROWS)
+        self.slot = np.empty(ROWS, dtype=np.int64)
         self._fun = fun
         self._args = tuple(a.ctypes.data for a in (self.start, self.row, self.val, self.tile,
-                                                   self.slot))
+                                                   self.sums, self.slot))
+        self._held = (None, 0, None, 0)  # (constant, its address, products, its address)
 
     def run(self, G: np.ndarray, kept: np.ndarray, constant: np.ndarray,
             products: np.ndarray, out: np.ndarray) -> bool:
@@ -146,9 +184,13 @@ class CompiledProduct:
         stride, the constant rows' products; ``out``: float64 (kept.size, n), C-contiguous.
         False: a row to multiply has a non-finite entry (``out`` is then undefined).
         """
-        return self._fun(G.ctypes.data, G.strides[0] // 8, self.n, kept.ctypes.data,
-                         kept.size, constant.ctypes.data, products.ctypes.data,
-                         products.strides[0] // 8, *self._args, out.ctypes.data) == 0
+        held = self._held  # the caller's, kept from solve to solve (never G: the QP builder
+        if held[0] is not constant or held[2] is not products:  # reuses it if no one holds it)
+            held = self._held = (constant, data_address(constant), products,
+                                 data_address(products))
+        return self._fun(data_address(G), G.strides[0] // 8, self.n, data_address(kept),
+                         kept.size, held[1], held[3], products.strides[0] // 8, *self._args,
+                         data_address(out)) == 0
 
 
 def _reproduces_blas(product: CompiledProduct) -> bool:
