@@ -124,3 +124,40 @@ def test_a_non_finite_row_goes_to_numpy():
             outs.append(out)
         assert np.array_equal(outs[0], outs[1], equal_nan=True)
         assert not np.isfinite(outs[0][2]).any()
+
+
+def _kept_buffer_bits() -> None:
+    from wbc.solvers.factor_rows import FactorRows, RowStructure
+
+    rng = np.random.default_rng(6)
+    inv_t = _chains(rng)
+    n = inv_t.shape[0]
+    block = rng.normal(size=(150, n))
+    block.setflags(write=False)
+    G = np.vstack([block, rng.normal(size=(90, n))])
+    constant = np.r_[np.ones(150, bool), np.zeros(90, bool)]
+    structure = RowStructure((240,), constant, ((150, 240),), constant)
+    c, ref = FactorRows(), FactorRows()
+    ref.compiled = False
+    for tick in range(40):
+        if tick % 10 == 7:  # new values in the constant block: its products made again
+            block = block + 1.0
+            block.setflags(write=False)
+            G[:150] = block
+        G[150:] = rng.normal(size=(90, n))
+        # Mostly the same constant rows from tick to tick, at times others before them.
+        kept = np.flatnonzero(rng.random(240) < (0.5 if tick % 4 == 0 else 0.97 ** tick))
+        args = ((0, block),), None, structure, None, ()
+        if tick % 13 == 5:  # DAQP's rows given, not G's: the buffer written otherwise
+            rows = rng.normal(size=(kept.size, n))
+            c.least_distance_rows(G, kept, inv_t, ((0, block),), rows)
+            ref.least_distance_rows(G, kept, inv_t, ((0, block),), rows)
+        a = c.least_distance_rows(G, kept, inv_t, args[0], *args[1:])
+        b = ref.least_distance_rows(G, kept, inv_t, args[0], *args[1:])
+        assert np.array_equal(a, b), tick
+
+
+def test_constant_rows_left_in_place_are_numpys():
+    """DAQP's rows buffer reused from solve to solve: a constant row already in its place
+    is not copied again, and the rows are numpy's whatever was written there in between."""
+    _in_one_blas_thread("_kept_buffer_bits", "tests.test_product_c")

@@ -9,7 +9,8 @@ is computed with). The other kept rows are multiplied in C from the factor's non
 rows that are zero outside blocks along a diagonal (``diagonal_rows``,
 `wbc.constraints.DiagonalBlocks`: the MPC's effort rows, each step's on that step's inputs)
 block by block, a ninth of the dense work, the rest in one BLAS product. DAQP's rows are
-written into a buffer kept from solve to solve.
+written into a buffer kept from solve to solve, where the C pass leaves a constant row that
+the last pass put in the same place (most of them: the screening keeps much the same rows).
 """
 
 from __future__ import annotations
@@ -19,7 +20,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from wbc.solvers.product_c import CompiledProduct, compiled_product
+from wbc.solvers.product_c import CompiledProduct, compiled_product, data_address
 
 __all__ = ["FactorRows", "RowStructure"]
 
@@ -75,6 +76,9 @@ class FactorRows:
         self.ldp_rows: tuple | None = None
         self._rows_t: tuple | None = None  # (key, G's rows times L^-T, block products)
         self._product: tuple | None = None  # (L^-T, its `CompiledProduct` or None)
+        # What the last C pass wrote: (out's array, its address, `_rows_t`); None after
+        # any other write into DAQP's rows.
+        self._written: tuple | None = None
 
     def _compiled(self, G: np.ndarray, kept: np.ndarray, inv_t: np.ndarray
                   ) -> CompiledProduct | None:
@@ -117,8 +121,15 @@ class FactorRows:
             self._rows_t = (key, buffer, filled)
         buffer = self._rows_t[1]
         c = self._compiled(G, kept, inv_t)
-        if c is not None and c.run(G, kept, constant, buffer, out):
-            return
+        if c is not None:
+            written = (out if out.base is None else out.base, data_address(out), self._rows_t)
+            last = self._written
+            held = (last is not None and last[0] is written[0] and last[1] == written[1]
+                    and last[2] is written[2])
+            self._written = written if c.run(G, kept, constant, buffer, out, held) else None
+            if self._written is not None:
+                return
+        self._written = None
         for first, d in diagonal:
             if d.rows >= 2:
                 _diagonal_product(G, first, d, inv_t, buffer)
@@ -152,4 +163,5 @@ class FactorRows:
             self.times_factor(G, kept, inv_t, blocks, out[n:], structure, found, diagonal)
         else:
             np.matmul(rows, inv_t, out=out[n:])
+            self._written = None
         return out
