@@ -221,12 +221,13 @@ class DaqpBackend:
         return self._rows_structure
 
     def _screen(self, G: np.ndarray, h: np.ndarray, lb, ub, blocks: tuple,
-                diagonal: tuple = ()) -> np.ndarray:
+                diagonal: tuple = (), structure: RowStructure | None = None) -> np.ndarray:
         """The rows `redundant_rows` keeps, as indices; a constant block's screening sums kept.
 
         A block's sums depend only on the bounds of the columns where it has entries
         (`_worst`): they are kept while those bounds stay the same (the MPC's stroke and
-        speed limits depend on the acceleration limits only).
+        speed limits depend on the acceleration limits only). ``structure``: the rows'
+        `RowStructure`, if the caller has it.
         """
         m_in, n = G.shape
         if not blocks:
@@ -254,7 +255,8 @@ class DaqpBackend:
             screens[id(block)] = entry
             worst[first:first + block.shape[0]] = entry[3]
         self._screens = screens  # the blocks of this problem only
-        structure = self._structure(m_in, blocks, diagonal)
+        if structure is None:
+            structure = self._structure(m_in, blocks, diagonal)
         c = self._compiled_screen(G, h, structure)
         found = None if c is None else c.run(G, worst, h, box)
         self._kept_rest = found  # `_times_factor`'s rows, if the C pass found them
@@ -287,8 +289,9 @@ class DaqpBackend:
         m_eq = 0 if A is None else A.shape[0]
         blocks = getattr(problem, "constant_rows", ())
         diagonal = getattr(problem, "diagonal_rows", ())
+        structure = self._structure(m_in, blocks, diagonal) if blocks or diagonal else None
         if self.screen and m_in:
-            kept = self._screen(G, h, lb, ub, blocks, diagonal)
+            kept = self._screen(G, h, lb, ub, blocks, diagonal, structure)
         else:
             kept = np.arange(m_in)
         self.rows_kept = m_k = kept.size
@@ -323,10 +326,8 @@ class DaqpBackend:
             shift = inv_t @ v  # x = L^-T u - shift
             upper[:n] += shift
             lower[:n] += shift
-            a_all = self._rows.least_distance_rows(
-                G, kept, inv_t, blocks, a_all,
-                None if a_all is not None else self._structure(m_in, blocks, diagonal),
-                self._kept_rest, diagonal)
+            a_all = self._rows.least_distance_rows(G, kept, inv_t, blocks, a_all, structure,
+                                                   self._kept_rest, diagonal)
             row_shift = a_all[n:] @ v
             upper[n:] += row_shift
             lower[n:] += row_shift
