@@ -128,8 +128,9 @@ int times_factor(const double* G, long ld, long n, const int64_t* kept, long m_k
 """
 
 # Row counts of the probe: numpy's product picks OpenBLAS's small-matrix kernel or its
-# blocked one by the size, and the rows it gets number from two to all of ``G``'s.
-_PROBE_ROWS = (2, 7, 24, 64, 96, 300)
+# blocked one by the size (the MPC's 119 columns: blocked from 71 rows on), and the rows it
+# gets number from two to all of ``G``'s. Their sum is the probe's cost (~1 ms, once a factor).
+_PROBE_ROWS = (2, 9, 40, 160)
 
 
 _char_view = ctypes.c_char.from_buffer
@@ -215,7 +216,7 @@ def _reproduces_blas(product: CompiledProduct) -> bool:
     rng = np.random.default_rng(0)
     n = product.n
     for m in _PROBE_ROWS:
-        rows = rng.normal(size=(m, n)) * 10.0 ** rng.integers(-3, 4, size=(m, n))
+        rows = np.ldexp(rng.normal(size=(m, n)), rng.integers(-10, 11, size=(m, n)))
         out = np.empty((m, n))
         if not (product.run(rows, np.arange(m, dtype=np.int64), np.zeros(m, dtype=bool),
                             rows, out)
