@@ -107,6 +107,25 @@ def test_a_hessian_without_a_safe_factor_goes_to_daqp_as_it_is():
     np.testing.assert_allclose(x, np.r_[-0.5, -np.ones(n - 1)], atol=1e-9)
 
 
+def test_the_kept_factor_follows_the_hessians_values():
+    """The factor is kept for a Hessian equal to the last in value (a zero's sign aside,
+    as `np.array_equal` says), made again for another value or shape with the same bytes."""
+    backend = DaqpBackend()
+    H = np.diag(np.arange(1.0, 37.0))
+    H[0, 1] = H[1, 0] = 0.0
+    assert backend._factor(H) is None  # seen once
+    factor = backend._factor(H.copy())
+    assert factor is not None
+    flipped = H.copy()
+    flipped[0, 1] = -0.0  # other bytes, the same values
+    assert backend._factor(flipped) is factor
+    changed = H.copy()
+    changed[5, 5] = np.nextafter(changed[5, 5], 9.0)
+    assert backend._factor(changed) is None
+    assert backend._factor(changed) is not None
+    assert backend._factor(changed.reshape(18, 72)) is None  # the same bytes
+
+
 def test_warm_start_from_another_problem_is_still_right(corpus):
     """Multipliers of an unrelated QP of the same size: a poor start, the same answer."""
     mpc = [i for i, r in enumerate(corpus.records) if r["controller"] == "mpc-full"]
@@ -160,7 +179,7 @@ def test_constant_row_blocks_reuse_their_product_bit_for_bit(corpus):
         b = plain.solve(qpsolvers.Problem(*args))
         assert np.array_equal(a.x, b.x), i
         if marked.form == "least-distance":  # from the second solve on (the kept factor)
-            products.append(marked._products[id(constant)][2])
+            products.append(marked._rows.products[id(constant)][2])
     assert len(products) == len(block) - 1
     assert all(x is products[0] for x in products)  # computed once
 
@@ -191,7 +210,7 @@ def test_kept_screening_sums_of_constant_blocks_keep_the_same_rows(corpus):
                                       expected)
         out = np.empty((expected.size, n))
         inv_t = np.triu(np.random.default_rng(k).normal(size=(n, n)))
-        backend._times_factor(qp.G, expected, inv_t, qp.constant_rows, out)
+        _times_factor(backend, qp.G, expected, inv_t, qp.constant_rows, out)
         # The block's rows from its own product, the others' from theirs: those bits.
         inside = expected < 60
         assert np.array_equal(out[inside], (constant @ inv_t)[expected[inside]])
@@ -206,15 +225,28 @@ def test_daqp_leaves_the_kept_rows_buffer_as_it_was(corpus):
     for i in mpc[:3]:
         backend.solve(corpus.problems[i])
     assert backend.form == "least-distance"
-    inv_t, buffer = backend._ldp_rows
+    inv_t, buffer = backend._rows.ldp_rows
     kept = backend.rows_kept
     before = buffer[: inv_t.shape[0] + kept].copy()
     backend.solve(corpus.problems[mpc[2]])
     assert np.array_equal(buffer[: inv_t.shape[0] + kept], before)
 
 
-def _in_one_blas_thread(check: str) -> None:
-    """Run this module's function ``check`` in a fresh interpreter with one BLAS thread.
+def _numpy_backend() -> DaqpBackend:
+    """A backend that screens and multiplies with numpy alone (the definition of the C's)."""
+    backend = DaqpBackend()
+    backend.compiled = False
+    return backend
+
+
+def _times_factor(backend, G, kept, inv_t, blocks, out, diagonal=()):
+    """`FactorRows.times_factor` with the backend's structure of these rows."""
+    structure = backend._structure(G.shape[0], blocks, diagonal)
+    backend._rows.times_factor(G, kept, inv_t, blocks, out, structure, None, diagonal)
+
+
+def _in_one_blas_thread(check: str, module: str = "tests.test_daqp_backend") -> None:
+    """Run ``module``'s function ``check`` in a fresh interpreter with one BLAS thread.
 
     The application runs so (`wbc_hdmm`); a threaded BLAS splits a product by its size, and
     the bits of a row then depend on how many rows it comes with.
@@ -222,7 +254,7 @@ def _in_one_blas_thread(check: str) -> None:
     root = str(Path(__file__).resolve().parents[1])
     env = dict(os.environ, OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1",
                PYTHONPATH=os.pathsep.join([root, os.environ.get("PYTHONPATH", "")]))
-    code = f"from tests.test_daqp_backend import {check}; {check}()"
+    code = f"from {module} import {check}; {check}()"
     run = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True,
                          text=True, timeout=600)
     assert run.returncode == 0, run.stderr
@@ -244,8 +276,8 @@ def _diagonal_blocks_bits() -> None:
         G = np.vstack([dense, blocks.reshape(-1, n)])
         kept = np.flatnonzero(rng.random(G.shape[0]) < 0.7)
         out = np.empty((kept.size, n))
-        DaqpBackend()._times_factor(G, kept, inv_t, (), out,
-                                    ((dense.shape[0], DiagonalBlocks(rows, 0, width, steps)),))
+        _times_factor(_numpy_backend(), G, kept, inv_t, (), out,
+                      ((dense.shape[0], DiagonalBlocks(rows, 0, width, steps)),))
         assert np.array_equal(out, G[kept] @ inv_t), trial
 
 
@@ -263,29 +295,32 @@ def _mpc_effort_rows_bits() -> None:
     from wbc.qp import QP
 
     machine = build_reference_machine()
-    c = make_controller("mpc-full", machine, force_model=load_estimator(machine, "full"))
+    controller = make_controller("mpc-full", machine,
+                                 force_model=load_estimator(machine, "full"))
     st = make_state(machine)
     goal = st.q[2:9].copy()
     goal[3] += 0.3
-    c.set_goal(JointGoal(crane=goal))
+    controller.set_goal(JointGoal(crane=goal))
     plant = KinematicPlant(st, DT)
-    with_blocks, without = DaqpBackend(), DaqpBackend()
+    with_blocks, without, compiled = _numpy_backend(), _numpy_backend(), DaqpBackend()
     for _ in range(5):
-        p = c.prepare(plant.state)
+        p = controller.prepare(plant.state)
         ((first, d),) = p.diagonal_rows
         G = p.G[first:first + d.rows * d.n_blocks].reshape(d.n_blocks, d.rows, -1).copy()
         for k in range(d.n_blocks):
             G[k, :, d.first + k * d.width:d.first + (k + 1) * d.width] = 0.0
         assert not G.any()
         a = with_blocks.solve(p)
+        c = compiled.solve(p)
         b = without.solve(QP(p.P, p.q, p.G, p.h, None, None, p.lb, p.ub,
                              constant_rows=p.constant_rows))
         assert np.array_equal(a.x, b.x)
-        plant.apply(c.step(plant.state))
+        assert np.array_equal(a.x, c.x)
+        plant.apply(controller.step(plant.state))
     assert with_blocks.form == "least-distance"
 
 
 def test_the_mpc_effort_rows_are_zero_outside_their_diagonal_blocks():
     """What `HorizonEffortLimit` says of its rows holds, and the MPC's QP solves to the same
-    bits with and without the blocks (one BLAS thread)."""
+    bits with and without the blocks, and with the products in C (one BLAS thread)."""
     _in_one_blas_thread("_mpc_effort_rows_bits")

@@ -16,24 +16,18 @@ DAQP solves the least-distance form of the QP: with ``H = L L'`` and ``x = L^-T 
 ``v = L^-1 f``, the cost is ``|u|^2 / 2`` up to a constant and every row ``g x`` reads
 ``(g L^-T) u - g L^-T v``. Its own set-up forms ``M = A L^-T`` in plain loops (0.65 ms of a
 0.8 ms solve of the MPC's QP: 108 variables, ~220 kept rows); here the factor is kept while
-``H`` is unchanged (the MPC's Hessian is constant tick after tick) and ``M`` is one BLAS
-product, and DAQP gets an identity Hessian, which it recognises as diagonal (no factorisation,
-no products). The rows of a block that stays the same tick after tick (``constant_rows`` of a
-`wbc.qp.QP`: the MPC's stroke and speed limits, ~60 % of the kept rows) are multiplied by
-``L^-T`` once and then read from that product (each row's product is the same BLAS sum
-whichever rows it is computed with). The rows and hence the multipliers are the same as the
-QP's, so the warm start and the tolerance mean what they did. A Hessian that is not
-numerically positive definite goes to DAQP as it is (its own regularisation). Such a block's
-screening sums are kept too, while the bounds of the columns it has entries in stay the
-same, and DAQP's rows are written into a buffer kept from solve to solve: about 0.08 ms of
-the MPC's 0.5 ms solve (`benchmarks.bench_wbc`). Rows that are zero outside blocks along a
-diagonal (``diagonal_rows``, `wbc.constraints.DiagonalBlocks`: the MPC's effort rows, each
-step's on that step's inputs) are multiplied block by block, a ninth of the dense work.
+``H`` is unchanged (the MPC's Hessian is constant tick after tick) and ``M`` is formed by
+`wbc.solvers.factor_rows` (the rows of constant blocks from products kept from solve to
+solve, the others from the factor's nonzeros in C, numpy's bits), and DAQP gets an identity
+Hessian, which it recognises as diagonal (no factorisation, no products), and no linear
+term. The rows and hence the multipliers are the same as the QP's, so the warm start and the
+tolerance mean what they did. A Hessian that is not numerically positive definite goes to
+DAQP as it is (its own regularisation). A constant block's screening sums are kept too,
+while the bounds of the columns it has entries in stay the same.
 """
 
 from __future__ import annotations
 
-import operator
 import time
 from typing import NamedTuple
 
@@ -44,6 +38,7 @@ from scipy.linalg import lapack
 
 from models.numeric import clip
 from wbc.errors import ConfigurationError, QPSolveError
+from wbc.solvers.factor_rows import FactorRows, RowStructure
 from wbc.solvers.screen_c import CompiledScreen, compiled_screen
 from wbc.solvers.solution import QPSolution
 
@@ -109,26 +104,6 @@ def redundant_rows(G: np.ndarray, h: np.ndarray, lb: np.ndarray | None,
     return _worst(G, _box_terms(lb, ub, G.shape[1], tolerance)) <= h
 
 
-def _diagonal_product(G: np.ndarray, first: int, d, inv_t: np.ndarray,
-                      out: np.ndarray) -> None:
-    """``out[rows] = G[rows] @ inv_t`` for the rows of `DiagonalBlocks` ``d`` from ``first``.
-
-    Each block's ``width`` columns times the factor's matching rows, every block in one
-    stacked product: ``width / n`` of the dense product's work. The same bits as the dense
-    product when the BLAS sums each entry over the inner dimension in order, the columns
-    left out adding exact zeros (OpenBLAS's gemm does, `tests/test_daqp_backend.py` checks);
-    ``d.rows >= 2`` keeps every block a matrix product (numpy turns a single row into a
-    matrix-vector product, which sums in another order).
-    """
-    n = inv_t.shape[0]
-    G = np.ascontiguousarray(G, dtype=float)  # G itself, as the QP builds it
-    row = G.strides[0]
-    g = np.ndarray((d.n_blocks, d.rows, d.width), float, G, first * row + 8 * d.first,
-                   (d.rows * row + 8 * d.width, row, 8))  # the blocks: a view (as_strided)
-    u = inv_t[d.first:d.first + d.n_blocks * d.width].reshape(d.n_blocks, d.width, n)
-    np.matmul(g, u, out=out[first:first + d.rows * d.n_blocks].reshape(d.n_blocks, d.rows, n))
-
-
 def _senses(size: int, first_equality: int) -> np.ndarray:
     """DAQP's sense flags (it writes into them): rows from ``first_equality`` on equalities."""
     sense = np.zeros(size, dtype=np.intc)
@@ -159,7 +134,7 @@ class DaqpBackend:
         self.warm_start = bool(warm_start)
         self.screen = bool(screen)
         self.least_distance = bool(least_distance)
-        self._hessian: np.ndarray | None = None  # the H whose factor is kept
+        self._hessian: tuple | None = None  # (the H whose factor is kept, its bytes)
         self._inv_factor: tuple | None = None  # (L^-T, identity) for that H
         self._factored = False  # the factor of that H tried
         self.form = "direct"  # the last solve's form: "direct" or "least-distance"
@@ -167,15 +142,24 @@ class DaqpBackend:
         self.rows_kept = 0
         self._lam: np.ndarray | None = None  # multipliers of every row, dropped ones 0
         self._n: int | None = None
-        self._products: dict = {}  # id(block) -> (block, L^-T, block @ L^-T)
         self._box: tuple | None = None  # (the bounds' bytes, their `_BoxTerms`)
         self._screens: dict = {}  # id(block) -> (block, columns, their bounds, sums)
-        self._rows_structure: tuple | None = None  # (key, (constant mask, gaps))
-        self._rows_t: tuple | None = None  # (key, G's rows times L^-T, block products)
-        self._ldp_rows: tuple | None = None  # (L^-T, buffer of DAQP's rows)
-        self.compiled = True  # screen in C when it can (`wbc.solvers.screen_c`); False: numpy
+        self._rows_structure: RowStructure | None = None
+        self._rows = FactorRows()  # DAQP's rows, the products kept from solve to solve
         self._screen_c: tuple | None = None  # (structure key, `CompiledScreen` or None)
         self._kept_rest: tuple | None = None  # the C screening's (kept, rest) rows
+
+    @property
+    def compiled(self) -> bool:
+        """Screen and multiply in C when it can (`wbc.solvers.screen_c`, `.product_c`).
+
+        False: numpy.
+        """
+        return self._rows.compiled
+
+    @compiled.setter
+    def compiled(self, value: bool) -> None:
+        self._rows.compiled = bool(value)
 
     def reset(self) -> None:
         """Forget the previous multipliers (the next solve is cold)."""
@@ -200,8 +184,12 @@ class DaqpBackend:
         own relative level, 1e-11 of the largest): DAQP then factorises, or regularises,
         it itself.
         """
-        if self._hessian is None or not np.array_equal(self._hessian, H):
-            self._hessian, self._inv_factor = np.array(H, dtype=float), None
+        kept = self._hessian  # the same bits are equal (a copy and a compare, half the
+        if kept is None or not (H.dtype == kept[0].dtype and H.shape == kept[0].shape  # time
+                                and H.tobytes() == kept[1]  # of array_equal), else values
+                                or np.array_equal(kept[0], H)):  # (+-0; a NaN: no factor)
+            H = np.array(H, dtype=float)
+            self._hessian, self._inv_factor = (H, H.tobytes()), None
             self._factored = False
             return None
         if not self._factored:
@@ -216,14 +204,8 @@ class DaqpBackend:
                 self._inv_factor = (np.ascontiguousarray(inv_low.T), np.eye(H.shape[0]))
         return self._inv_factor
 
-    def _structure(self, m_in: int, blocks: tuple, diagonal: tuple = ()
-                   ) -> tuple[np.ndarray, tuple, np.ndarray]:
-        """``(constant, gaps, done)`` of a problem's rows, kept while the blocks sit where they did.
-
-        ``constant``: bool (m_in,), the rows of the constant blocks; ``gaps``: the
-        ``(first, stop)`` row ranges between them; ``done``: the constant rows and those of
-        the `DiagonalBlocks` of two rows or more (`_diagonal_product`).
-        """
+    def _structure(self, m_in: int, blocks: tuple, diagonal: tuple = ()) -> RowStructure:
+        """The `RowStructure` of a problem's rows, kept while the blocks sit where they did."""
         key = (m_in, tuple((first, block.shape[0]) for first, block in blocks), diagonal)
         if self._rows_structure is None or self._rows_structure[0] != key:
             constant = np.zeros(m_in, dtype=bool)
@@ -235,16 +217,17 @@ class DaqpBackend:
             for first, d in diagonal:
                 if d.rows >= 2:
                     done[first:first + d.rows * d.n_blocks] = True
-            self._rows_structure = (key, (constant, gaps, done))
-        return self._rows_structure[1]
+            self._rows_structure = RowStructure(key, constant, gaps, done)
+        return self._rows_structure
 
     def _screen(self, G: np.ndarray, h: np.ndarray, lb, ub, blocks: tuple,
-                diagonal: tuple = ()) -> np.ndarray:
+                diagonal: tuple = (), structure: RowStructure | None = None) -> np.ndarray:
         """The rows `redundant_rows` keeps, as indices; a constant block's screening sums kept.
 
         A block's sums depend only on the bounds of the columns where it has entries
         (`_worst`): they are kept while those bounds stay the same (the MPC's stroke and
-        speed limits depend on the acceleration limits only).
+        speed limits depend on the acceleration limits only). ``structure``: the rows'
+        `RowStructure`, if the caller has it.
         """
         m_in, n = G.shape
         if not blocks:
@@ -272,88 +255,28 @@ class DaqpBackend:
             screens[id(block)] = entry
             worst[first:first + block.shape[0]] = entry[3]
         self._screens = screens  # the blocks of this problem only
-        _, gaps, done = self._structure(m_in, blocks, diagonal)
-        c = self._compiled_screen(G, h, gaps, done)
+        if structure is None:
+            structure = self._structure(m_in, blocks, diagonal)
+        c = self._compiled_screen(G, h, structure)
         found = None if c is None else c.run(G, worst, h, box)
         self._kept_rest = found  # `_times_factor`'s rows, if the C pass found them
         if found is not None:
             return found[0]
-        for a, b in gaps:
+        for a, b in structure.gaps:
             worst[a:b] = _worst(G[a:b], box)
         return np.flatnonzero(~(worst <= h))
 
-    def _compiled_screen(self, G: np.ndarray, h: np.ndarray, gaps: tuple, done: np.ndarray
+    def _compiled_screen(self, G: np.ndarray, h: np.ndarray, structure: RowStructure
                          ) -> CompiledScreen | None:
         """The C screening (`wbc.solvers.screen_c`) for this structure; None: numpy's."""
         if not (G.dtype == h.dtype == np.float64 and G.strides[1] == 8 and h.strides[0] == 8
                 and self.compiled):
             return None
-        key = (self._rows_structure[0], G.shape[1])
+        key = (structure.key, G.shape[1])
         if self._screen_c is None or self._screen_c[0] != key:
-            self._screen_c = (key, compiled_screen(G.shape[0], G.shape[1], gaps, done))
+            self._screen_c = (key, compiled_screen(G.shape[0], G.shape[1], structure.gaps,
+                                                   structure.done))
         return self._screen_c[1]
-
-    def _times_factor(self, G: np.ndarray, kept: np.ndarray, inv_t: np.ndarray,
-                      blocks: tuple, out: np.ndarray, diagonal: tuple = ()) -> None:
-        """``out = G[kept] @ inv_t``, the rows of constant blocks from their kept products.
-
-        ``blocks``: ``(first row, read-only block)`` pairs (`wbc.qp.QP.constant_rows`). A
-        block's product is kept while the same block object comes with the same factor; the
-        products sit in a buffer of all rows, from which the kept rows are read at once.
-        ``diagonal``: ``(first row, DiagonalBlocks)`` pairs (`wbc.qp.QP.diagonal_rows`),
-        whose rows are multiplied block by block (`_diagonal_product`).
-        """
-        constant, _, done = self._structure(G.shape[0], blocks, diagonal)
-        found = self._kept_rest
-        rest = found[1] if found is not None and found[0] is kept else kept[~done[kept]]
-        products = {}
-        for first, block in blocks:
-            entry = self._products.get(id(block))
-            if entry is None or entry[0] is not block or entry[1] is not inv_t:
-                entry = (block, inv_t, block @ inv_t)
-            products[id(block)] = entry
-        self._products = products  # the blocks of this problem only
-        filled = tuple(products[id(block)][2] for _, block in blocks)
-        key = self._rows_structure[0]
-        last = self._rows_t
-        if (last is None or last[0] != key or last[1].shape != G.shape
-                or not all(map(operator.is_, last[2], filled))):
-            buffer = np.empty(G.shape) if last is None or last[1].shape != G.shape else last[1]
-            for (first, block), product in zip(blocks, filled):
-                buffer[first:first + block.shape[0]] = product
-            self._rows_t = (key, buffer, filled)
-        buffer = self._rows_t[1]
-        for first, d in diagonal:
-            if d.rows >= 2:
-                _diagonal_product(G, first, d, inv_t, buffer)
-        if rest.size == 1:  # as two rows: numpy makes one row a matrix-vector product,
-            rest = np.repeat(rest, 2)  # which sums in another order than the matrix product
-        if rest.size:
-            buffer[rest] = G[rest] @ inv_t
-        np.take(buffer, kept, axis=0, out=out, mode="clip")  # 'raise' buffers `out`
-
-    def _least_distance_rows(self, G: np.ndarray, kept: np.ndarray, inv_t: np.ndarray,
-                             blocks: tuple, rows: np.ndarray | None, diagonal: tuple = ()
-                             ) -> np.ndarray:
-        """DAQP's rows of the least-distance form, ``[L^-T; rows L^-T]``.
-
-        ``rows`` None: ``G[kept]`` (`_times_factor`). Written into a buffer kept from solve
-        to solve (a fresh array of this size costs its page faults every tick; DAQP leaves
-        its arguments as they are); its first rows are rewritten when the factor changes.
-        """
-        m = kept.size if rows is None else rows.shape[0]
-        n = inv_t.shape[0]
-        buf = self._ldp_rows
-        if buf is None or buf[0] is not inv_t or buf[1].shape[0] < n + m:
-            buf = (inv_t, np.empty((n + max(m, 0 if G is None else G.shape[0]), n)))
-            buf[1][:n] = inv_t
-            self._ldp_rows = buf
-        out = buf[1][:n + m]
-        if rows is None:
-            self._times_factor(G, kept, inv_t, blocks, out[n:], diagonal)
-        else:
-            np.matmul(rows, inv_t, out=out[n:])
-        return out
 
     def solve(self, problem: qpsolvers.Problem) -> QPSolution:
         """Solve; raise `QPSolveError` if DAQP finds no finite solution."""
@@ -366,8 +289,9 @@ class DaqpBackend:
         m_eq = 0 if A is None else A.shape[0]
         blocks = getattr(problem, "constant_rows", ())
         diagonal = getattr(problem, "diagonal_rows", ())
+        structure = self._structure(m_in, blocks, diagonal) if blocks or diagonal else None
         if self.screen and m_in:
-            kept = self._screen(G, h, lb, ub, blocks, diagonal)
+            kept = self._screen(G, h, lb, ub, blocks, diagonal, structure)
         else:
             kept = np.arange(m_in)
         self.rows_kept = m_k = kept.size
@@ -402,11 +326,12 @@ class DaqpBackend:
             shift = inv_t @ v  # x = L^-T u - shift
             upper[:n] += shift
             lower[:n] += shift
-            a_all = self._least_distance_rows(G, kept, inv_t, blocks, a_all, diagonal)
+            a_all = self._rows.least_distance_rows(G, kept, inv_t, blocks, a_all, structure,
+                                                   self._kept_rest, diagonal)
             row_shift = a_all[n:] @ v
             upper[n:] += row_shift
             lower[n:] += row_shift
-            cost = np.zeros(n)
+            cost = None  # no linear term: DAQP skips its ``M v`` pass (0.02 ms), same bits
         clip(upper, -_BIG, _BIG, out=upper)
         clip(lower, -_BIG, _BIG, out=lower)
         a_all = np.ascontiguousarray(a_all)
