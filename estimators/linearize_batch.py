@@ -28,7 +28,7 @@ from estimators.linearization import ForceLinearization
 from models.cbuild import bind, load_shared
 from models.state import MachineState
 
-__all__ = ["NODES_C", "linearize_states"]
+__all__ = ["NODES_C", "library", "linearize_states"]
 
 NODES_C = r"""
 #include <math.h>
@@ -111,7 +111,8 @@ class _Nodes:
         return self.call
 
 
-def _library():
+def library():
+    """`NODES_C` compiled and loaded (once per process); None without a compiler."""
     return load_shared(NODES_C, "linearize_rows", {"linearize_rows": (
         [ctypes.c_void_p] * 7, ctypes.c_int)}, "one linearization per state", "-O2")
 
@@ -142,7 +143,7 @@ def linearize_states(est, state: MachineState, dt: np.ndarray, rotation: np.ndar
     n, m = q_head.shape
     if est.backend != "compiled" or est._qs is not None or n == 0:
         return None
-    lib = _library()
+    lib = library()
     if lib is None:
         return None
     calls = est._calls.__dict__

@@ -13,9 +13,9 @@ import pytest
 
 from tests.test_daqp_backend import _in_one_blas_thread
 from wbc.solvers import DaqpBackend
-from wbc.solvers.product_c import _library, _reproduces_blas, compiled_product
+from wbc.solvers.product_c import _reproduces_blas, compiled_product, product_library
 
-pytestmark = pytest.mark.skipif(_library() is None, reason="no C compiler")
+pytestmark = pytest.mark.skipif(product_library() is None, reason="no C compiler")
 
 
 def _chains(rng, axes=9, steps=12, extra=11) -> np.ndarray:

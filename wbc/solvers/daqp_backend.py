@@ -39,7 +39,8 @@ from scipy.linalg import lapack
 from models.numeric import clip
 from wbc.errors import ConfigurationError, QPSolveError
 from wbc.solvers.factor_rows import FactorRows, RowStructure
-from wbc.solvers.screen_c import CompiledScreen, compiled_screen
+from wbc.solvers.product_c import product_library
+from wbc.solvers.screen_c import CompiledScreen, compiled_screen, screen_library
 from wbc.solvers.solution import QPSolution
 
 __all__ = ["DaqpBackend", "redundant_rows"]
@@ -148,6 +149,11 @@ class DaqpBackend:
         self._rows = FactorRows()  # DAQP's rows, the products kept from solve to solve
         self._screen_c: tuple | None = None  # (structure key, `CompiledScreen` or None)
         self._kept_rest: tuple | None = None  # the C screening's (kept, rest) rows
+        # The C parts compiled (or loaded) now, not in a control loop's first solves.
+        if screen:
+            screen_library()
+        if least_distance:
+            product_library()
 
     @property
     def compiled(self) -> bool:

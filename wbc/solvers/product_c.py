@@ -31,7 +31,8 @@ import numpy as np
 
 from models.cbuild import load_shared
 
-__all__ = ["ROWS", "PRODUCT_C", "CompiledProduct", "compiled_product", "data_address"]
+__all__ = ["PRODUCT_C", "ROWS", "CompiledProduct", "compiled_product", "data_address",
+           "product_library"]
 
 ROWS = 16  # rows multiplied together: a lane each of two vectors (`PRODUCT_C`'s VECS)
 
@@ -148,7 +149,7 @@ def data_address(a: np.ndarray) -> int:
 
 
 @functools.cache
-def _library():
+def product_library():
     """`PRODUCT_C` compiled and loaded once per process; None without a compiler."""
     p, lg = ctypes.c_void_p, ctypes.c_long
     return load_shared(PRODUCT_C, "daqp_product", {
@@ -231,7 +232,7 @@ def compiled_product(inv_t: np.ndarray) -> CompiledProduct | None:
     None without a compiler, for a factor with a non-finite entry, and where it does not
     reproduce numpy's product (module docstring): the caller then multiplies with numpy.
     """
-    lib = _library()
+    lib = product_library()
     if lib is None or not np.isfinite(inv_t).all():
         return None
     product = CompiledProduct(lib.times_factor, np.ascontiguousarray(inv_t, dtype=float))

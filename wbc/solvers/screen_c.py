@@ -28,7 +28,7 @@ import numpy as np
 from models.cbuild import load_shared
 from wbc.solvers.product_c import data_address
 
-__all__ = ["SCREEN_C", "CompiledScreen", "compiled_screen"]
+__all__ = ["SCREEN_C", "CompiledScreen", "compiled_screen", "screen_library"]
 
 SCREEN_C = r"""
 #include <math.h>
@@ -115,7 +115,7 @@ _U = 2.0 ** -53
 
 
 @functools.cache
-def _library():
+def screen_library():
     """`SCREEN_C` compiled and loaded once per process; None without a compiler."""
     p, lg = ctypes.c_void_p, ctypes.c_long
     return load_shared(SCREEN_C, "daqp_screen", {
@@ -167,5 +167,5 @@ class CompiledScreen:
 
 def compiled_screen(m: int, n: int, gaps: tuple, done: np.ndarray) -> CompiledScreen | None:
     """A new `CompiledScreen`; None without a working C compiler."""
-    lib = _library()
+    lib = screen_library()
     return None if lib is None else CompiledScreen(lib.screen_rows, m, n, gaps, done)
