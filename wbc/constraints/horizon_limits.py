@@ -35,9 +35,15 @@ class HorizonLimit(Constraint):
             self._G = np.vstack([P, -P])
             self._G.setflags(write=False)  # the same rows every tick (`wbc.qp.QP`)
             self._key = ctx.structure_key
-        hi = np.maximum(upper[None, :], brake)
-        lo = np.minimum(lower[None, :], brake)
-        return Inequality(self._G, np.concatenate([(hi - free).ravel(), (free - lo).ravel()]))
+        # [hi - free; free - lo] with hi = max(upper, brake), lo = min(lower, brake), each
+        # written into its half of h (no temporaries, the same operations)
+        h = np.empty((2, *free.shape))
+        hi, lo = h
+        np.maximum(upper, brake, out=hi)
+        np.subtract(hi, free, out=hi)
+        np.minimum(lower, brake, out=lo)
+        np.subtract(free, lo, out=lo)
+        return Inequality(self._G, h.reshape(-1))
 
 
 class HorizonPositionLimit(HorizonLimit):

@@ -197,6 +197,8 @@ class MpcController(Controller):
         self.feedback = feedback if fc.feedback else None
         self.warp = (warp_matrix(fc.warp_stiffness)
                      if self.feedback is not None and fc.warp_stiffness > 0 else None)
+        if self.warp is not None:  # the same matrix every tick (`HorizonLevelingTask` keeps)
+            self.warp.setflags(write=False)
         self.warp_drift = (WarpDrift(fc.warp_stiffness, fc.drift_time_constant,
                                      fc.drift_horizon)
                            if self.warp is not None and fc.drift_horizon > 0 else None)
