@@ -195,7 +195,7 @@ class SideLoadFluctuation:
         f = np.asarray(forces, float)
         if not _usable(f, in_contact, speed):
             return
-        side = f[[0, 2]] + f[[1, 3]]
+        side = f[0::2] + f[1::2]  # (FL + RL, FR + RR)
         if _swing_step(self, side, dt, speed >= self.min_speed):
             self.sigma = np.sqrt(self._square)
 
