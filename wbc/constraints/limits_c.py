@@ -10,7 +10,7 @@ multiply-adds) and called through ctypes on kept buffers: the same bits
 inputs (`CondensedPrediction.brake_trajectory`, a loop over the steps of a few ufuncs each)
 are the same loop in C, the same bits; so are `HorizonEffortLimit`'s rows (a dozen ufuncs
 and a strided scatter, ~15 us a tick), from the products with the brake inputs that numpy
-makes (BLAS's sums stay BLAS's).
+makes (BLAS's sums stay BLAS's), and `HorizonLimit`'s right-hand sides.
 """
 
 from __future__ import annotations
@@ -22,8 +22,9 @@ import numpy as np
 from models.cbuild import bind, load_shared
 from wbc.axes import N_AXES
 
-__all__ = ["LIMITS_C", "CompiledBounds", "CompiledBrake", "CompiledEffortRows", "compiled_bounds",
-           "compiled_brake", "compiled_effort_rows"]
+__all__ = ["LIMITS_C", "CompiledBounds", "CompiledBrake", "CompiledEffortRows",
+           "CompiledHorizonBounds", "compiled_bounds", "compiled_brake", "compiled_effort_rows",
+           "compiled_horizon_bounds"]
 
 LIMITS_C = r"""
 #include <math.h>
@@ -94,9 +95,10 @@ int brake_inputs(const double* v0, const double* a, const double* h, long N, lon
 }
 
 /* `HorizonEffortLimit.compute`'s rows (in: the pointers E, e0, Eu, upper, lower, scale;
-   dims: K, N, nb, na, n, col0, as arrays: ctypes converts few arguments): per step k the nb upper rows, then the nb lower
-   rows, of G (2 N nb, n) and h (N, 2, nb). E: (K, nb, na) with K = 1 (every step's) or N;
-   e0: (K, nb); Eu: (N, nb), step k's E_k times its brake input; upper, lower, scale: (nb).
+   dims: K, N, nb, na, n, col0, as arrays: ctypes converts few arguments): per step k the
+   nb upper rows, then the nb lower rows, of G (2 N nb, n) and h (N, 2, nb). E: (K, nb,
+   na) with K = 1 (every step's) or N; e0: (K, nb); Eu: (N, nb), step k's E_k times its
+   brake input; upper, lower, scale: (nb).
    Step k's rows are +-E_k / scale on the na columns from col0 + k na; the other entries
    of G are left as they are (the caller's zeros). */
 int effort_rows(const double* const* in, const long* dims, double* G, double* h) {
@@ -126,6 +128,22 @@ int effort_rows(const double* const* in, const long* dims, double* G, double* h)
       }
     }
   }
+  return 0;
+}
+
+/* `HorizonLimit.compute`'s h: in = brake (N, NA), free (N, NA), upper (NA), lower (NA);
+   h = [max(upper, brake) - free; free - min(lower, brake)], (2, N, NA). */
+int horizon_bounds(const double* in, long N, double* h) {
+  const double *brake = in, *free = in + N * NA, *upper = in + 2 * N * NA;
+  const double* lower = upper + NA;
+  long k, i;
+  if (N < 0) return -1;
+  for (k = 0; k < N; ++k)
+    for (i = 0; i < NA; ++i) {
+      const long j = k * NA + i;
+      h[j] = np_max(upper[i], brake[j]) - free[j];
+      h[N * NA + j] = free[j] - np_min(lower[i], brake[j]);
+    }
   return 0;
 }
 
@@ -215,6 +233,43 @@ class CompiledEffortRows:
         return G, h.reshape(-1)
 
 
+class CompiledHorizonBounds:
+    """``horizon_bounds`` on a kept input buffer, for N steps.
+
+    `h` copies the inputs (the bounds only when they are other arrays than the last
+    call's, or writable), calls, and returns a fresh ``h``.
+    """
+
+    def __init__(self, fun, N: int):
+        self.inp = np.zeros(2 * N * N_AXES + 2 * N_AXES)
+        self._brake = self.inp[:N * N_AXES].reshape(N, N_AXES)
+        self._free = self.inp[N * N_AXES:2 * N * N_AXES].reshape(N, N_AXES)
+        self._bounds = self.inp[2 * N * N_AXES:].reshape(2, N_AXES)
+        self._source: tuple | None = None  # the bound arrays last copied
+        self.size = 2 * N * N_AXES
+        self.call = bind(fun, self.inp, N)
+
+    def h(self, upper, lower, brake, free) -> np.ndarray:
+        """``[max(upper, brake) - free; free - min(lower, brake)]``, (2 N 9,)."""
+        kept = self._source
+        if (kept is None or kept[0] is not upper or kept[1] is not lower
+                or upper.flags.writeable or lower.flags.writeable):
+            self._bounds[0] = upper
+            self._bounds[1] = lower
+            self._source = (upper, lower)
+        self._brake[...] = brake
+        self._free[...] = free
+        h = np.empty(self.size)
+        self.call(_address(h))
+        return h
+
+
+def compiled_horizon_bounds(N: int) -> CompiledHorizonBounds | None:
+    """A new `CompiledHorizonBounds` of N steps; None without a working C compiler."""
+    lib = _library()
+    return None if lib is None else CompiledHorizonBounds(lib.horizon_bounds, N)
+
+
 def _address(a: np.ndarray) -> int:
     """The data address of a writable array: ``a.ctypes.data`` at a sixth of its cost."""
     return ctypes.addressof(ctypes.c_char.from_buffer(a))
@@ -253,4 +308,6 @@ def _library():
         "velocity_bounds": ([ctypes.c_void_p] * 2, ctypes.c_int),
         "brake_inputs": ([ctypes.c_void_p] * 3 + [ctypes.c_long] * 2 + [ctypes.c_void_p],
                          ctypes.c_int),
-        "effort_rows": ([ctypes.c_void_p] * 4, ctypes.c_int)}, "numpy")
+        "effort_rows": ([ctypes.c_void_p] * 4, ctypes.c_int),
+        "horizon_bounds": ([ctypes.c_void_p, ctypes.c_long, ctypes.c_void_p], ctypes.c_int)},
+        "numpy")

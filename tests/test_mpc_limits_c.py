@@ -1,4 +1,4 @@
-"""`HorizonEffortLimit`'s rows in C (`wbc.constraints.limits_c`): numpy's, to the bit."""
+"""The MPC's effort rows and horizon limits in C (`wbc.constraints.limits_c`): numpy's."""
 
 import dataclasses
 
@@ -8,7 +8,7 @@ import pytest
 from estimators.efforts import ActuatorEfforts
 from testkit.plant import KinematicPlant, make_state
 from wbc import ControllerConfig, JointGoal, MpcController
-from wbc.constraints import HorizonEffortLimit
+from wbc.constraints import HorizonEffortLimit, HorizonPositionLimit, HorizonVelocityLimit
 from wbc.constraints.limits_c import compiled_effort_rows
 from wbc.controllers.registry import estimator_models
 
@@ -69,3 +69,24 @@ def test_new_bounds_are_taken(machine, mpc_context):
         con.lower = 0.25 * con.lower
     got, want = compiled.compute(mpc_context), reference.compute(mpc_context)
     assert got.h.tobytes() == want.h.tobytes()
+
+
+@pytest.mark.parametrize("limit", [HorizonPositionLimit, HorizonVelocityLimit])
+def test_compiled_horizon_bounds_are_numpys_to_the_bit(mpc_context, limit):
+    compiled, reference = limit(), limit(compiled=False)
+    rng = np.random.default_rng(4)
+    lim = mpc_context.limits
+    for k, brake in enumerate(_brakes(mpc_context, rng)):
+        free = mpc_context.free_positions + rng.normal(0.0, 0.5, brake.shape)
+        if k == 3:
+            free[5, 1] = np.nan
+        ctx = dataclasses.replace(mpc_context, brake_positions=brake, brake_velocities=brake,
+                                  free_positions=free, free_velocities=free)
+        if k == 2:  # other bound arrays: copied again
+            wide = {f: getattr(lim, f) * 3.0 for f in ("position_lower", "position_upper",
+                                                        "velocity_lower", "velocity_upper")}
+            ctx = dataclasses.replace(ctx, limits=dataclasses.replace(lim, **wide))
+        got, want = compiled.compute(ctx), reference.compute(ctx)
+        assert compiled._c[1] is not None and reference._c is None
+        assert got.G is want.G or np.array_equal(got.G, want.G)
+        assert got.h.tobytes() == want.h.tobytes()
