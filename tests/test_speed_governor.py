@@ -53,6 +53,41 @@ def test_cap_leaves_z_fluctuations_of_headroom_at_the_commanded_speed():
     assert gov.cap(np.full(4, 7000.0), 0.5, (True, False, True, True)) == 1.0
 
 
+def _cap_formula(gov, thresholds, speed, in_contact) -> float:
+    """`SpeedGovernor.cap` as the module docstring writes it, on numpy arrays."""
+    if gov.mean is None or not np.any(gov.per_speed > 0):
+        return 1.0
+    v_nom = speed / max(gov.scale_lag, 0.05)
+    if not (np.isfinite(v_nom) and v_nom > 0):
+        return 1.0
+    need = gov.z * gov.per_speed * v_nom
+    wheels = np.asarray(in_contact, bool) & (need > 0)
+    if not np.any(wheels):
+        return 1.0
+    headroom = gov.mean - np.asarray(thresholds, float)
+    return float(np.clip(np.min(headroom[wheels] / need[wheels]), 0.0, 1.0))
+
+
+def test_cap_is_its_formula_to_the_bit():
+    """Signed zeros, infinities and NaN included (the cap runs on Python floats)."""
+    rng = np.random.default_rng(0)
+    odd = [0.0, -0.0, np.nan, np.inf, -np.inf, 1.0, -1.0, 5e3, 1e-300]
+    gov = SpeedGovernor(2.0)
+    for trial in range(20000):
+        gov.mean = rng.choice(odd, 4) if trial % 2 else rng.normal(5e3, 3e3, 4)
+        gov.per_speed = (rng.choice(odd, 4) if trial % 3 == 0
+                         else np.abs(rng.normal(1e3, 1e3, 4)))
+        gov.scale_lag = float(rng.choice([0.0, 0.5, 1.0, np.nan]))
+        thresholds = gov.mean.copy() if trial % 7 == 0 else (
+            rng.choice(odd, 4) if trial % 5 == 0 else rng.normal(3e3, 1e3, 4))
+        contact = rng.random(4) < 0.8
+        speed = float(rng.choice([0.3, 0.0, np.nan, 1e-3]))
+        with np.errstate(all="ignore"):
+            want = _cap_formula(gov, thresholds, speed, contact)
+        got = gov.cap(thresholds, speed, contact)
+        assert np.array(got).tobytes() == np.array(want).tobytes(), (trial, got, want)
+
+
 def test_commanded_speed_is_inferred_through_the_drive_lag():
     gov = SpeedGovernor(z=2.0, drive_time_constant=0.5)
     t = _drive(gov, np.array([0.0, 1000.0, 0.0, 0.0]), speed=0.5, seconds=12.0)

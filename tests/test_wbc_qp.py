@@ -263,6 +263,55 @@ def test_rows_of_g_are_reused_only_when_nobody_holds_them(machine, limits):
     assert id(builder.build(ctx).G) == last_id  # nobody held it: written again
 
 
+def test_diagonal_rows_reused_write_their_blocks_only(machine, limits):
+    """Rows with the last tick's `DiagonalBlocks` in the same place: only the blocks are
+    written into the reused G (zeros elsewhere in both); other blocks, or another place,
+    the whole rows. G is the concatenation's every tick."""
+    from wbc import Constraint
+    from wbc.constraints import DiagonalBlocks
+    from wbc.qp import QPBuilder
+
+    ctx = _ctx(machine, limits)
+    n = ctx.layout.n
+    rng = np.random.default_rng(5)
+
+    class Rows(Constraint):
+        def __init__(self, m, blocks):
+            self.m, self.blocks = m, blocks
+
+        def compute(self, ctx):
+            d = self.blocks
+            G = rng.normal(size=(self.m, n))
+            if d is not None:
+                mask = np.zeros((self.m, n), bool)
+                for k in range(d.n_blocks):
+                    mask[k * d.rows:(k + 1) * d.rows,
+                         d.first + k * d.width:d.first + (k + 1) * d.width] = True
+                G[~mask] = 0.0
+            self.last = G
+            return Inequality(G, np.zeros(self.m), d)
+
+    constant = np.ones((2, n))
+    constant.setflags(write=False)
+
+    class Constant(Constraint):
+        def compute(self, ctx):
+            self.last = constant
+            return Inequality(constant, np.zeros(2))
+
+    diagonal = Rows(6, DiagonalBlocks(2, 0, 3, 3))
+    rows = [Rows(2, None), Constant(), diagonal]
+    builder = QPBuilder([], rows)
+    ids = set()
+    for blocks in [diagonal.blocks] * 3 + [DiagonalBlocks(3, 1, 4, 2)] * 2 + [None]:
+        diagonal.blocks = blocks
+        qp = builder.build(ctx)
+        assert np.array_equal(qp.G, np.concatenate([r.last for r in rows]))
+        ids.add(id(qp.G))
+        del qp
+    assert len(ids) == 1  # reused throughout
+
+
 def _limit_boxes(ctx, limits, T, fraction):
     """Both limits' boxes written out as the docstrings' formulas, both sides apart."""
     q, qd, a = ctx.q, ctx.qd, limits.acceleration

@@ -68,14 +68,16 @@ class QPBuilder:
         self._bounds: tuple[np.ndarray, np.ndarray] | None = None
         self._rows: tuple | None = None  # (the last G, its constant blocks' places)
 
-    def _stacked_rows(self, Gs: list, constant: tuple, m: int) -> np.ndarray:
+    def _stacked_rows(self, Gs: list, constant: tuple, diagonal: tuple, m: int) -> np.ndarray:
         """``np.concatenate(Gs)``, shape (m, n); the constant blocks' rows kept from the last.
 
         The last tick's array is reused when only this builder holds it (the problem that
         carried it, and every view of it, is gone: its reference count says so) and the
         constant blocks are the same objects in the same places: then only the other rows
-        are written (the MPC's 430 constant rows of 580 are not copied every tick). Else a
-        fresh array.
+        are written (the MPC's 430 constant rows of 580 are not copied every tick). Of rows
+        whose `DiagonalBlocks` are the last tick's in the same place only the blocks are
+        written: the rest of those rows is zeros in both (the MPC's effort rows: 3 % of
+        their entries). Else a fresh array.
         """
         last, self._rows = self._rows, None
         n = Gs[0].shape[1]
@@ -86,12 +88,17 @@ class QPBuilder:
             G = np.concatenate(Gs)
         else:
             G = last[0]
+            kept = dict(last[2])  # first row -> the last tick's DiagonalBlocks there
             first = 0
             for block in Gs:
                 if block.flags.writeable:  # not a constant block
-                    G[first:first + block.shape[0]] = block
+                    d = diagonal.get(first)
+                    if d is not None and kept.get(first) == d and block.flags.c_contiguous:
+                        _blocks(G, first, d)[...] = _blocks(block, 0, d)
+                    else:
+                        G[first:first + block.shape[0]] = block
                 first += block.shape[0]
-        self._rows = (G, constant)
+        self._rows = (G, constant, diagonal.items())
         return G
 
     def _hessian(self, n: int, hessians: list) -> np.ndarray:
@@ -165,10 +172,22 @@ class QPBuilder:
             i = int(np.argmax(lb > ub))
             raise WbcError(f"empty bounds on x[{i}]: [{lb[i]}, {ub[i]}]")
         constant = tuple(constant)
-        G = self._stacked_rows(Gs, constant, rows) if Gs else None
+        G = self._stacked_rows(Gs, constant, dict(diagonal), rows) if Gs else None
         h = np.concatenate(hs) if hs else None
         return QP(P, q, G, h, None, None, lb, ub, constant_rows=constant,
                   diagonal_rows=tuple(diagonal))
+
+
+def _blocks(G: np.ndarray, first: int, d) -> np.ndarray:
+    """The `DiagonalBlocks` ``d`` of C-contiguous ``G``'s rows from ``first`` on, a view.
+
+    Shape (n_blocks, rows, width): block k at rows ``first + k rows``, columns
+    ``d.first + k width``.
+    """
+    row, item = G.strides
+    return np.ndarray((d.n_blocks, d.rows, d.width), G.dtype, G,
+                      first * row + d.first * item,
+                      (d.rows * row + d.width * item, row, item))
 
 
 def build_qp(ctx, tasks: Sequence[Task], constraints: Sequence[Constraint],

@@ -23,6 +23,7 @@ import numpy as np
 from estimators.efforts import ActuatorEfforts, effort_ranges
 from wbc.axes import CRANE_AXES, N_AXES, axis_index
 from wbc.constraints.constraint import Constraint, DiagonalBlocks, Inequality
+from wbc.constraints.limits_c import compiled_effort_rows
 from wbc.errors import ConfigurationError
 from wbc.mpc.prediction import nominal_state
 
@@ -38,21 +39,26 @@ class HorizonEffortLimit(Constraint):
         n_linearizations: Effort-model evaluations per tick (>= 1), the first at step 0.
         axes: The axes bounded (default: the four cylinder-driven crane axes, slew, lift,
             tilt and telescope; the wrist drives carry small loads).
+        compiled: Write the rows in C (`wbc.constraints.limits_c`, the same bits); False,
+            or no C compiler: numpy.
 
     Attributes:
         last_efforts: Efforts at step 0 of the last solution's nominal input, (9,), or None.
     """
 
     def __init__(self, efforts: ActuatorEfforts, margin: float = 0.05,
-                 n_linearizations: int = 1, axes=tuple(CRANE_AXES[:4])):
+                 n_linearizations: int = 1, axes=tuple(CRANE_AXES[:4]), compiled: bool = True):
         if not (0.0 <= margin < 0.5) or n_linearizations < 1:
             raise ConfigurationError(f"need margin in [0, 0.5) and n_linearizations >= 1, got "
                                      f"{margin}, {n_linearizations}")
         self.efforts = efforts
         lo, hi = effort_ranges(efforts.machine)
-        self.lower = (1.0 - margin) * lo
+        self.lower = (1.0 - margin) * lo  # read-only: replace them to change them
         self.upper = (1.0 - margin) * hi
+        self.lower.setflags(write=False)
+        self.upper.setflags(write=False)
         self.n_linearizations = int(n_linearizations)
+        self.compiled = bool(compiled)
         self.axes = np.asarray(axes, int)
         self._scale = np.maximum(hi, -lo)[self.axes]
         self._structure_cache: tuple | None = None
@@ -61,36 +67,37 @@ class HorizonEffortLimit(Constraint):
     def _structure(self, ctx) -> tuple:
         """What the layout and step lengths fix, built once for them.
 
-        ``(steps j, which j each step uses, flat indices of the upper and the lower rows'
-        entries in G, G's `DiagonalBlocks`, the bounded axes as an index: a slice where
-        contiguous)``.
+        ``(steps j, which j each step uses, G's shape, where G's nonzero entries are in G's
+        buffer: (offset, shape (N, 2, bounded axes, axes), strides) [bytes], G's
+        `DiagonalBlocks`, the bounded axes as an index: a slice where contiguous, the
+        compiled rows (`wbc.constraints.limits_c.CompiledEffortRows`) or None)``.
         """
-        key = (ctx.structure_key, self.n_linearizations, self.axes.tobytes())
+        key = (ctx.structure_key, self.n_linearizations, self.axes.tobytes(), self.compiled)
         if self._structure_cache is None or self._structure_cache[0] != key:
             lay = ctx.layout
-            N, na = lay.n_steps, lay.n_axes
+            N, na, nb, n = lay.n_steps, lay.n_axes, self.axes.size, lay.n
             steps = np.unique(np.round(np.linspace(0, N - 1, self.n_linearizations))
                               .astype(int))
             which = np.minimum(np.searchsorted(steps, np.arange(N), side="right") - 1,
                                len(steps) - 1)
-            # G as (N, 2, bounded axes, n): step k's rows hold E_k on step k's columns.
-            shape = (N, 2, self.axes.size, lay.n)
-            k = np.arange(N)[:, None, None]
-            row = np.arange(self.axes.size)[None, :, None]
-            col = lay.step(0).start + np.arange(N * na).reshape(N, 1, na)
-            # (N, bounded axes x axes): a row of values assigned to them broadcasts over N
-            flat = [np.ravel_multi_index(np.broadcast_arrays(k, side, row, col), shape)
-                    .reshape(N, -1) for side in (0, 1)]
-            diagonal = DiagonalBlocks(2 * self.axes.size, lay.step(0).start, na, N)
-            self._structure_cache = (key, steps, which, flat, diagonal,
-                                     axis_index(self.axes))
+            # G as (N, 2, bounded axes, n): step k's upper then lower rows hold +-E_k on
+            # step k's columns, a strided view of G (one step further is a block of rows
+            # and na columns on).
+            size = np.dtype(float).itemsize
+            entries = (lay.step(0).start * size, (N, 2, nb, na),
+                       ((2 * nb * n + na) * size, nb * n * size, n * size, size))
+            diagonal = DiagonalBlocks(2 * nb, lay.step(0).start, na, N)
+            rows = (compiled_effort_rows(1 if steps.size == 1 else N, N, nb, na, n,
+                                         lay.step(0).start) if self.compiled else None)
+            self._structure_cache = (key, steps, which, (2 * N * nb, n), entries, diagonal,
+                                     axis_index(self.axes), rows)
         return self._structure_cache[1:]
 
     def compute(self, ctx) -> Inequality:
         """Two rows per crane axis and step: ``+-E u_k <= bound - e_0``."""
         lay, pred = ctx.layout, ctx.prediction
         N = lay.n_steps
-        steps, which, (upper_idx, lower_idx), diagonal, ax = self._structure(ctx)
+        steps, which, g_shape, entries, diagonal, ax, rows = self._structure(ctx)
         if steps.size > 1:  # the nominal trajectory is needed beyond the measured state
             qn, vn = pred.trajectory(ctx.q, ctx.qd, ctx.nominal_inputs,
                                      (ctx.free_positions, ctx.free_velocities))
@@ -101,31 +108,44 @@ class HorizonEffortLimit(Constraint):
             st = (ctx.state if j == 0 else
                   nominal_state(ctx.state, pred.start_times[j], qn[j], vn[j]))
             maps.append(self.efforts.affine(st))
-        na_b = self.axes.size
         # Every step at once: E_k (N, bounded axes, axes) and e_0,k of the node each step uses
-        # (one node: its arrays, which the operations broadcast over the steps).
-        # Rows scaled to the effort range (the solver's tolerance is absolute): one step's
-        # (bounded axes x axes) values, or every step's.
+        # (one node: (1, bounded axes, axes) and its e_0, which broadcast over the steps).
         if len(maps) == 1:
-            E1 = maps[0][0][ax]
-            E, e0 = E1[None], maps[0][1][ax]
-            scaled = (E1 / self._scale[:, None]).ravel()
+            E, e0 = maps[0][0][ax][None], maps[0][1][ax]
         else:
             E = np.stack([m[0] for m in maps])[which][:, ax]
             e0 = np.stack([m[1] for m in maps])[which][:, ax]
-            scaled = (E / self._scale[:, None]).reshape(N, -1)
-        brake = (E @ ctx.brake_inputs[:N, :, None])[:, :, 0] + e0
-        hi = np.maximum(self.upper[ax], brake)
-        lo = np.minimum(self.lower[ax], brake)
-        # Per step k the upper rows, then the lower rows.
-        G = np.zeros(2 * N * na_b * lay.n)
-        G[upper_idx] = scaled
-        G[lower_idx] = -scaled
-        h = np.empty((N, 2, na_b))
-        np.divide(hi - e0, self._scale, out=h[:, 0])
-        np.divide(e0 - lo, self._scale, out=h[:, 1])
-        G = G.reshape(2 * N * na_b, lay.n)
-        h = h.reshape(2 * N * na_b)
+        Eu = (E @ ctx.brake_inputs[:N, :, None])[:, :, 0]  # BLAS's, in either path
+        if rows is not None:
+            if rows.source is not self.upper or rows.source_lower is not self.lower:
+                rows.set_bounds(self.upper, self.lower, self._scale, ax)
+            G, h = rows.rows(E, e0, Eu)
+        else:
+            G, h = self._rows(E, e0, Eu, g_shape, entries, ax)
         E0, e00 = maps[0]
         self.last_efforts = E0 @ ctx.nominal_inputs[0] + e00 if N else None
         return Inequality(G, h, diagonal)
+
+    def _rows(self, E, e0, Eu, g_shape, entries, ax) -> tuple[np.ndarray, np.ndarray]:
+        """``(G, h)`` in numpy: what `wbc.constraints.limits_c`'s ``effort_rows`` computes.
+
+        Rows scaled to the effort range (the solver's tolerance is absolute); each bound
+        relaxed to admit the brake input ``E u_b + e_0``.
+        """
+        offset, shape, strides = entries
+        scaled = E / self._scale[:, None]
+        brake = Eu + e0
+        # Per step k the upper rows, then the lower rows.
+        G = np.zeros(g_shape)
+        blocks = np.ndarray(shape, float, G, offset, strides)
+        blocks[:, 0] = scaled
+        np.negative(scaled, out=blocks[:, 1])
+        h = np.empty((shape[0], 2, shape[2]))
+        hi, lo = h[:, 0], h[:, 1]
+        np.maximum(self.upper[ax], brake, out=hi)
+        np.minimum(self.lower[ax], brake, out=lo)
+        np.subtract(hi, e0, out=hi)
+        np.subtract(e0, lo, out=lo)
+        np.divide(hi, self._scale, out=hi)
+        np.divide(lo, self._scale, out=lo)
+        return G, h.reshape(-1)

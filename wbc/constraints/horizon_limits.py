@@ -6,7 +6,9 @@ import abc
 
 import numpy as np
 
+from wbc.axes import N_AXES
 from wbc.constraints.constraint import Constraint, Inequality
+from wbc.constraints.limits_c import compiled_horizon_bounds
 
 __all__ = ["HorizonLimit", "HorizonPositionLimit", "HorizonVelocityLimit"]
 
@@ -17,11 +19,17 @@ class HorizonLimit(Constraint):
     Each node's bounds are relaxed to admit the brake-and-hold trajectory, so that a state
     already past a limit (or too fast to stop before it) is braked, not infeasible. The
     subclasses say which quantity ``y`` is (`_quantity`).
+
+    Args:
+        compiled: Write ``h`` in C (`wbc.constraints.limits_c`, the same bits); False, or
+            no C compiler: numpy.
     """
 
-    def __init__(self):
+    def __init__(self, compiled: bool = True):
         self._key = None
         self._G = None
+        self.compiled = compiled  # h in C (`wbc.constraints.limits_c`, the same bits)
+        self._c: tuple | None = None  # (N, `CompiledHorizonBounds` or None)
 
     @abc.abstractmethod
     def _quantity(self, ctx) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray,
@@ -35,9 +43,28 @@ class HorizonLimit(Constraint):
             self._G = np.vstack([P, -P])
             self._G.setflags(write=False)  # the same rows every tick (`wbc.qp.QP`)
             self._key = ctx.structure_key
-        hi = np.maximum(upper[None, :], brake)
-        lo = np.minimum(lower[None, :], brake)
-        return Inequality(self._G, np.concatenate([(hi - free).ravel(), (free - lo).ravel()]))
+        c = self._compiled(free)
+        if c is not None and brake.shape == free.shape and upper.shape == (N_AXES,):
+            return Inequality(self._G, c.h(upper, lower, brake, free))
+        # [hi - free; free - lo] with hi = max(upper, brake), lo = min(lower, brake), each
+        # written into its half of h (no temporaries, the same operations)
+        h = np.empty((2, *free.shape))
+        hi, lo = h
+        np.maximum(upper, brake, out=hi)
+        np.subtract(hi, free, out=hi)
+        np.minimum(lower, brake, out=lo)
+        np.subtract(free, lo, out=lo)
+        return Inequality(self._G, h.reshape(-1))
+
+
+    def _compiled(self, free: np.ndarray):
+        """The compiled h of ``free``'s N steps of nine axes (made once for N), or None."""
+        if not self.compiled or free.ndim != 2 or free.shape[1] != N_AXES:
+            return None
+        N = free.shape[0]
+        if self._c is None or self._c[0] != N:
+            self._c = (N, compiled_horizon_bounds(N))
+        return self._c[1]
 
 
 class HorizonPositionLimit(HorizonLimit):

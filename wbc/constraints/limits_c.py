@@ -8,7 +8,9 @@ compiled once with the system compiler (`models.cbuild`, no contraction into fus
 multiply-adds) and called through ctypes on kept buffers: the same bits
 (`tests/test_limits_c.py`). Without a compiler the numpy code runs. The MPC's brake-to-rest
 inputs (`CondensedPrediction.brake_trajectory`, a loop over the steps of a few ufuncs each)
-are the same loop in C, the same bits.
+are the same loop in C, the same bits; so are `HorizonEffortLimit`'s rows (a dozen ufuncs
+and a strided scatter, ~15 us a tick), from the products with the brake inputs that numpy
+makes (BLAS's sums stay BLAS's), and `HorizonLimit`'s right-hand sides.
 """
 
 from __future__ import annotations
@@ -20,7 +22,9 @@ import numpy as np
 from models.cbuild import bind, load_shared
 from wbc.axes import N_AXES
 
-__all__ = ["LIMITS_C", "CompiledBounds", "CompiledBrake", "compiled_bounds", "compiled_brake"]
+__all__ = ["LIMITS_C", "CompiledBounds", "CompiledBrake", "CompiledEffortRows",
+           "CompiledHorizonBounds", "compiled_bounds", "compiled_brake", "compiled_effort_rows",
+           "compiled_horizon_bounds"]
 
 LIMITS_C = r"""
 #include <math.h>
@@ -90,6 +94,59 @@ int brake_inputs(const double* v0, const double* a, const double* h, long N, lon
   return 0;
 }
 
+/* `HorizonEffortLimit.compute`'s rows (in: the pointers E, e0, Eu, upper, lower, scale;
+   dims: K, N, nb, na, n, col0, as arrays: ctypes converts few arguments): per step k the
+   nb upper rows, then the nb lower rows, of G (2 N nb, n) and h (N, 2, nb). E: (K, nb,
+   na) with K = 1 (every step's) or N; e0: (K, nb); Eu: (N, nb), step k's E_k times its
+   brake input; upper, lower, scale: (nb).
+   Step k's rows are +-E_k / scale on the na columns from col0 + k na; the other entries
+   of G are left as they are (the caller's zeros). */
+int effort_rows(const double* const* in, const long* dims, double* G, double* h) {
+  const double *E = in[0], *e0 = in[1], *Eu = in[2], *upper = in[3], *lower = in[4];
+  const double* scale = in[5];
+  const long K = dims[0], N = dims[1], nb = dims[2], na = dims[3], n = dims[4];
+  const long col0 = dims[5];
+  long k, r, a;
+  if (!(K == 1 || K == N) || N < 0 || nb < 1 || na < 1 || col0 < 0 || col0 + N * na > n)
+    return -1;
+  for (k = 0; k < N; ++k) {
+    const double* Ek = E + (K == 1 ? 0 : k * nb * na);
+    const double* ek = e0 + (K == 1 ? 0 : k * nb);
+    double* up = G + (2 * k * nb) * n + col0 + k * na;
+    double* low = up + nb * n;
+    for (r = 0; r < nb; ++r) {
+      double brake = Eu[k * nb + r] + ek[r];
+      double hi = np_max(upper[r], brake), lo = np_min(lower[r], brake);
+      hi = hi - ek[r];
+      lo = ek[r] - lo;
+      h[(2 * k) * nb + r] = hi / scale[r];
+      h[(2 * k + 1) * nb + r] = lo / scale[r];
+      for (a = 0; a < na; ++a) {
+        double x = Ek[r * na + a] / scale[r];
+        up[r * n + a] = x;
+        low[r * n + a] = -x;
+      }
+    }
+  }
+  return 0;
+}
+
+/* `HorizonLimit.compute`'s h: in = brake (N, NA), free (N, NA), upper (NA), lower (NA);
+   h = [max(upper, brake) - free; free - min(lower, brake)], (2, N, NA). */
+int horizon_bounds(const double* in, long N, double* h) {
+  const double *brake = in, *free = in + N * NA, *upper = in + 2 * N * NA;
+  const double* lower = upper + NA;
+  long k, i;
+  if (N < 0) return -1;
+  for (k = 0; k < N; ++k)
+    for (i = 0; i < NA; ++i) {
+      const long j = k * NA + i;
+      h[j] = np_max(upper[i], brake[j]) - free[j];
+      h[N * NA + j] = free[j] - np_min(lower[i], brake[j]);
+    }
+  return 0;
+}
+
 /* `VelocityLimit.compute`: in = qd, brake, v_hi, v_lo, then dt; out = lower, upper. */
 int velocity_bounds(const double* in, double* out) {
   const double *qd = in, *brake = in + NA, *hi = in + 2 * NA, *lo = in + 3 * NA;
@@ -141,6 +198,90 @@ class CompiledBrake:
         return self.u.copy()
 
 
+class CompiledEffortRows:
+    """``effort_rows`` on kept input buffers, for one structure (K, N, nb, na, n, col0).
+
+    `set_bounds` keeps the constraint's bounds (`source`: the upper bounds' array they were
+    taken from, `source_lower` the lower); `rows` fills the other buffers, calls, and
+    returns a fresh ``(G, h)``.
+    """
+
+    def __init__(self, fun, K: int, N: int, nb: int, na: int, n: int, col0: int):
+        self.E, self.e0 = np.zeros((K, nb, na)), np.zeros((K, nb))
+        self.Eu = np.zeros((N, nb))
+        self.bounds = np.zeros((3, nb))  # upper, lower, scale: `set_bounds`
+        self.source = self.source_lower = None
+        self.shape = ((2 * N * nb, n), (N, 2, nb))
+        self._in = np.array([a.ctypes.data for a in (self.E, self.e0, self.Eu, *self.bounds)],
+                            np.uintp)
+        self._dims = np.array([K, N, nb, na, n, col0], np.int_)
+        self.call = bind(fun, self._in, self._dims)
+
+    def set_bounds(self, upper, lower, scale, axes) -> None:
+        """Take the bounds ``upper[axes]``, ``lower[axes]`` (kept as `source`) and scale."""
+        self.bounds[:] = upper[axes], lower[axes], scale
+        self.source, self.source_lower = upper, lower
+
+    def rows(self, E, e0, Eu) -> tuple[np.ndarray, np.ndarray]:
+        """``(G (2 N nb, n), h (2 N nb,))`` of E (K, nb, na), e0 (K, nb), Eu (N, nb)."""
+        self.E[:] = E
+        self.e0[:] = e0
+        self.Eu[:] = Eu
+        G, h = np.zeros(self.shape[0]), np.empty(self.shape[1])
+        if self.call(_address(G), _address(h)) != 0:
+            raise ValueError(f"effort rows: inconsistent sizes {self.shape}")
+        return G, h.reshape(-1)
+
+
+class CompiledHorizonBounds:
+    """``horizon_bounds`` on a kept input buffer, for N steps.
+
+    `h` copies the inputs (the bounds only when they are other arrays than the last
+    call's, or writable), calls, and returns a fresh ``h``.
+    """
+
+    def __init__(self, fun, N: int):
+        self.inp = np.zeros(2 * N * N_AXES + 2 * N_AXES)
+        self._brake = self.inp[:N * N_AXES].reshape(N, N_AXES)
+        self._free = self.inp[N * N_AXES:2 * N * N_AXES].reshape(N, N_AXES)
+        self._bounds = self.inp[2 * N * N_AXES:].reshape(2, N_AXES)
+        self._source: tuple | None = None  # the bound arrays last copied
+        self.size = 2 * N * N_AXES
+        self.call = bind(fun, self.inp, N)
+
+    def h(self, upper, lower, brake, free) -> np.ndarray:
+        """``[max(upper, brake) - free; free - min(lower, brake)]``, (2 N 9,)."""
+        kept = self._source
+        if (kept is None or kept[0] is not upper or kept[1] is not lower
+                or upper.flags.writeable or lower.flags.writeable):
+            self._bounds[0] = upper
+            self._bounds[1] = lower
+            self._source = (upper, lower)
+        self._brake[...] = brake
+        self._free[...] = free
+        h = np.empty(self.size)
+        self.call(_address(h))
+        return h
+
+
+def compiled_horizon_bounds(N: int) -> CompiledHorizonBounds | None:
+    """A new `CompiledHorizonBounds` of N steps; None without a working C compiler."""
+    lib = _library()
+    return None if lib is None else CompiledHorizonBounds(lib.horizon_bounds, N)
+
+
+def _address(a: np.ndarray) -> int:
+    """The data address of a writable array: ``a.ctypes.data`` at a sixth of its cost."""
+    return ctypes.addressof(ctypes.c_char.from_buffer(a))
+
+
+def compiled_effort_rows(K: int, N: int, nb: int, na: int, n: int,
+                         col0: int) -> CompiledEffortRows | None:
+    """A new `CompiledEffortRows`; None without a working C compiler."""
+    lib = _library()
+    return None if lib is None else CompiledEffortRows(lib.effort_rows, K, N, nb, na, n, col0)
+
+
 def compiled_brake(steps, n: int) -> CompiledBrake | None:
     """A new `CompiledBrake`; None without a working C compiler or for more than 64 axes."""
     lib = _library()
@@ -166,4 +307,7 @@ def _library():
         "position_bounds": ([ctypes.c_void_p] * 2, ctypes.c_int),
         "velocity_bounds": ([ctypes.c_void_p] * 2, ctypes.c_int),
         "brake_inputs": ([ctypes.c_void_p] * 3 + [ctypes.c_long] * 2 + [ctypes.c_void_p],
-                         ctypes.c_int)}, "numpy")
+                         ctypes.c_int),
+        "effort_rows": ([ctypes.c_void_p] * 4, ctypes.c_int),
+        "horizon_bounds": ([ctypes.c_void_p, ctypes.c_long, ctypes.c_void_p], ctypes.c_int)},
+        "numpy")

@@ -240,15 +240,18 @@ class Controller(abc.ABC):
                 sampled at ``tau + sigma * offset`` (its clock and clock rate), with
                 velocities scaled by sigma and accelerations by sigma^2.
         """
-        offsets = np.atleast_1d(np.asarray(offsets, float))
-        p = np.zeros((offsets.size, N_AXES))
-        v = np.zeros_like(p)
-        a = np.zeros_like(p)
+        offsets = np.asarray(offsets, float).reshape(-1)
+        shape = (offsets.size, N_AXES)
+        p, v, a = np.zeros(shape), np.zeros(shape), np.zeros(shape)
         for key, ref in self._references():
             tau, sigma = self._clock[key]
-            rp, rv, ra = ref.sample_many(tau + sigma * offsets)
             i = ref.index
-            p[:, i], v[:, i], a[:, i] = rp, sigma * rv, sigma**2 * ra
+            if isinstance(i, slice):  # columns as views: written in place
+                ref.sample_many_into(tau + sigma * offsets, sigma, p[:, i], v[:, i], a[:, i])
+            else:
+                rp, rv, ra = (np.empty((offsets.size, ref.n)) for _ in range(3))
+                ref.sample_many_into(tau + sigma * offsets, sigma, rp, rv, ra)
+                p[:, i], v[:, i], a[:, i] = rp, rv, ra
         return ReferenceSample(p, v, a)
 
     def reference_ahead(self, offset: float = 0.0) -> ReferenceSample:

@@ -197,6 +197,8 @@ class MpcController(Controller):
         self.feedback = feedback if fc.feedback else None
         self.warp = (warp_matrix(fc.warp_stiffness)
                      if self.feedback is not None and fc.warp_stiffness > 0 else None)
+        if self.warp is not None:  # the same matrix every tick (`HorizonLevelingTask` keeps)
+            self.warp.setflags(write=False)
         self.warp_drift = (WarpDrift(fc.warp_stiffness, fc.drift_time_constant,
                                      fc.drift_horizon)
                            if self.warp is not None and fc.drift_horizon > 0 else None)
@@ -245,7 +247,7 @@ class MpcController(Controller):
                 or measured is None or not np.logical_and.reduce(fb.in_contact)):
             return fb
         shift = self.warp @ (self.servo.setpoint - np.asarray(measured, float)[:N_AXES])
-        return ForceFeedback(fb.forces + shift, fb.model_forces, fb.in_contact, fb.time)
+        return ForceFeedback.of(fb.forces + shift, fb.model_forces, fb.in_contact, fb.time)
 
     def context(self, state: MachineState) -> HorizonContext:
         """The horizon context of ``state`` (measures the load split, see the class)."""
@@ -267,25 +269,31 @@ class MpcController(Controller):
                     self.warp_drift.update(fb, float(q[SUSPENSION_AXES[0]]
                                                      - q[SUSPENSION_AXES[1]]))
                     drift = self.warp_drift.drift(self.planner.node_starts)
-            if self.governor is not None:
-                self._govern(fb, state)
-            if self.side_swing is not None and self.side_reserve is not None:
-                self._side_reserve(fb, state)
+            if self.governor is not None or self.side_swing is not None:
+                speed = float(np.hypot(state.base_twist[0], state.base_twist[1]))
+                if self.governor is not None:
+                    self._govern(fb, speed)
+                if self.side_swing is not None and self.side_reserve is not None:
+                    self._side_reserve(fb, speed)
         return self.planner.context(state, ref, self._last_qdd, self._speed_scale, q=q,
                                     qd=qd, feedback=fb, warp=self.warp,
                                     leveling_offset=offset, warp_drift=drift)
 
-    def _govern(self, fb: ForceFeedback, state: MachineState) -> None:
-        """Cap the speed scale by the speed governor (`wbc.force_models.fluctuation`)."""
-        speed = float(np.hypot(state.base_twist[0], state.base_twist[1]))
+    def _govern(self, fb: ForceFeedback, speed: float) -> None:
+        """Cap the speed scale by the speed governor (`wbc.force_models.fluctuation`).
+
+        ``speed``: the base's horizontal speed [m/s].
+        """
         self.governor.update(fb.forces, fb.in_contact, fb.time, speed, self._speed_scale)
         self.speed_limit.cap = self.governor.cap(self.force_constraint.thresholds, speed,
                                                  fb.in_contact)
 
-    def _side_reserve(self, fb: ForceFeedback, state: MachineState) -> None:
-        """The side pairs' reserve ``max(r_0, z sigma_j)`` while driving, none standing."""
+    def _side_reserve(self, fb: ForceFeedback, speed: float) -> None:
+        """The side pairs' reserve ``max(r_0, z sigma_j)`` while driving, none standing.
+
+        ``speed``: the base's horizontal speed [m/s].
+        """
         fc = self.config.force
-        speed = float(np.hypot(state.base_twist[0], state.base_twist[1]))
         self.side_swing.update(fb.forces, fb.in_contact, fb.time, speed,
                                swing=fc.side_reserve_z > 0)  # the floor needs the speed only
         reserve = np.maximum(fc.side_reserve, fc.side_reserve_z * self.side_swing.sigma)

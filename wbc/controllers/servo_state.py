@@ -25,14 +25,16 @@ from __future__ import annotations
 
 import numpy as np
 
+from models.coordinates import SUSPENSION  # SUSPENSION_AXES as a slice
 from models.numeric import clip
 from models.state import MachineState
-from wbc.axes import N_AXES, SUSPENSION_AXES
+from wbc.axes import N_AXES
 
 __all__ = ["ServoState"]
 
 _RESYNC = 2e-3  # [m or rad] setpoint mismatch that is not explained by a delay
 _DELAY_ALLOWANCE = 5  # control periods of measurement delay the mismatch may come from
+_any = np.logical_or.reduce  # `ndarray.any` of a 1-D array without its Python dispatch
 
 
 class ServoState:
@@ -71,13 +73,14 @@ class ServoState:
         elif measured is not None:
             allowance = _RESYNC + _DELAY_ALLOWANCE * self.dt * np.abs(self.rates)
             off = np.abs(measured - self.setpoint) > allowance
-            self.setpoint[off] = measured[off]
+            if _any(off):  # seldom: the masked copy only then
+                self.setpoint[off] = measured[off]
         elapsed = (self.dt if self._last_time is None
                    else max(state.time - self._last_time, 0.0))
         self._last_time = state.time
         a = elapsed / (self.time_constant + elapsed) if self.time_constant > 0 else 1.0
         self.deflection += a * (q_meas - self.setpoint - self.deflection)
-        self.deflection[SUSPENSION_AXES] = 0.0
+        self.deflection[SUSPENSION] = 0.0
         return self.setpoint + self.deflection, self.rates.copy()
 
     def commanded(self, rates: np.ndarray) -> None:

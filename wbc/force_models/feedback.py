@@ -56,6 +56,7 @@ __all__ = ["DIAGONAL", "ClosureFeedback", "ForceFeedback", "WarpDrift", "levelin
            "warp_matrix", "warp_stiffness"]
 
 DIAGONAL = np.array([1.0, -1.0, -1.0, 1.0])  # FL, RL, FR, RR: the free (warp) direction
+_all = np.logical_and.reduce  # `ndarray.all` of a 1-D array without its Python dispatch
 
 
 def warp_stiffness(machine: Machine, q=None) -> float:
@@ -88,6 +89,19 @@ class ForceFeedback:
     in_contact: np.ndarray
     time: float
 
+    @classmethod
+    def of(cls, forces: np.ndarray, model_forces: np.ndarray, in_contact: np.ndarray,
+           time: float) -> ForceFeedback:
+        """``ForceFeedback(...)`` without the frozen dataclass's per-field setattr.
+
+        The fields set as its ``__init__`` sets them (it has no ``__post_init__``): the
+        MPC makes two each tick.
+        """
+        fb = object.__new__(cls)
+        fb.__dict__.update(forces=forces, model_forces=model_forces, in_contact=in_contact,
+                           time=time)
+        return fb
+
     @property
     def bias(self) -> np.ndarray:
         """``forces - model_forces`` [N], shape (4,): the correction held over the horizon."""
@@ -118,11 +132,12 @@ def leveling_offset(forces, thresholds, in_contact=None, limit: float = np.inf) 
         in_contact: Contact flags (4,); None: all in contact.
         limit: Clip |delta| to this [N].
     """
-    f = np.asarray(forces, float).copy()
+    f = np.asarray(forces, float)
     if in_contact is not None:
-        f[~np.asarray(in_contact, bool)] = 0.0
-    m = f - np.asarray(thresholds, float)
-    delta = 0.5 * (min(m[1], m[2]) - min(m[0], m[3]))
+        f = np.where(np.asarray(in_contact, bool), f, 0.0)
+    # the four margins as Python floats: the same IEEE arithmetic as on numpy's scalars
+    m0, m1, m2, m3 = (f - np.asarray(thresholds, float)).tolist()
+    delta = 0.5 * (min(m1, m2) - min(m0, m3))
     return float(clip(delta, -limit, limit))
 
 
@@ -150,12 +165,12 @@ class ClosureFeedback:
         except MODEL_ERRORS as exc:
             raise ForceModelError(f"force feedback failed at t={state.time:.3f} s: "
                                   f"{type(exc).__name__}: {exc}") from exc
-        if f.shape != (4,) or g.shape != (4,) or not (np.isfinite(f).all()
-                                                      and np.isfinite(g).all()):
+        if f.shape != (4,) or g.shape != (4,) or not (_all(np.isfinite(f))
+                                                      and _all(np.isfinite(g))):
             raise ForceModelError(f"force feedback returned {f} and {g}")
         if state.suspension_force is None:
             f = g.copy()
-        return ForceFeedback(f, g, contact_flags(model, state), float(state.time))
+        return ForceFeedback.of(f, g, contact_flags(model, state), float(state.time))
 
 
 class WarpDrift:

@@ -50,9 +50,9 @@ from models.numeric import clip
 
 __all__ = ["SideLoadFluctuation", "SpeedGovernor"]
 
-# `np.all`, `np.any`, `np.min` of 1-D arrays without their Python dispatch (the same ufunc
+# `np.all`, `np.min` of 1-D arrays without their Python dispatch (the same ufunc
 # reductions; this runs every tick)
-_all, _any, _min = np.logical_and.reduce, np.logical_or.reduce, np.minimum.reduce
+_all, _min = np.logical_and.reduce, np.minimum.reduce
 
 _MIN_SCALE = 0.05  # below this the commanded speed cannot be inferred from the measured one
 
@@ -116,17 +116,24 @@ class SpeedGovernor:
             speed: The base's horizontal speed now [m/s].
             in_contact: Contact flags (4,): only wheels on the ground count.
         """
-        if self.mean is None or not _any(self.per_speed > 0):
+        if self.mean is None:
+            return 1.0
+        per_speed = self.per_speed.tolist()
+        if not any(k > 0 for k in per_speed):
             return 1.0
         v_nom = speed / max(self.scale_lag, _MIN_SCALE)
         if not (math.isfinite(v_nom) and v_nom > 0):
             return 1.0
-        need = self.z * self.per_speed * v_nom  # the fluctuation at s = 1 [N]
-        wheels = np.asarray(in_contact, bool) & (need > 0)
-        if not _any(wheels):
-            return 1.0
-        headroom = self.mean - np.asarray(thresholds, float)
-        return float(clip(_min(headroom[wheels] / need[wheels]), 0.0, 1.0))
+        # Each wheel's ratio on Python floats (the IEEE operations numpy's arrays did), their
+        # smallest by numpy's reduction (its rule for NaN and signed zeros).
+        z = self.z
+        ratios = []
+        for m, t, k, c in zip(self.mean.tolist(), np.asarray(thresholds, float).tolist(),
+                              per_speed, np.asarray(in_contact, bool).tolist()):
+            need = z * k * v_nom  # the fluctuation at s = 1 [N]
+            if c and need > 0:
+                ratios.append((m - t) / need)
+        return float(clip(_min(np.array(ratios)), 0.0, 1.0)) if ratios else 1.0
 
 
 class SideLoadFluctuation:
@@ -195,7 +202,7 @@ class SideLoadFluctuation:
         f = np.asarray(forces, float)
         if not _usable(f, in_contact, speed):
             return
-        side = f[[0, 2]] + f[[1, 3]]
+        side = f[0::2] + f[1::2]  # (FL + RL, FR + RR)
         if _swing_step(self, side, dt, speed >= self.min_speed):
             self.sigma = np.sqrt(self._square)
 

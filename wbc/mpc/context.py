@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import MISSING, dataclass, fields
 
 import numpy as np
 
@@ -52,12 +52,44 @@ class HorizonContext(ControlContext):
     leveling_offset: float = 0.0
     warp_drift: np.ndarray | None = None
 
+    @classmethod
+    def assemble(cls, *values, **optional) -> HorizonContext:
+        """``HorizonContext(*values, **optional)`` without the dataclass's per-field setattr.
+
+        The fields are set as the frozen dataclass's ``__init__`` sets them (it has no
+        ``__post_init__``), each with ``object.__setattr__``: 20 of them every tick.
+
+        Raises:
+            TypeError: Not every field without a default given, or an unknown one.
+        """
+        if len(values) != len(_REQUIRED) or not optional.keys() <= _OPTIONAL.keys():
+            raise TypeError(f"HorizonContext takes {len(_REQUIRED)} positional fields and "
+                            f"optional {sorted(_OPTIONAL)}; got {len(values)} and "
+                            f"{sorted(optional)}")
+        ctx = object.__new__(cls)
+        d = ctx.__dict__
+        d.update(zip(_REQUIRED, values))
+        d.update(_OPTIONAL)
+        d.update(optional)
+        return ctx
+
     @property
     def structure_key(self) -> tuple:
-        """What constant Jacobians depend on: layout, step lengths and period."""
-        return (self.prediction.structure_key, self.dt)
+        """What constant Jacobians depend on: layout, step lengths and period.
+
+        Made once per context (a dozen tasks and constraints ask each tick), kept in its
+        ``__dict__`` as `ControlContext.brake` keeps its value.
+        """
+        key = self.__dict__.get("_structure_key")
+        if key is None:
+            key = self.__dict__["_structure_key"] = (self.prediction.structure_key, self.dt)
+        return key
 
     @property
     def n_steps(self) -> int:
         """Number of steps N."""
         return self.layout.n_steps
+
+
+_REQUIRED = tuple(f.name for f in fields(HorizonContext) if f.default is MISSING)
+_OPTIONAL = {f.name: f.default for f in fields(HorizonContext) if f.default is not MISSING}

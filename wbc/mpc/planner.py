@@ -153,10 +153,11 @@ class MpcPlanner:
         qf, vf = self.prediction.free_response(q, qd)
         ub, qb, vb = self.prediction.brake_trajectory(q, qd, self.limits.acceleration,
                                                       (qf, vf))
-        return HorizonContext(state, q, qd, self.dt, self.layout, self.limits, self.prediction,
-                              reference, self.nominal_inputs(state.time),
-                              np.asarray(previous_acceleration, float), float(speed_scale),
-                              qf, vf, ub, qb, vb, **extra)
+        return HorizonContext.assemble(state, q, qd, self.dt, self.layout, self.limits,
+                                       self.prediction, reference,
+                                       self.nominal_inputs(state.time),
+                                       np.asarray(previous_acceleration, float),
+                                       float(speed_scale), qf, vf, ub, qb, vb, **extra)
 
     def build(self, ctx: HorizonContext) -> qpsolvers.Problem:
         """The condensed QP of this tick."""

@@ -209,23 +209,43 @@ class RuckigReference:
 
     def sample_many(self, times) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Samples at several times [s]: three arrays of shape (len(times), n)."""
+        if not self._planned and self._hold is None:
+            return self.sample(0.0)  # raises: neither planned nor held
+        count = len(times)
+        p, v, a = np.empty((count, self.n)), np.empty((count, self.n)), np.empty((count, self.n))
+        self.sample_many_into(times, 1.0, p, v, a)  # times 1.0: the same bits
+        return p, v, a
+
+    def sample_many_into(self, times, rate: float, position: np.ndarray,
+                         velocity: np.ndarray, acceleration: np.ndarray) -> None:
+        """`sample_many` written into arrays of shape (len(times), n), views are fine.
+
+        Velocities times ``rate``, accelerations times ``rate**2`` (the reference governor's
+        clock rate), as `sample_into` scales one sample: no temporary arrays for the MPC's
+        node samples each tick.
+
+        Raises:
+            TrajectoryError: Neither planned nor held.
+        """
         if not self._planned:  # held (or not set: `sample` raises)
             if self._hold is None:
-                return self.sample(0.0)
-            count = len(times)
-            p = np.empty((count, self.n))
-            p[:] = self._hold
-            return p, np.zeros((count, self.n)), np.zeros((count, self.n))
-        at, t0 = self._traj.at_time, self.start_time
+                self.sample(0.0)
+            position[...] = self._hold
+            velocity[...] = rate * 0.0  # what scaling the held zeros gives (NaN, -0.0)
+            acceleration[...] = rate**2 * 0.0
+            return
+        at = self._traj.at_time
         # One flat list of Python floats: numpy converts it at a third of the cost of the
-        # nested (times, 3, n) lists.
+        # nested (times, 3, n) lists. ``max(t - t0, 0)`` as numpy's maximum (the same
+        # first-argument rule on ties and NaN).
         flat: list = []
         extend = flat.extend
-        for t in np.asarray(times, float).tolist():
-            p, v, a = at(max(t - t0, 0.0))[:3]
+        for t in np.maximum(np.asarray(times, float) - self.start_time, 0.0).tolist():
+            p, v, a = at(t)[:3]
             extend(p)
             extend(v)
             extend(a)
         pva = np.array(flat, float).reshape(-1, 3, self.n)
-        return (clip(pva[:, 0], self.position_lower, self.position_upper),
-                pva[:, 1].copy(), pva[:, 2].copy())
+        clip(pva[:, 0], self.position_lower, self.position_upper, out=position)
+        np.multiply(pva[:, 1], rate, out=velocity)
+        np.multiply(pva[:, 2], rate**2, out=acceleration)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from wbc.tasks.task import ConstantJacobianTask, step_weights
+from wbc.tasks.task import ConstantJacobianTask, StepWeights
 
 __all__ = ["HorizonInputTask"]
 
@@ -16,9 +16,13 @@ class HorizonInputTask(ConstantJacobianTask):
         weight: Scalar or per axis (9,).
     """
 
+    def __init__(self, weight=1.0):
+        super().__init__(weight)
+        self._step_weights = StepWeights()
+
     def compute_weight(self, ctx) -> np.ndarray:
         """Per-axis weight repeated over the steps."""
-        return step_weights(self.weight, ctx.layout)
+        return self._step_weights(self.weight, ctx.layout)
 
     def compute_error(self, ctx) -> np.ndarray:
         """``-a_ref`` at the step start times."""

@@ -34,7 +34,7 @@ class HorizonLevelingTask(ConstantJacobianTask):
             raise ConfigurationError(f"force_scale must be > 0, got {force_scale}")
         super().__init__(weight)
         self.force_scale = float(force_scale)
-        self._kept_row: tuple | None = None  # (warp bytes, F_s, `_row`)
+        self._kept_row: tuple | None = None  # `_kept`
 
     def is_active(self, ctx) -> bool:
         """Active when the context has a warp model."""
@@ -42,24 +42,37 @@ class HorizonLevelingTask(ConstantJacobianTask):
 
     def structure_key(self, ctx):
         """The prediction's structure and the warp matrix (the Jacobian is ``row @ Pq``)."""
-        return (ctx.structure_key, ctx.warp.tobytes(), self.force_scale)
+        return (ctx.structure_key, self._kept(ctx.warp)[0], self.force_scale)
+
+    def _kept(self, warp: np.ndarray) -> tuple:
+        """``(warp bytes, F_s, row, warp)``, row ``n^T W / (4 F_s)`` (9,), kept.
+
+        Kept while the warp matrix and F_s stay the same; a read-only warp array seen
+        before is the same matrix (the MPC's is: no bytes made each tick).
+        """
+        kept = self._kept_row
+        if (kept is not None and kept[3] is warp and not warp.flags.writeable
+                and kept[1] == self.force_scale):
+            return kept
+        data = warp.tobytes()
+        if kept is None or kept[0] != data or kept[1] != self.force_scale:
+            row = DIAGONAL @ warp / (4.0 * self.force_scale)
+            row.setflags(write=False)
+            kept = (data, self.force_scale, row)
+        self._kept_row = kept = (*kept[:3], warp)
+        return kept
 
     def _row(self, ctx) -> np.ndarray:
         """``n^T W / (4 F_s)``, (9,), kept while the warp matrix and F_s stay the same."""
-        warp = ctx.warp.tobytes()
-        kept = self._kept_row
-        if kept is None or kept[0] != warp or kept[1] != self.force_scale:
-            row = DIAGONAL @ ctx.warp / (4.0 * self.force_scale)
-            row.setflags(write=False)
-            self._kept_row = kept = (warp, self.force_scale, row)
-        return kept[2]
+        return self._kept(ctx.warp)[2]
 
     def compute_error(self, ctx) -> np.ndarray:
         """Zero-input warp change (with the terrain's drift) minus the wanted one, (N,)."""
         w = (ctx.free_positions - ctx.q[None, :]) @ self._row(ctx)
         if ctx.warp_drift is not None:
-            w = w + ctx.warp_drift[1:] / self.force_scale
-        return w - ctx.leveling_offset / self.force_scale
+            w += ctx.warp_drift[1:] / self.force_scale
+        w -= ctx.leveling_offset / self.force_scale
+        return w
 
     def compute_jacobian(self, ctx) -> np.ndarray:
         """``row @ Pq`` of each node, (N, n)."""

@@ -33,13 +33,15 @@ class HorizonTrackingTask(ConstantJacobianTask):
         n = self.axes.size
         self.position_weight = _gain("position_weight", position_weight, n)
         self.velocity_weight = _gain("velocity_weight", velocity_weight, n)
+        self.position_weight.setflags(write=False)  # replace the arrays to change them
+        self.velocity_weight.setflags(write=False)
         if not terminal_factor >= 1:
             raise ConfigurationError(f"terminal_factor must be >= 1, got {terminal_factor}")
         self.terminal_factor = float(terminal_factor)
         a = self.axes  # consecutive axes are read as a slice (views, no index copies)
         self._columns = (slice(int(a[0]), int(a[-1]) + 1)
                          if a.size and np.all(np.diff(a) == 1) else a)
-        self._weight_cache: tuple | None = None
+        self._weight_cache: tuple | None = None  # (key, the weight arrays, `compute_weight`)
         super().__init__(1.0)
 
     def _rows(self, ctx) -> np.ndarray:
@@ -53,16 +55,22 @@ class HorizonTrackingTask(ConstantJacobianTask):
         Read-only, built again only when N or a weight changes (asked every tick).
         """
         N = ctx.layout.n_steps
-        key = (N, self.terminal_factor, self.position_weight.tobytes(),
-               self.velocity_weight.tobytes())
-        if self._weight_cache is None or self._weight_cache[0] != key:
+        pw, vw = self.position_weight, self.velocity_weight
+        kept = self._weight_cache
+        # the arrays of the last tick, read-only: the same weights (no bytes compared)
+        if (kept is not None and kept[1] is pw and kept[2] is vw and kept[0][0] == N
+                and kept[0][1] == self.terminal_factor and not pw.flags.writeable
+                and not vw.flags.writeable):
+            return kept[3]
+        key = (N, self.terminal_factor, pw.tobytes(), vw.tobytes())
+        if kept is None or kept[0] != key:
             c = np.ones(N)
             c[-1] = self.terminal_factor
-            w = np.concatenate([(c[:, None] * self.position_weight).ravel(),
-                                (c[:, None] * self.velocity_weight).ravel()])
+            w = np.concatenate([(c[:, None] * pw).ravel(), (c[:, None] * vw).ravel()])
             w.setflags(write=False)
-            self._weight_cache = (key, w)
-        return self._weight_cache[1]
+            kept = (key, pw, vw, w)
+        self._weight_cache = (key, pw, vw, kept[3])
+        return kept[3]
 
     def compute_error(self, ctx) -> np.ndarray:
         """Zero-input prediction minus reference, positions then velocities."""

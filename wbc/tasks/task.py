@@ -9,7 +9,7 @@ import numpy as np
 
 from wbc.errors import ConfigurationError
 
-__all__ = ["Objective", "Task", "step_weights"]
+__all__ = ["Objective", "StepWeights", "Task", "step_weights"]
 
 Objective = tuple[np.ndarray, np.ndarray]
 
@@ -27,6 +27,26 @@ def step_weights(weight: np.ndarray, layout) -> np.ndarray:
     Read-only, and built once per weight and layout size (the MPC's tasks ask every tick).
     """
     return _tiled(np.asarray(weight, float).tobytes(), layout.n_axes, layout.n_steps)
+
+
+class StepWeights:
+    """`step_weights` of one task's weight, kept for the last layout and weight array.
+
+    A read-only weight array seen before is the same weight (`Task.weight` is read-only):
+    no bytes made and hashed each tick; another array, or a writable one, asks
+    `step_weights`.
+    """
+
+    def __init__(self):
+        self._kept: tuple | None = None  # (weight, layout, the repeated weights)
+
+    def __call__(self, weight: np.ndarray, layout) -> np.ndarray:
+        """``step_weights(weight, layout)``."""
+        kept = self._kept
+        if (kept is None or kept[0] is not weight or kept[1] is not layout
+                or weight.flags.writeable):
+            self._kept = kept = (weight, layout, step_weights(weight, layout))
+        return kept[2]
 
 
 class Task(abc.ABC):
