@@ -19,7 +19,7 @@ import ctypes
 
 import numpy as np
 
-from models.cbuild import load_shared
+from models.cbuild import address, load_shared
 from models.coordinates import N_INDEPENDENT, SUSPENSION
 from wbc.axes import N_AXES
 from wbc.force_models.feedback import DIAGONAL
@@ -247,11 +247,10 @@ class CompiledForceMap:
         if drift is not None:
             a["drift"][:] = drift[:struct.n_eval]
         dv[:] = (ctx.speed_scale, 1.0 if brake_time is None else brake_time, s_prev)
-        # A, then b, in one fresh block: one address to take, by ctypes' C calls (a third
-        # of ``out.ctypes.data``, which runs numpy's Python helper)
+        # A, then b, in one fresh block: one address to take (`models.cbuild.address`)
         m = NW * struct.n_eval
         out = np.empty(m * (n + 1))
-        at = ctypes.addressof(ctypes.c_char.from_buffer(out))
+        at = address(out)
         if self._fun(self.pointers, self._iv_at, self._dv_at, at, at + 8 * m * n) != 0:
             raise ValueError(f"force map: inconsistent sizes {iv[:4].tolist()}")
         return out[:m * n].reshape(m, n), out[m * n:]
