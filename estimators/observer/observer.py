@@ -205,6 +205,10 @@ class Observer:
                                      + self._friction_std[:2] ** 2))
         self._seal_lift_tilt = self._seal[_PRESS_LIFT_TILT].tolist()
         self.crane = CranePressures(self.efforts, self._seal)
+        # The flags' four-wheel state is asked about once: nothing of it kept if the model
+        # can (`PayloadEstimator.normal_forces_once`).
+        self._four_wheel_forces = getattr(force_model, "normal_forces_once", None) or (
+            lambda s: model_normal_forces(force_model, s))
         # The link accelerometers' predictions carry the base's acceleration errors, its
         # angular acceleration's through the lever arm to the crane (`LINK_LEVER`).
         base_std = float(np.hypot(accel_std[0], link_fusion.LINK_LEVER * accel_std[3]))
@@ -296,8 +300,8 @@ class Observer:
         points, normals, force, finite, force_finite = self.contacts.points(
             self.force_model.contact_points(state), base.up, previous)
         all_four = wheel_contacts(_ALL_FOUR, force, points, normals, finite and force_finite)
-        four = np.asarray(model_normal_forces(
-            self.force_model, with_fields(state, contacts=all_four)), float)
+        four = np.asarray(self._four_wheel_forces(with_fields(state, contacts=all_four)),
+                          float)
         flags, force, force_finite = self.contacts.update(four)
         contacts = wheel_contacts(flags, force, points, normals, finite and force_finite)
         state = with_fields(state, contacts=contacts)
