@@ -20,7 +20,7 @@ import threading
 
 import numpy as np
 
-from estimators import _reference, batch, linearize_batch
+from estimators import _reference, batch, linearize_batch, suspension_response
 from estimators import full_dynamics as fd
 from estimators._row_views import ESTIMATE_VIEWS, LINEARIZATION_VIEWS, OUT_VIEWS, ROW_CHECKS
 from estimators._symbolic import LAYOUT, Kernels
@@ -120,6 +120,7 @@ class NormalForceEstimator:
             for name in self._kernels.functions:
                 self._kernels.kernel(name)
             linearize_batch.library()  # the horizon's nodes in one call (`linearize_states`)
+            suspension_response.library()  # the margin's stepped forces in one call
 
     # ------------------------------------------------------------------ inputs
     def _checked(self, state) -> tuple[MachineState, tuple[str, ...]]:

@@ -1,5 +1,7 @@
 """The compiled efforts and link-acceleration kernels against Pinocchio's RNEA and CRBA."""
 
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 
@@ -154,3 +156,28 @@ def test_prepared_points_build_nothing_at_the_first_call(pair, monkeypatch):
     a, _ = pair[0].point_specific_forces(STATES[3], mounts)
     np.testing.assert_allclose(a, pair[1].point_specific_forces(STATES[3], mounts)[0],
                                rtol=0, atol=1e-12)
+
+
+def test_the_observers_regressor_entries_and_the_joined_fill_are_the_same_bits(pair):
+    """`payload_regressor_at` (the observer's lift and tilt) gives `payload_regressor`'s
+    entries to the bit, compiled and on Pinocchio; `EffortKernels.fill`'s joined bytes are
+    the slices' row, and a state it cannot join (a non-contiguous rotation) still fills."""
+    for eff in pair:
+        for st in STATES:
+            eff._shared[0] = None
+            f0, y = eff.payload_regressor(st)
+            got = eff.payload_regressor_at(st, (3, 4))
+            assert got == (f0[[3, 4]].tolist(), y[[3, 4]].tolist())
+            assert all(type(v) is float for v in got[0] + got[1])
+    kernels = kernels_for(MACHINE)
+    st = STATES[1]
+    joined, sliced = np.full(51, np.nan), np.full(51, np.nan)
+    kernels.fill(joined, st)
+    odd = SimpleNamespace(**{k: getattr(st, k) for k in ("base_twist", "base_acceleration",
+                                                          "q", "qd", "qdd")},
+                          base_rotation=np.asfortranarray(st.base_rotation))
+    kernels.fill(sliced, odd)
+    assert joined.tobytes() == sliced.tobytes()
+    assert joined.tobytes() == np.concatenate([st.base_rotation.ravel(), st.base_twist,
+                                               st.base_acceleration, st.q, st.qd,
+                                               st.qdd[9:]]).tobytes()

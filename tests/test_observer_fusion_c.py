@@ -44,6 +44,26 @@ def test_link_fusion_in_c_is_the_numpy_fit():
     np.testing.assert_array_equal(fc.accelerations(state, empty), state.qdd)
 
 
+def test_the_tick_means_in_c_are_numpys_bits():
+    """`link_mean` (the readings' tick means) against numpy's reduction, bit for bit, over
+    1 to 40 samples (past the samples buffer: rebound), and NaN / inf refused as there."""
+    machine = build_reference_machine()
+    spec = sensor_suite("realistic", 0)
+    fc = LinkFusion(ActuatorEfforts(machine), spec.link_accelerometers, 0.05,
+                    np.linspace(0.03, 0.3, 9))
+    rng = np.random.default_rng(5)
+    m = fc._mean.size
+    for n in [*range(1, 41), 3, 7]:
+        value = rng.normal(scale=10.0 ** rng.uniform(-2, 3), size=(n, m))
+        assert fc._tick_mean(value, n)
+        assert fc._mean.tobytes() == (np.add.reduce(value, 0) / n).tobytes()
+    assert fc._samples.shape[0] >= 40
+    for bad in (np.nan, np.inf):
+        value = rng.normal(size=(4, m))
+        value[2, m - 1] = bad
+        assert not fc._tick_mean(value, 4)
+
+
 def test_observer_in_c_is_the_python_observer():
     """The whole observer, its C parts (`filters_c`, `fusion_c`) against Python and numpy,
     on the swing test's readings (realistic sensors, the crane and the wheels moving):

@@ -231,3 +231,33 @@ def test_a_batch_evaluates_each_row_at_its_own_payload():
         est.normal_forces_batch(as_batch(states), np.where(np.arange(7) == 2, -1.0, masses))
     with pytest.raises(EstimatorError, match="one mass per state"):
         est.normal_forces_batch(as_batch(states), masses[:3])
+
+
+def test_the_observers_once_paths_give_the_estimates_bits_and_keep_nothing():
+    """`contact_points` and `normal_forces_once` (the observer's states, asked once) are the
+    estimate's fields to the bit without an `Estimate` or its cache, in every contact mode
+    (tipping through the estimate); a clipped state is counted once, as by `estimate`."""
+    est = PayloadEstimator(MACHINE, fourth="cylinder-force", strokes="clip")
+    ref = PayloadEstimator(MACHINE, fourth="cylinder-force", strokes="clip")
+    rng = np.random.default_rng(11)
+    for k in range(8):
+        s = replace(random_state(MACHINE, rng, max_tilt=0.3, speed=0.5),
+                    suspension_force=rng.uniform(2e4, 6e4, 2))
+        if k % 4:  # four, three (one out) and two wheels (tipping) in contact
+            flags = np.ones(4, bool)
+            flags[:k % 4 - 1] = False
+            points = ref.estimate(s).contact_points
+            s = replace(s, contacts=WheelContacts(flags, np.zeros((4, 3)), points,
+                                                  np.tile(s.base_rotation[2], (4, 1))))
+        if k == 5:  # a stroke past its end: clipped
+            q = s.q.copy()
+            q[0] = MACHINE.coordinates.upper[0] + 0.01
+            s = replace(s, q=q)
+        n = est.n_clipped
+        want = ref.estimate(s)
+        assert est.contact_points(s).tobytes() == want.contact_points.tobytes()
+        forces = est.normal_forces_once(s)
+        assert forces.tobytes() == want.normal_forces.tobytes()
+        assert forces.flags.writeable == (k % 4 == 3)  # read-only but a tipping estimate's
+        assert est.n_clipped - n == 2 * (k == 5)
+        assert est._kept == ()

@@ -7,7 +7,8 @@ contraction into fused multiply-adds), reading the points kernel's output row in
 (`estimators.efforts_kernel.EffortKernels.points_row`). The products sum left to right and
 the inverse is Gauss-Jordan elimination with partial pivoting, where numpy's BLAS may fuse
 multiply-adds and LAPACK factors LU: the results agree to round-off
-(`tests/test_observer_fusion_c.py`). Without a compiler the numpy code runs.
+(`tests/test_observer_fusion_c.py`). The readings' tick means before it (``link_mean``) are
+numpy's sums, the same bits. Without a compiler the numpy code runs.
 """
 
 from __future__ import annotations
@@ -20,6 +21,21 @@ __all__ = ["FUSION_C", "compiled_fusion"]
 
 FUSION_C = r"""
 #include <math.h>
+
+/* The readings' tick means: mean[i] = (x[0][i] + ... + x[n-1][i]) / n over the n rows of x
+   (n x m, row-major), the rows summed in order as numpy's reduction over its first axis.
+   Returns 1 when a mean is not finite. */
+int link_mean(const double* x, double* mean, long m, long n) {
+  long i, r;
+  int bad = 0;
+  for (i = 0; i < m; ++i) {
+    double s = x[i];
+    for (r = 1; r < n; ++r) s = s + x[r * m + i];
+    mean[i] = s / (double)n;
+    if (!isfinite(mean[i])) bad = 1;
+  }
+  return bad;
+}
 
 /* LinkFusion.accelerations after its checks. mean (m): the readings' tick means; w (m):
    their weights; prior (4): the prior's information (diagonal) of the axes 2..5; io (13):
@@ -81,7 +97,8 @@ int link_fuse(long m, const double* mean, const double* w, const double* prior, 
 
 
 def compiled_fusion():
-    """The loaded `FUSION_C` (``link_fuse``), or None without a compiler."""
+    """The loaded `FUSION_C` (``link_fuse``, ``link_mean``), or None without a compiler."""
     return load_shared(FUSION_C, "observer_fusion", {
-        "link_fuse": ([ctypes.c_long] + [ctypes.c_void_p] * 5,
-                      ctypes.c_int)}, "numpy")
+        "link_fuse": ([ctypes.c_long] + [ctypes.c_void_p] * 5, ctypes.c_int),
+        "link_mean": ([ctypes.c_void_p] * 2 + [ctypes.c_long] * 2, ctypes.c_int)},
+        "numpy")

@@ -79,7 +79,22 @@ class LinkFusion:
             self._prior_diag = np.ascontiguousarray(self._prior_info.diagonal())
             self._io = np.zeros(N_SERVO_AXES + len(AXES))
             self._row, self._row_at = None, 0
+            self._w_of = 0  # the sample count `_w` holds the weights of (0: none yet)
             self._c = bind(lib.link_fuse, m, self._mean, self._w, self._prior_diag, self._io)
+            self._lib = lib
+            self._bind_samples(16)
+
+    def _bind_samples(self, rows: int) -> None:
+        """A samples buffer of ``rows`` rows and ``link_mean`` bound to it (`_tick_mean`)."""
+        self._samples = np.zeros((rows, self._mean.size))
+        self._mean_c = bind(self._lib.link_mean, self._samples, self._mean, self._mean.size)
+
+    def _tick_mean(self, value: np.ndarray, n: int) -> bool:
+        """The readings' tick means into ``_mean`` in C (numpy's sums); whether finite."""
+        if n > self._samples.shape[0]:
+            self._bind_samples(2 * n)
+        self._samples[:n] = value
+        return self._mean_c(n) == 0
 
     def accelerations(self, state: MachineState, readings: Samples | None) -> np.ndarray:
         """``state.qdd`` with the four crane axes' fitted to the accelerometers' tick means.
@@ -93,13 +108,17 @@ class LinkFusion:
         n = value.shape[0]
         if not n:
             return qdd
-        mean = np.add.reduce(value, 0) / n
-        if not np.isfinite(mean).all():
-            return qdd
         if self._c is not None:
+            if not self._tick_mean(value, n):
+                return qdd
             row = self.efforts.point_specific_forces_row(state, self._mounts)
             if row is not None:
-                return self._fit_c(qdd, row, mean, n)
+                return self._fit_c(qdd, row, n)
+            mean = self._mean.copy()
+        else:
+            mean = np.add.reduce(value, 0) / n
+            if not np.isfinite(mean).all():
+                return qdd
         a, b = self.efforts.point_specific_forces(state, self._mounts)
         residual = mean - a @ qdd[:N_SERVO_AXES] - b
         a = a[:, AXES]
@@ -111,13 +130,16 @@ class LinkFusion:
             self.std = np.sqrt(cov.diagonal())
         return qdd
 
-    def _fit_c(self, qdd: np.ndarray, row: np.ndarray, mean: np.ndarray,
-               n: int) -> np.ndarray:
-        """`accelerations`' fit in C (`fusion_c`) on the points kernel's output ``row``."""
+    def _fit_c(self, qdd: np.ndarray, row: np.ndarray, n: int) -> np.ndarray:
+        """`accelerations`' fit in C (`fusion_c`) on the points kernel's output ``row``.
+
+        The readings' means are in ``_mean`` (`_tick_mean`).
+        """
         if row is not self._row:  # this thread's kernel buffer: the same one every tick
             self._row, self._row_at = row, row.ctypes.data
-        self._mean[:] = mean
-        self._w[:] = self._weights(n)[0]
+        if n != self._w_of:
+            self._w[:] = self._weights(n)[0]
+            self._w_of = n
         io = self._io
         io[:N_SERVO_AXES] = qdd[:N_SERVO_AXES]
         if self._c(self._row_at) == 0:

@@ -70,6 +70,7 @@ __all__ = ["CONTACT_LANDING_N", "CONTACT_OFF_N", "CONTACT_ON_N", "CONTACT_TICKS"
 
 WHEEL_ACCELERATION_TIME_CONSTANT = 0.05  # [s]
 _LIFT, _TILT = 3, 4  # independent coordinates of the lift and tilt cylinders
+_LIFT_TILT = (_LIFT, _TILT)
 SLIDING_FRICTION_STD = 0.2  # std of a sliding seal's friction about its rating [-]
 PAYLOAD_FILTER_TIME = 0.05  # [s] low-pass of the payload regression (`Observer._filtered`)
 EVENT_VARIANCE_SCALE = 0.1  # filtered over raw innovation variance: 0.01 still, 0.05-0.08 moving
@@ -205,6 +206,10 @@ class Observer:
                                      + self._friction_std[:2] ** 2))
         self._seal_lift_tilt = self._seal[_PRESS_LIFT_TILT].tolist()
         self.crane = CranePressures(self.efforts, self._seal)
+        # The flags' four-wheel state is asked about once: nothing of it kept if the model
+        # can (`PayloadEstimator.normal_forces_once`).
+        self._four_wheel_forces = getattr(force_model, "normal_forces_once", None) or (
+            lambda s: model_normal_forces(force_model, s))
         # The link accelerometers' predictions carry the base's acceleration errors, its
         # angular acceleration's through the lever arm to the crane (`LINK_LEVER`).
         base_std = float(np.hypot(accel_std[0], link_fusion.LINK_LEVER * accel_std[3]))
@@ -275,14 +280,13 @@ class Observer:
             state = with_fields(state, qdd=self.links.accelerations(state,
                                                                      r.link_specific_force))
         # Payload from the lift and tilt cylinders.
-        f0, y = self.efforts.payload_regressor(state)
+        f0, y = self.efforts.payload_regressor_at(state, _LIFT_TILT)
         f = forces.tolist()
         qd = state.qd
         measured, band = without_seal_friction([f[i] for i in _PRESS_LIFT_TILT],
                                                (qd[_LIFT], qd[_TILT]), self._seal_lift_tilt,
                                                SLIDING_SPEED)
-        self.payload.update(t, dt, *self._filtered(dt, measured, f0[_LIFT:_TILT + 1],
-                                                   y[_LIFT:_TILT + 1]), band)
+        self.payload.update(t, dt, *self._filtered(dt, measured, f0, y), band)
         mass = min(max(self.payload.mass, 0.0), 1e4)
         if self.crane_from_pressures:
             state = with_fields(state, qdd=self.crane.accelerations(state, forces, mass))
@@ -296,8 +300,8 @@ class Observer:
         points, normals, force, finite, force_finite = self.contacts.points(
             self.force_model.contact_points(state), base.up, previous)
         all_four = wheel_contacts(_ALL_FOUR, force, points, normals, finite and force_finite)
-        four = np.asarray(model_normal_forces(
-            self.force_model, with_fields(state, contacts=all_four)), float)
+        four = np.asarray(self._four_wheel_forces(with_fields(state, contacts=all_four)),
+                          float)
         flags, force, force_finite = self.contacts.update(four)
         contacts = wheel_contacts(flags, force, points, normals, finite and force_finite)
         state = with_fields(state, contacts=contacts)
@@ -373,7 +377,7 @@ class Observer:
         put into ``F_0`` and ``Y`` (the boom's inertia reflected onto the lift stroke makes
         0.04 m/s^2 of noise several kN).
         """
-        now = [*measured, *f0.tolist(), *y.tolist()]
+        now = [*measured, *f0, *y]
         if self._regression is None or not dt > 0:
             self._regression = now
         else:
