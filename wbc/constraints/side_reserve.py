@@ -7,6 +7,7 @@ import numpy as np
 from wbc.constraints.constraint import Constraint, Inequality
 from wbc.constraints.force_rows import check_margins
 from wbc.constraints.horizon_normal_force import HorizonNormalForceConstraint
+from wbc.constraints.side_reserve_c import compiled_side_rows
 from wbc.errors import ConfigurationError
 
 __all__ = ["SIDE_PAIRS", "SideReserveConstraint"]
@@ -47,17 +48,21 @@ class SideReserveConstraint(Constraint):
     Args:
         force_constraint: The per-wheel rows whose predicted forces and thresholds it uses.
         time_constant: T [s].
+        compiled: Make the rows after the product with the nominal plan in C
+            (`wbc.constraints.side_reserve_c`, the same bits); False, or without a C
+            compiler: numpy.
 
     Attributes:
         reserve: ``r`` [N], shape (2,), order left, right; zeros: inactive.
     """
 
     def __init__(self, force_constraint: HorizonNormalForceConstraint,
-                 time_constant: float = 1.0):
+                 time_constant: float = 1.0, compiled: bool = True):
         if not time_constant > 0:
             raise ConfigurationError(f"time_constant must be > 0 s, got {time_constant}")
         self.force_constraint = force_constraint
         self.time_constant = float(time_constant)
+        self.compiled = bool(compiled)
         self.reserve = np.zeros(2)
         self._cache: tuple | None = None  # (key, `_structure`)
 
@@ -95,10 +100,19 @@ class SideReserveConstraint(Constraint):
             return None
         A, b = fc.last_forces_map
         n_nodes = A.shape[0] // 4
-        nodes, first, second, decay, slack = self._structure(ctx, n_nodes, sides)
+        nodes, first, second, decay, slack, rows = self._structure(ctx, n_nodes, sides,
+                                                                   A.shape[1])
         # (node, side) rows of each pair's two wheels, node-major: by basic indexing
         A_3, b_2 = A.reshape(n_nodes, 4, -1), b.reshape(n_nodes, 4)
         A_sum = (A_3[nodes, first] + A_3[nodes, second]).reshape(-1, A.shape[1])
+        if rows is not None:
+            np.add(b_2[nodes, first], b_2[nodes, second], out=rows.b.reshape(-1, sides.size))
+            rows.need.reshape(-1, sides.size)[:] = (  # every node's the same
+                fc.thresholds[first] + fc.thresholds[second] + self.reserve[sides])
+            h = A_sum @ self.nominal(ctx)
+            G = np.divide(A_sum, -fc.force_scale, out=A_sum)
+            rows.rows(G, h, fc.force_scale)
+            return Inequality(G, h)
         b_sum = (b_2[nodes, first] + b_2[nodes, second]).reshape(-1)
         need = np.empty((b_sum.size // sides.size, sides.size))  # every node's the same
         need[:] = fc.thresholds[first] + fc.thresholds[second] + self.reserve[sides]
@@ -109,18 +123,20 @@ class SideReserveConstraint(Constraint):
         G[slack] = -1.0
         return Inequality(G, (b_sum - wanted) / fc.force_scale)
 
-    def _structure(self, ctx, n_nodes: int, sides: np.ndarray) -> tuple:
+    def _structure(self, ctx, n_nodes: int, sides: np.ndarray, n: int) -> tuple:
         """What the layout, the nodes and the sides fix, kept while they stay the same.
 
         ``nodes``: the nodes after now (`nodes`), a slice where they follow each other
         (they do: the last ones);
         ``(first, second)``: the pairs' first and second wheels (slices, `SIDE_PAIRS`);
-        ``decay``, ``exp(-t_k / T)`` per row; the slack entries of G.
+        ``decay``, ``exp(-t_k / T)`` per row; the slack entries of G; the compiled rows
+        (`wbc.constraints.side_reserve_c.CompiledSideRows`, for G's ``n`` columns) or None.
 
         Raises:
             ConfigurationError: The layout has fewer than 10 slacks.
         """
-        key = (ctx.structure_key, n_nodes, sides.tobytes(), ctx.dt, self.time_constant)
+        key = (ctx.structure_key, n_nodes, sides.tobytes(), ctx.dt, self.time_constant, n,
+               self.compiled)
         if self._cache is None or self._cache[0] != key:
             lay = ctx.layout
             if lay.slack is None or lay.n_slack < 10:
@@ -133,5 +149,6 @@ class SideReserveConstraint(Constraint):
             decay = np.repeat(np.exp(-times / self.time_constant), sides.size)
             slack = (np.arange(nodes.size * sides.size),
                      lay.slack.start + 8 + np.tile(sides, nodes.size))
-            self._cache = (key, (at, first, second, decay, slack))
+            rows = compiled_side_rows(decay, slack[1], n) if self.compiled else None
+            self._cache = (key, (at, first, second, decay, slack, rows))
         return self._cache[1]
