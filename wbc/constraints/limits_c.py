@@ -19,7 +19,7 @@ import ctypes
 
 import numpy as np
 
-from models.cbuild import bind, load_shared
+from models.cbuild import address, bind, load_shared
 from wbc.axes import N_AXES
 
 __all__ = ["LIMITS_C", "CompiledBounds", "CompiledBrake", "CompiledEffortRows",
@@ -228,7 +228,7 @@ class CompiledEffortRows:
         self.e0[:] = e0
         self.Eu[:] = Eu
         G, h = np.zeros(self.shape[0]), np.empty(self.shape[1])
-        if self.call(_address(G), _address(h)) != 0:
+        if self.call(address(G), address(h)) != 0:
             raise ValueError(f"effort rows: inconsistent sizes {self.shape}")
         return G, h.reshape(-1)
 
@@ -260,7 +260,7 @@ class CompiledHorizonBounds:
         self._brake[...] = brake
         self._free[...] = free
         h = np.empty(self.size)
-        self.call(_address(h))
+        self.call(address(h))
         return h
 
 
@@ -268,11 +268,6 @@ def compiled_horizon_bounds(N: int) -> CompiledHorizonBounds | None:
     """A new `CompiledHorizonBounds` of N steps; None without a working C compiler."""
     lib = _library()
     return None if lib is None else CompiledHorizonBounds(lib.horizon_bounds, N)
-
-
-def _address(a: np.ndarray) -> int:
-    """The data address of a writable array: ``a.ctypes.data`` at a sixth of its cost."""
-    return ctypes.addressof(ctypes.c_char.from_buffer(a))
 
 
 def compiled_effort_rows(K: int, N: int, nb: int, na: int, n: int,

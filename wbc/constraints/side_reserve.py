@@ -7,7 +7,7 @@ import numpy as np
 from wbc.constraints.constraint import Constraint, Inequality
 from wbc.constraints.force_rows import check_margins
 from wbc.constraints.horizon_normal_force import HorizonNormalForceConstraint
-from wbc.constraints.side_reserve_c import compiled_side_rows
+from wbc.constraints.side_reserve_c import compiled_side_rows, side_reserve_library
 from wbc.errors import ConfigurationError
 
 __all__ = ["SIDE_PAIRS", "SideReserveConstraint"]
@@ -63,6 +63,8 @@ class SideReserveConstraint(Constraint):
         self.force_constraint = force_constraint
         self.time_constant = float(time_constant)
         self.compiled = bool(compiled)
+        if self.compiled:
+            side_reserve_library()  # compiled (or loaded) now, not in a control loop
         self.reserve = np.zeros(2)
         self._cache: tuple | None = None  # (key, `_structure`)
 

@@ -14,12 +14,13 @@ faster than this one's). Without a compiler the numpy code runs.
 from __future__ import annotations
 
 import ctypes
+import functools
 
 import numpy as np
 
-from models.cbuild import bind, load_shared
+from models.cbuild import address, bind, load_shared
 
-__all__ = ["SIDE_RESERVE_C", "CompiledSideRows", "compiled_side_rows"]
+__all__ = ["SIDE_RESERVE_C", "CompiledSideRows", "compiled_side_rows", "side_reserve_library"]
 
 SIDE_RESERVE_C = r"""
 #include <math.h>
@@ -83,19 +84,20 @@ class CompiledSideRows:
             raise ValueError(f"side rows: need ({self.m}, {self.n}) and ({self.m},), got "
                              f"{A_sum.shape} and {h.shape}")
         self._in[-1] = force_scale
-        if self._call(_address(A_sum), _address(h)) != 0:
+        if self._call(address(A_sum), address(h)) != 0:
             raise ValueError("side rows: a slack column outside the rows")
 
 
-def _address(a: np.ndarray) -> int:
-    """The data address of a writable array: ``a.ctypes.data`` at a sixth of its cost."""
-    return ctypes.addressof(ctypes.c_char.from_buffer(a))
+@functools.cache
+def side_reserve_library():
+    """`SIDE_RESERVE_C` compiled and loaded (once per process); None without a compiler."""
+    return load_shared(SIDE_RESERVE_C, "side_reserve", {
+        "side_rows": ([ctypes.c_void_p] * 2 + [ctypes.c_long] * 2 + [ctypes.c_void_p] * 2,
+                      ctypes.c_int)}, "numpy")
 
 
 def compiled_side_rows(decay, slack_columns, n: int) -> CompiledSideRows | None:
     """A new `CompiledSideRows`; None without a working C compiler."""
-    lib = load_shared(SIDE_RESERVE_C, "side_reserve", {
-        "side_rows": ([ctypes.c_void_p] * 2 + [ctypes.c_long] * 2 + [ctypes.c_void_p] * 2,
-                      ctypes.c_int)}, "numpy")
+    lib = side_reserve_library()
     return None if lib is None else CompiledSideRows(lib.side_rows, np.asarray(decay, float),
                                                      slack_columns, n)

@@ -20,7 +20,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-from wbc.solvers.product_c import CompiledProduct, compiled_product, data_address
+from models.cbuild import address
+from wbc.solvers.product_c import CompiledProduct, compiled_product
 
 __all__ = ["FactorRows", "RowStructure"]
 
@@ -122,7 +123,7 @@ class FactorRows:
         buffer = self._rows_t[1]
         c = self._compiled(G, kept, inv_t)
         if c is not None:
-            written = (out if out.base is None else out.base, data_address(out), self._rows_t)
+            written = (out if out.base is None else out.base, address(out), self._rows_t)
             last = self._written
             held = (last is not None and last[0] is written[0] and last[1] == written[1]
                     and last[2] is written[2])

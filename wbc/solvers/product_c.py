@@ -29,10 +29,9 @@ import functools
 
 import numpy as np
 
-from models.cbuild import load_shared
+from models.cbuild import address, load_shared
 
-__all__ = ["PRODUCT_C", "ROWS", "CompiledProduct", "compiled_product", "data_address",
-           "product_library"]
+__all__ = ["PRODUCT_C", "ROWS", "CompiledProduct", "compiled_product", "product_library"]
 
 ROWS = 16  # rows multiplied together: a lane each of two vectors (`PRODUCT_C`'s VECS)
 
@@ -134,20 +133,6 @@ int times_factor(const double* G, long ld, long n, const int64_t* kept, long m_k
 _PROBE_ROWS = (2, 9, 40, 160)
 
 
-_char_view = ctypes.c_char.from_buffer
-
-
-def data_address(a: np.ndarray) -> int:
-    """``a.ctypes.data``, a fifth of its cost (0.2 us) for a writable contiguous array.
-
-    The cost of a ctypes call with a few arrays is mostly their addresses' lookups.
-    """
-    try:
-        return ctypes.addressof(_char_view(a))
-    except (TypeError, ValueError, BufferError):  # read-only, strided or empty
-        return a.ctypes.data
-
-
 @functools.cache
 def product_library():
     """`PRODUCT_C` compiled and loaded once per process; None without a compiler."""
@@ -203,11 +188,11 @@ class CompiledProduct:
         # reuses its G only if no one else holds it).
         arrays = self._arrays
         if arrays[0] is not constant or arrays[2] is not products:
-            arrays = self._arrays = (constant, data_address(constant), products,
-                                     data_address(products))
-        ok = self._fun(data_address(G), G.strides[0] // 8, self.n, data_address(kept),
+            arrays = self._arrays = (constant, address(constant), products,
+                                     address(products))
+        ok = self._fun(address(G), G.strides[0] // 8, self.n, address(kept),
                        kept.size, arrays[1], arrays[3], products.strides[0] // 8, *self._args,
-                       data_address(out), last[1], last[2] if held else 0) == 0
+                       address(out), last[1], last[2] if held else 0) == 0
         self._last = (last[0], last[1], kept.size if ok else 0)
         return ok
 

@@ -25,8 +25,7 @@ import functools
 
 import numpy as np
 
-from models.cbuild import load_shared
-from wbc.solvers.product_c import data_address
+from models.cbuild import address, load_shared
 
 __all__ = ["SCREEN_C", "CompiledScreen", "compiled_screen", "screen_library"]
 
@@ -158,8 +157,8 @@ class CompiledScreen:
                     *(t.ctypes.data for t in terms[3:]), gamma, self.kept.ctypes.data,
                     self.rest.ctypes.data, self.counts.ctypes.data)
             self._box = (box, terms, args)  # the arrays outlive their addresses
-        if self._fun(data_address(G), self.m, self.n, G.strides[0] // 8, data_address(worst),
-                     data_address(h), self._gaps, self.gaps.shape[0], self._done,
+        if self._fun(address(G), self.m, self.n, G.strides[0] // 8, address(worst),
+                     address(h), self._gaps, self.gaps.shape[0], self._done,
                      *self._box[2]) != 0:
             return None
         return self.kept[:self.counts[0]], self.rest[:self.counts[1]]
