@@ -16,7 +16,7 @@ from models.state import MachineState
 from wbc.axes import N_AXES
 from wbc.controllers.command import ControlCommand
 
-__all__ = ["KinematicPlant", "make_state"]
+__all__ = ["KinematicPlant", "make_state", "moving_mpc"]
 
 
 def make_state(machine: Machine, q=None, qd=None, qdd=None, time: float = 0.0,
@@ -68,3 +68,22 @@ class KinematicPlant:
                                   st.base_acceleration, q, qd, qdd, st.time + dt, st.contacts,
                                   st.suspension_force)
         return self.state
+
+
+def moving_mpc(machine: Machine, ticks: int = 4, dt: float = 0.01):
+    """``(ctrl, plant)``: mpc-full with the estimator's feedback, ``ticks`` into a crane move.
+
+    The goal moves every crane axis by 0.1; after a few ticks the nominal inputs are nonzero,
+    so the horizon's rows are those of a moving machine.
+    """
+    from wbc import ControllerConfig, JointGoal, MpcController
+    from wbc.controllers.registry import estimator_models
+
+    model, feedback = estimator_models(machine, "full")
+    ctrl = MpcController(machine, ControllerConfig(), force_model=model, feedback=feedback)
+    st = make_state(machine)
+    ctrl.set_goal(JointGoal(crane=st.q[2:9] + 0.1))
+    plant = KinematicPlant(st, dt)
+    for _ in range(ticks):
+        plant.apply(ctrl.step(plant.state))
+    return ctrl, plant

@@ -7,11 +7,10 @@ import pytest
 
 from models.state import WheelContacts
 from testkit.force_models import AffineForceModel
-from testkit.plant import KinematicPlant, make_state
+from testkit.plant import KinematicPlant, make_state, moving_mpc
 from wbc import ControllerConfig, ForceConfig, JointGoal, MpcConfig, MpcController
 from wbc.axes import SUSPENSION_AXES
 from wbc.constraints.force_map_c import compiled_force_map
-from wbc.controllers.registry import estimator_models
 from wbc.force_models.feedback import DIAGONAL, ClosureFeedback
 
 DT = 0.01
@@ -93,13 +92,7 @@ def test_three_wheels_and_no_feedback_match_numpy(machine):
 
 def test_estimator_rows_match_numpy(machine):
     """The real model: its linearizations carry kernel rows (read in place, by offsets)."""
-    model, feedback = estimator_models(machine, "full")
-    ctrl = MpcController(machine, ControllerConfig(), force_model=model, feedback=feedback)
-    st = make_state(machine)
-    ctrl.set_goal(JointGoal(crane=st.q[2:9] + 0.1))
-    plant = KinematicPlant(st, DT)
-    for _ in range(4):
-        plant.apply(ctrl.step(plant.state))
+    ctrl, plant = moving_mpc(machine, dt=DT)
     ctx = ctrl.context(plant.state)
     lins = ctrl.force_constraint.linearize(ctx)[1]
     assert "_row" in lins[0].__dict__

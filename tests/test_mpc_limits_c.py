@@ -6,11 +6,9 @@ import numpy as np
 import pytest
 
 from estimators.efforts import ActuatorEfforts
-from testkit.plant import KinematicPlant, make_state
-from wbc import ControllerConfig, JointGoal, MpcController
+from testkit.plant import moving_mpc
 from wbc.constraints import HorizonEffortLimit, HorizonPositionLimit, HorizonVelocityLimit
 from wbc.constraints.limits_c import compiled_effort_rows
-from wbc.controllers.registry import estimator_models
 
 DT = 0.01
 
@@ -21,13 +19,7 @@ pytestmark = pytest.mark.skipif(compiled_effort_rows(1, 1, 1, 1, 1, 0) is None,
 @pytest.fixture(scope="module")
 def mpc_context(machine):
     """A context of the MPC a few ticks into a crane move (nominal inputs nonzero)."""
-    model, feedback = estimator_models(machine, "full")
-    ctrl = MpcController(machine, ControllerConfig(), force_model=model, feedback=feedback)
-    st = make_state(machine)
-    ctrl.set_goal(JointGoal(crane=st.q[2:9] + 0.1))
-    plant = KinematicPlant(st, DT)
-    for _ in range(4):
-        plant.apply(ctrl.step(plant.state))
+    ctrl, plant = moving_mpc(machine, dt=DT)
     return ctrl.context(plant.state)
 
 
