@@ -18,7 +18,7 @@ DAQP solves the least-distance form of the QP: with ``H = L L'`` and ``x = L^-T 
 0.8 ms solve of the MPC's QP: 108 variables, ~220 kept rows); here the factor is kept while
 ``H`` is unchanged (the MPC's Hessian is constant tick after tick) and ``M`` is formed by
 `wbc.solvers.factor_rows` (the rows of constant blocks from products kept from solve to
-solve, the others from the factor's nonzeros in C, numpy's bits), and DAQP gets an identity
+solve, the others from the factor's nonzeros in C), and DAQP gets an identity
 Hessian, which it recognises as diagonal (no factorisation, no products), and no linear
 term. The rows and hence the multipliers are the same as the QP's, so the warm start and the
 tolerance mean what they did. A Hessian that is not numerically positive definite goes to

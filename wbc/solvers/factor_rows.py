@@ -5,7 +5,7 @@ rows of a block that stays the same tick after tick (``constant_rows`` of a `wbc
 the MPC's stroke and speed limits, ~60 % of the kept rows) are multiplied by ``L^-T`` once
 and then read from that product (each row's product is the same BLAS sum whichever rows it
 is computed with). The other kept rows are multiplied in C from the factor's nonzeros
-(`wbc.solvers.product_c`: numpy's bits, checked per factor) when it can; else with numpy:
+(`wbc.solvers.product_c`: the same bits on every host) when it can; else with numpy:
 rows that are zero outside blocks along a diagonal (``diagonal_rows``,
 `wbc.constraints.DiagonalBlocks`: the MPC's effort rows, each step's on that step's inputs)
 block by block, a ninth of the dense work, the rest in one BLAS product. DAQP's rows are
@@ -46,11 +46,10 @@ def _diagonal_product(G: np.ndarray, first: int, d, inv_t: np.ndarray,
     """``out[rows] = G[rows] @ inv_t`` for the rows of `DiagonalBlocks` ``d`` from ``first``.
 
     Each block's ``width`` columns times the factor's matching rows, every block in one
-    stacked product: ``width / n`` of the dense product's work. The same bits as the dense
-    product when the BLAS sums each entry over the inner dimension in order, the columns
-    left out adding exact zeros (OpenBLAS's gemm does, `tests/test_daqp_backend.py` checks);
-    ``d.rows >= 2`` keeps every block a matrix product (numpy turns a single row into a
-    matrix-vector product, which sums in another order).
+    stacked product: ``width / n`` of the dense product's work, within the dense product's
+    rounding bound (`tests/test_daqp_backend.py`; the same bits where the BLAS sums each
+    entry over the inner dimension in order, as OpenBLAS's gemm does on most CPUs).
+    ``d.rows >= 2`` keeps every block a matrix product.
     """
     n = inv_t.shape[0]
     G = np.ascontiguousarray(G, dtype=float)  # G itself, as the QP builds it
@@ -105,11 +104,15 @@ class FactorRows:
         whose rows numpy multiplies block by block (`_diagonal_product`).
         """
         key, constant, _, done = structure
+        c = self._compiled(G, kept, inv_t)
         products = {}
         for first, block in blocks:
             entry = self.products.get(id(block))
             if entry is None or entry[0] is not block or entry[1] is not inv_t:
-                entry = (block, inv_t, block @ inv_t)
+                # The C product's bits where the other rows get them (a block's rows are
+                # then the same numbers whether or not the QP marks it constant).
+                product = None if c is None else c.times(np.ascontiguousarray(block, dtype=float))
+                entry = (block, inv_t, block @ inv_t if product is None else product)
             products[id(block)] = entry
         self.products = products  # the blocks of this problem only
         filled = tuple(products[id(block)][2] for _, block in blocks)
@@ -121,7 +124,6 @@ class FactorRows:
                 buffer[first:first + block.shape[0]] = product
             self._rows_t = (key, buffer, filled)
         buffer = self._rows_t[1]
-        c = self._compiled(G, kept, inv_t)
         if c is not None:
             written = (out if out.base is None else out.base, address(out), self._rows_t)
             last = self._written
