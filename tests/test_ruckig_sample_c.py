@@ -1,0 +1,109 @@
+"""Ruckig trajectories sampled in C (`wbc.references.sample_c`) against Ruckig's own.
+
+Oracle: the binding's ``Trajectory.at_time`` and `RuckigReference`'s arithmetic on its
+samples (numpy's clip and products), bit for bit, on random trajectories of one to seven
+axes: starts above the velocity limits (Ruckig's brake phases), times before the start,
+inside and past the end, clock rates below one, positions clipped.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import ruckig
+
+from models.numeric import clip
+from wbc.references.sample_c import compiled_trajectory
+
+pytestmark = pytest.mark.skipif(compiled_trajectory(np.zeros(1), np.ones(1)) is None,
+                                reason="no C compiler")
+
+
+def _random_trajectory(rng, n):
+    otg, inp, traj = ruckig.Ruckig(n), ruckig.InputParameter(n), ruckig.Trajectory(n)
+    v_max, a_max = rng.uniform(0.05, 1.0, n), rng.uniform(0.1, 2.0, n)
+    inp.max_velocity = v_max.tolist()
+    inp.min_velocity = (-rng.uniform(0.05, 1.0, n)).tolist()
+    inp.max_acceleration = a_max.tolist()
+    inp.min_acceleration = (-a_max).tolist()
+    inp.max_jerk = (a_max / rng.choice([0.25, 0.37, 0.5])).tolist()
+    inp.current_position = rng.uniform(-1, 1, n).tolist()
+    inp.current_velocity = (rng.uniform(-1.5, 1.5, n) * v_max * (rng.random(n) < 0.6)).tolist()
+    inp.current_acceleration = (rng.uniform(-1, 1, n) * a_max
+                                * (rng.random(n) < 0.4)).tolist()
+    inp.target_position = rng.uniform(-1, 1, n).tolist()
+    try:
+        result = otg.calculate(inp, traj)
+    except (ruckig.RuckigError, ValueError):
+        return None
+    return traj if result in (ruckig.Result.Working, ruckig.Result.Finished) else None
+
+
+def _reference(traj, times, t0, rate, lower, upper):
+    flat = []
+    for t in np.maximum(times - t0, 0.0).tolist():
+        p, v, a = traj.at_time(t)[:3]
+        flat += p + v + a
+    pva = np.array(flat, float).reshape(len(times), 3, -1)
+    return clip(pva[:, 0], lower, upper), pva[:, 1] * rate, pva[:, 2] * rate**2
+
+
+def test_samples_are_ruckigs_bit_for_bit():
+    rng = np.random.default_rng(0)
+    checked = braking = 0
+    while checked < 400:
+        n = int(rng.integers(1, 8))
+        traj = _random_trajectory(rng, n)
+        if traj is None:
+            continue
+        braking += any(p.brake.duration > 0 for p in traj.profiles[0])
+        lower, upper = np.full(n, -0.9), np.full(n, 0.9)
+        c = compiled_trajectory(lower, upper)
+        assert c.load(traj)
+        t0 = float(rng.uniform(0, 3))
+        times = t0 + np.concatenate([[0.0, -0.01, -0.0], rng.uniform(0, 1.2 * traj.duration, 20),
+                                     [traj.duration, 2 * traj.duration]])
+        rate = float(rng.choice([1.0, 0.5, 0.731, 0.0]))
+        # the MPC's layout: the axes' columns of (times, 9) node arrays
+        nodes = [np.full((times.size, 9), np.nan) for _ in range(3)]
+        first = int(rng.integers(0, 10 - n))
+        views = [a[:, first:first + n] for a in nodes]
+        assert c.sample_into(times, t0, rate, *views)
+        for got, want in zip(views, _reference(traj, times, t0, rate, lower, upper)):
+            assert np.array_equal(got, want)
+        for a in nodes:  # nothing outside the views written
+            assert np.isnan(np.delete(a, np.s_[first:first + n], axis=1)).all()
+        checked += 1
+    assert braking > 50  # the brake phases were exercised
+
+
+def test_a_changed_phase_is_caught():
+    """The oracle has power: one phase's jerk off in the C's copy changes samples."""
+    rng = np.random.default_rng(1)
+    traj = None
+    while traj is None:
+        traj = _random_trajectory(rng, 3)
+    lower, upper = np.full(3, -10.0), np.full(3, 10.0)
+    c = compiled_trajectory(lower, upper)
+    c.load(traj)
+    times = np.linspace(0, traj.duration, 50)
+    out = [np.empty((50, 3)) for _ in range(3)]
+    c.profiles[1, 7 + 2] *= 1 + 1e-12  # axis 1, phase 2's jerk
+    c.sample_into(times, 0.0, 1.0, *out)
+    want = _reference(traj, times, 0.0, 1.0, lower, upper)
+    assert not all(np.array_equal(a, b) for a, b in zip(out, want))
+
+
+def test_arrays_it_cannot_take_are_refused():
+    rng = np.random.default_rng(2)
+    traj = None
+    while traj is None:
+        traj = _random_trajectory(rng, 2)
+    c = compiled_trajectory(np.full(2, -1.0), np.full(2, 1.0))
+    c.load(traj)
+    times = np.linspace(0, 1, 5)
+    good = [np.empty((5, 2)) for _ in range(3)]
+    assert not c.sample_into(times, 0.0, 1.0, np.empty((5, 4))[:, ::2], *good[1:])
+    assert not c.sample_into(times, 0.0, 1.0, np.empty((5, 3)), *good[1:])
+    assert not c.sample_into(times[::2].copy(), 0.0, 1.0, *good)
+    assert not c.load(ruckig.Trajectory(3))  # another number of axes

@@ -1,0 +1,173 @@
+"""A Ruckig trajectory sampled in C: every axis at every node time in one call.
+
+The MPC samples its references at the 13 node times of its horizon every tick; through
+Ruckig's Python binding that is one ``Trajectory.at_time`` call per time (lists of Python
+floats back), ~25 us a tick for the two references. A trajectory without intermediate
+waypoints is one section of a profile per axis: seven phases of constant jerk, each axis
+possibly preceded by a two-phase brake profile (a start above the limits), every phase's
+start state in the profile (``t``, ``j``, ``a``, ``v``, ``p`` and the brake's, exposed by the
+binding). `SAMPLE_C` evaluates them as Ruckig's ``Trajectory::at_time`` does
+(``state_to_integrate_from``, then ``integrate``: ``p0 + t (v0 + t (a0 / 2 + t j / 6))``,
+the same operations in the same order, the phases' end times summed as Ruckig sums them),
+then does what `RuckigReference.sample_many_into` does with the samples: positions clipped
+into the limits (numpy's clip), velocities times the clock rate, accelerations times its
+square. The same bits as the binding's samples (`tests/test_ruckig_sample_c.py`, random
+trajectories with brake phases); Ruckig's wheel is built without fused multiply-adds and so
+is this (`models.cbuild`).
+"""
+
+from __future__ import annotations
+
+import ctypes
+
+import numpy as np
+
+from models.cbuild import address, load_shared
+
+__all__ = ["PROFILE_SIZE", "SAMPLE_C", "CompiledTrajectory", "compiled_trajectory"]
+
+PROFILE_SIZE = 56  # doubles per axis: t, j (7), a, v, p (8), t_sum (7), the brake (11)
+
+SAMPLE_C = r"""
+#include <math.h>
+/* One axis's profile: t[7], j[7], a[8], v[8], p[8], t_sum[7] (the phases' end times),
+   brake duration, t[2], j[2], a[2], v[2], p[2]. */
+enum { T = 0, J = 7, A = 14, V = 22, P = 30, TS = 38, BD = 45, BT = 46, BJ = 48, BA = 50,
+       BV = 52, BP = 54, SIZE = 56 };
+
+static inline void integrate(double t, double p0, double v0, double a0, double j,
+                             double* p, double* v, double* a) {
+  *p = p0 + t * (v0 + t * (a0 / 2 + t * j / 6));
+  *v = v0 + t * (a0 + t * j / 2);
+  *a = a0 + t * j;
+}
+
+/* numpy's clip of a float: the maximum with lo, then the minimum with hi, NaN kept */
+static inline double clip(double x, double lo, double hi) {
+  double m = isnan(x) ? x : (x > lo ? x : lo);
+  return isnan(m) ? m : (m < hi ? m : hi);
+}
+
+/* Ruckig's at_time of n axes (profiles prof[n * SIZE], one section of length duration) at
+   max(times[k] - t0, 0) (numpy's maximum), k < m: position clipped into [lo, hi], velocity
+   times rate, acceleration times rate2, into rows k of pos, vel, acc (row stride ld). */
+void sample(const double* prof, long n, double duration, double t0, const double* times,
+            long m, double rate, double rate2, const double* lo, const double* hi,
+            double* pos, double* vel, double* acc, long ld) {
+  for (long k = 0; k < m; ++k) {
+    double time = times[k] - t0;
+    time = (time >= 0.0 || isnan(time)) ? time : 0.0;
+    for (long d = 0; d < n; ++d) {
+      const double* f = prof + d * SIZE;
+      double p, v, a;
+      if (time >= duration) { /* past the end: the last state, constant acceleration */
+        integrate(time - (f[BD] + f[TS + 6]), f[P + 7], f[V + 7], f[A + 7], 0.0, &p, &v, &a);
+      } else {
+        double td = time;
+        int done = 0;
+        if (f[BD] > 0) {
+          if (td < f[BD]) {
+            int i = (td < f[BT]) ? 0 : 1;
+            if (i > 0) td -= f[BT];
+            integrate(td, f[BP + i], f[BV + i], f[BA + i], f[BJ + i], &p, &v, &a);
+            done = 1;
+          } else {
+            td -= f[BD];
+          }
+        }
+        if (!done) {
+          if (td >= f[TS + 6]) {
+            integrate(td - f[TS + 6], f[P + 7], f[V + 7], f[A + 7], 0.0, &p, &v, &a);
+          } else {
+            int i = 0;
+            while (i < 7 && !(td < f[TS + i])) ++i; /* std::upper_bound */
+            if (i > 0) td -= f[TS + i - 1];
+            integrate(td, f[P + i], f[V + i], f[A + i], f[J + i], &p, &v, &a);
+          }
+        }
+      }
+      pos[k * ld + d] = clip(p, lo[d], hi[d]);
+      vel[k * ld + d] = v * rate;
+      acc[k * ld + d] = a * rate2;
+    }
+  }
+}
+"""
+
+
+def _library():
+    p, lg, d = ctypes.c_void_p, ctypes.c_long, ctypes.c_double
+    return load_shared(SAMPLE_C, "ruckig_sample", {
+        "sample": ([p, lg, d, d, p, lg, d, d, p, p, p, p, p, lg], None)},
+        "Ruckig's at_time")
+
+
+class CompiledTrajectory:
+    """The profiles of one n-axis Ruckig trajectory, sampled in C (module docstring).
+
+    Args:
+        fun: `SAMPLE_C`'s ``sample``.
+        lower, upper: The position limits the samples are clipped into, (n,).
+    """
+
+    def __init__(self, fun, lower: np.ndarray, upper: np.ndarray):
+        self.n = n = lower.size
+        self.lower = np.ascontiguousarray(lower, dtype=float)
+        self.upper = np.ascontiguousarray(upper, dtype=float)
+        self.profiles = np.zeros((n, PROFILE_SIZE))
+        self.duration = 0.0
+        self._times = np.zeros(0)
+        self._fun = fun
+        self._args = (self.profiles.ctypes.data, n)
+        self._limits = (self.lower.ctypes.data, self.upper.ctypes.data)
+
+    def load(self, trajectory) -> bool:
+        """Take ``trajectory``'s profiles (after each `Ruckig.calculate`).
+
+        False (nothing taken) for a trajectory of several sections (intermediate
+        waypoints) or another number of axes.
+        """
+        sections = trajectory.profiles
+        if len(sections) != 1 or len(sections[0]) != self.n:
+            return False
+        rows = []
+        for pr in sections[0]:
+            t, b = list(pr.t), pr.brake
+            t_sum = [t[0]]
+            for dt in t[1:]:
+                t_sum.append(t_sum[-1] + dt)  # Ruckig's own sums, in its order
+            rows.append(t + list(pr.j) + list(pr.a) + list(pr.v) + list(pr.p) + t_sum
+                        + [b.duration] + list(b.t) + list(b.j) + list(b.a) + list(b.v)
+                        + list(b.p))
+        self.profiles[:] = rows
+        self.duration = float(trajectory.duration)
+        return True
+
+    def sample_into(self, times: np.ndarray, t0: float, rate: float, position: np.ndarray,
+                    velocity: np.ndarray, acceleration: np.ndarray) -> bool:
+        """Samples at ``max(times - t0, 0)`` written into arrays of shape (len(times), n).
+
+        Positions clipped into the limits, velocities times ``rate``, accelerations times
+        ``rate**2``. The three arrays: float64 with unit column stride and one row stride
+        (views of one node array's columns are fine); ``times``: float64, contiguous.
+        False (nothing written) for arrays it cannot take.
+        """
+        m = times.shape[0]
+        ld = position.strides[0]
+        for a in (position, velocity, acceleration):
+            if (a.dtype != np.float64 or a.shape != (m, self.n) or a.strides[0] != ld
+                    or (self.n > 1 and a.strides[1] != 8) or ld % 8 or ld <= 0
+                    or not a.flags.writeable):
+                return False
+        if times.dtype != np.float64 or not times.flags.c_contiguous:
+            return False
+        self._fun(*self._args, self.duration, t0, address(times), m, rate, rate**2,
+                  *self._limits, address(position), address(velocity),
+                  address(acceleration), ld // 8)
+        return True
+
+
+def compiled_trajectory(lower: np.ndarray, upper: np.ndarray) -> CompiledTrajectory | None:
+    """A `CompiledTrajectory` for these limits; None without a C compiler."""
+    lib = _library()
+    return None if lib is None else CompiledTrajectory(lib.sample, lower, upper)
