@@ -63,13 +63,21 @@ class PositionLimit(Constraint):
         lim, dt = ctx.limits, ctx.dt
         key = self._key
         if key is None or key[0] is not lim or key[1] != dt:
-            b = self.braking_fraction * lim.acceleration
-            bdt = np.concatenate((b, b)) * dt
-            T = dt if self.horizon is None else self.horizon
             self._key = (lim, dt)
-            self._const = (-bdt, bdt**2, 2.0 * np.concatenate((b, b)), T, T**2,
-                           np.empty(2 * N_AXES), np.empty(2 * N_AXES), np.empty(2 * N_AXES))
+            self._const = (*self.constants(lim, dt), np.empty(2 * N_AXES),
+                           np.empty(2 * N_AXES), np.empty(2 * N_AXES))
         return self._const
+
+    def constants(self, limits, dt: float) -> tuple:
+        """``(-b dt, (b dt)^2, 2 b)`` of both sides (18,), ``T`` [s] and ``T^2`` [s^2].
+
+        What the bounds take from ``limits`` (`AxisLimits`) and the period ``dt`` [s] alone
+        (`wbc.controllers.tracking_c` reads them too).
+        """
+        b = self.braking_fraction * limits.acceleration
+        bdt = np.concatenate((b, b)) * dt
+        T = dt if self.horizon is None else self.horizon
+        return -bdt, bdt**2, 2.0 * np.concatenate((b, b)), T, T**2
 
     def _compiled(self, const: tuple, lim, dt: float):
         """The C evaluation with ``const`` in its input buffer, or None (numpy)."""

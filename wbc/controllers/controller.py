@@ -44,13 +44,13 @@ from wbc.kinematics.tcp_kinematics import TcpKinematics
 from wbc.references.goals import JointGoal, TcpGoal
 from wbc.references.ruckig_reference import RuckigReference
 
-__all__ = ["Controller", "MAX_STATE_MAGNITUDE", "MAX_STATE_TIME"]
+__all__ = ["Controller", "MAX_STATE_MAGNITUDE", "MAX_STATE_TIME", "state_magnitudes"]
 
 # Bounds of a measured state: far beyond any real machine, well inside double precision.
 MAX_STATE_MAGNITUDE = 1e6  # [m, rad, m/s, rad/s, m/s^2, rad/s^2]
 MAX_STATE_TIME = 1e9  # [s], about 30 years
 _MAGNITUDE_FIELDS = ("base_twist", "base_acceleration", "q", "qd", "qdd")  # checked per tick
-_magnitudes = operator.attrgetter(*_MAGNITUDE_FIELDS)
+state_magnitudes = operator.attrgetter(*_MAGNITUDE_FIELDS)  # the arrays checked, a tuple
 _max = np.maximum.reduce  # `np.max` of a 1-D array without its Python dispatch
 
 
@@ -228,9 +228,13 @@ class Controller(abc.ABC):
             if key in planned:
                 continue
             clock = self._clock[key]
-            err = float(_max(np.abs(ref.position(clock[0]) - state.q[ref.index])))
+            err = self._governor_error(ref, clock[0], state)
             clock[1] = float(min(max(2.0 * (1.0 - err / e_g), 0.0), 1.0))  # a scalar clip
             clock[0] += clock[1] * elapsed
+
+    def _governor_error(self, ref: RuckigReference, tau: float, state: MachineState) -> float:
+        """The governor's ``e``: the largest ``|reference position at tau - q|`` of ``ref``."""
+        return float(_max(np.abs(ref.position(tau) - state.q[ref.index])))
 
     def reference_at(self, offsets) -> ReferenceSample:
         """Reference of the nine axes ahead of now: arrays (len(offsets), 9).
@@ -276,7 +280,7 @@ class Controller(abc.ABC):
         """
         if not isinstance(state, MachineState):
             raise WbcInputError(f"state must be a models.MachineState, got {type(state)!r}")
-        if _max(np.abs(np.concatenate(_magnitudes(state)))) > MAX_STATE_MAGNITUDE:
+        if _max(np.abs(np.concatenate(state_magnitudes(state)))) > MAX_STATE_MAGNITUDE:
             for name in _MAGNITUDE_FIELDS:  # one pass above; here which field it was
                 big = float(np.abs(getattr(state, name)).max())
                 if big > MAX_STATE_MAGNITUDE:

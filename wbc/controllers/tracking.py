@@ -7,7 +7,7 @@ import qpsolvers
 
 from models.description import Machine
 from models.state import MachineState
-from wbc.axes import CRANE_AXES
+from wbc.axes import CRANE_AXES, N_AXES
 from wbc.constraints import (
     AccelerationLimit,
     NormalForceConstraint,
@@ -17,11 +17,17 @@ from wbc.constraints import (
 )
 from wbc.context import QPContext
 from wbc.controllers.config import ControllerConfig
-from wbc.controllers.controller import Controller
+from wbc.controllers.controller import (
+    MAX_STATE_MAGNITUDE,
+    MAX_STATE_TIME,
+    Controller,
+    state_magnitudes,
+)
+from wbc.controllers.tracking_c import compiled_tracking_qp
 from wbc.force_models.protocol import NormalForceModel
 from wbc.kinematics.tcp_kinematics import TcpKinematics
 from wbc.layout import VariableLayout
-from wbc.qp import QPBuilder
+from wbc.qp import QP, QPBuilder
 from wbc.solvers import make_solver
 from wbc.tasks import (
     DampingTask,
@@ -62,24 +68,35 @@ class WholeBodyQPController(Controller):
         force = force_model is not None
         self.layout = VariableLayout(9, 1, speed_scale=force and fc.speed_scale,
                                      n_slack=4 if force and fc.soft else 0)
-        self.tasks = [
+        tasks = [
             JointTask(CRANE_AXES, qc.crane_kp, qc.crane_kd, qc.crane_weight),
             SuspensionPostureTask(qc.suspension_kp, qc.suspension_kd, qc.suspension_weight),
             DampingTask(qc.damping_time, qc.damping_weight),
         ]
-        self.constraints = [AccelerationLimit(), VelocityLimit(),
-                            PositionLimit(qc.position_horizon, qc.braking_fraction)]
+        constraints = [AccelerationLimit(), VelocityLimit(),
+                       PositionLimit(qc.position_horizon, qc.braking_fraction)]
         self.force_constraint: NormalForceConstraint | None = None
         if force:
             self.force_constraint = NormalForceConstraint(
                 force_model, self.force_thresholds, qc.force_lookahead,
                 self.static_wheel_load, fc.drive_time_constant)
-            self.constraints.append(self.force_constraint)
-            self.constraints.append(SpeedScaleLimit(fc.speed_scale_min, fc.speed_scale_rate))
-            self.tasks += [SpeedScaleTask(fc.speed_scale_weight),
-                           SlackPenaltyTask(fc.slack_linear, fc.slack_quadratic)]
+            constraints.append(self.force_constraint)
+            constraints.append(SpeedScaleLimit(fc.speed_scale_min, fc.speed_scale_rate))
+            tasks += [SpeedScaleTask(fc.speed_scale_weight),
+                      SlackPenaltyTask(fc.slack_linear, fc.slack_quadratic)]
+        # Fixed from here on: the compiled tick has read them.
+        self.tasks, self.constraints = tuple(tasks), tuple(constraints)
         self.solver = make_solver(cfg.solver, cfg.eps_abs, cfg.eps_rel, cfg.max_iter)
         self.builder = QPBuilder(self.tasks, self.constraints)
+        self.compiled = True
+        self._tick = compiled_tracking_qp(self.tasks, self.constraints,
+                                          [r for _, r in self._references()], self.limits,
+                                          self.dt, self.layout, MAX_STATE_MAGNITUDE)
+        # The tasks and constraints the compiled tick leaves to a builder (the force's).
+        self._rest = (None if self._tick is None or len(self.tasks) == 3
+                      else QPBuilder(self.tasks[3:], self.constraints[3:]))
+        self._hessian: np.ndarray | None = None  # the builder's P, kept from the first tick
+        self._qp: QP | None = None  # without a rest: the QP of every tick, written in place
 
     def context(self, state: MachineState) -> QPContext:
         """The QP context of ``state`` (references at the current reference time)."""
@@ -96,8 +113,70 @@ class WholeBodyQPController(Controller):
     def _reset_solver(self) -> None:
         self.solver.reset()
 
+    def _check_state(self, state) -> None:
+        tick = self._tick if self.compiled else None
+        if (tick is None or not isinstance(state, MachineState)
+                or not tick.load(state, state_magnitudes(state))
+                or abs(state.time) > MAX_STATE_TIME):
+            super()._check_state(state)  # raises, naming the field
+
+    def _governor_error(self, ref, tau: float, state: MachineState) -> float:
+        tick = self._tick
+        if tick is not None and tick.state is state:  # loaded since the last `run`
+            r = tick.references.index(ref)
+            kept = ref.kept(tau)
+            if kept is not None and kept is tick.kept[r]:  # the positions of that `run`
+                return float(tick.errors[r])
+        return super()._governor_error(ref, tau, state)
+
+    def _compiled_qp(self, state: MachineState) -> QP | None:
+        """This tick's QP by `wbc.controllers.tracking_c`; None: the builder's, please.
+
+        The costs and bounds of the nine axes from the compiled tick, those of the speed
+        scale and the slacks (and the force rows) from a builder of the other tasks and
+        constraints, and the Hessian the full builder made at the first tick (constant: all
+        the tasks' Jacobians are). Without a force model the same QP object every tick, its
+        arrays written in place (the solver has read them before the next tick).
+        """
+        tick = self._tick
+        if tick is None or self._hessian is None or not self.compiled:
+            return None
+        if tick.state is not state:
+            tick.load(state, state_magnitudes(state))
+        times = []
+        for r, (key, ref) in enumerate(self._references()):
+            tau, sigma = self._clock[key]
+            t = tau + sigma * 0.0  # `reference_ahead(0.0)`'s time
+            tr, sample = ref.sample_raw(t)
+            tick.set_sample(r, sample, sigma)
+            times.append((t, tr))
+        empty = not tick.run()
+        tick.state = None  # its errors are of the positions before this run
+        for r, (ref, (t, tr)) in enumerate(zip(tick.references, times)):
+            tick.kept[r] = (ref.kept(t) if tr is None
+                            else ref.keep_position(tr, tick.position[ref.index]))
+        if empty:
+            return None  # the builder raises, saying where
+        if self._rest is None:
+            return self._qp
+        # The other terms touch the scale and the slacks only: there they are the full
+        # sums and bounds, on the nine axes +0 and infinite (`tests/test_tracking_c.py`).
+        qp = self._rest.build(QPContext.from_state(state, self.dt, self.layout, self.limits,
+                                                   None, self._speed_scale))
+        qp.P = self._hessian
+        qp.q[:N_AXES], qp.lb[:N_AXES], qp.ub[:N_AXES] = tick.lin, tick.lower, tick.upper
+        return qp
+
     def _solve(self, state: MachineState) -> tuple[np.ndarray, float, dict]:
-        sol = self.solver.solve(self._build(self.context(state)))
+        problem = self._compiled_qp(state)
+        if problem is None:
+            problem = self._build(self.context(state))
+            tick = self._tick
+            if tick is not None and self._hessian is None:
+                self._hessian = problem.P
+                self._qp = QP(problem.P, tick.lin, None, None, None, None, tick.lower,
+                              tick.upper)
+        sol = self.solver.solve(problem)
         lay = self.layout
         qdd = sol.x[lay.step(0)].copy()
         scale = 1.0 if lay.scale is None else float(sol.x[lay.scale])

@@ -180,11 +180,26 @@ class RuckigReference:
         """
         if not self._planned:
             return self.sample(t)[0]
-        tr = max(t - self.start_time, 0.0)
+        kept = self.kept(t)
+        if kept is not None:
+            return kept.copy()
+        return clip(self._traj.at_time(max(t - self.start_time, 0.0))[0],
+                    self.position_lower, self.position_upper)
+
+    def kept(self, t: float) -> np.ndarray | None:
+        """The position at time ``t`` [s] this reference holds already, or None.
+
+        The held position, or the kept one (`position`) when ``t`` is its time: the array
+        itself, not a copy (read it, don't write it). `hold`, `plan` and `keep_position`
+        replace it by another array.
+        """
+        if not self._planned:
+            return self._hold
         kept = self._kept_position
-        if kept is not None and kept[0] == tr and copysign(1.0, tr) == kept[1]:
-            return kept[2].copy()
-        return clip(self._traj.at_time(tr)[0], self.position_lower, self.position_upper)
+        if kept is None:
+            return None
+        tr = max(t - self.start_time, 0.0)
+        return kept[2] if kept[0] == tr and copysign(1.0, tr) == kept[1] else None
 
     def sample_into(self, t: float, rate: float, position: np.ndarray,
                     velocity: np.ndarray, acceleration: np.ndarray) -> None:
@@ -199,13 +214,37 @@ class RuckigReference:
             tr = max(t - self.start_time, 0.0)
             p, v, a = self._traj.at_time(tr)[:3]
             clip(p, self.position_lower, self.position_upper, out=position)
-            # (time, its sign: at_time(-0.0) need not be at_time(0.0), position)
-            self._kept_position = (tr, copysign(1.0, tr), position.copy())
+            self.keep_position(tr, position)
         else:
             p, v, a = self.sample(t)
             position[...] = p
         np.multiply(v, rate, out=velocity)
         np.multiply(a, rate**2, out=acceleration)
+
+    def sample_raw(self, t: float) -> tuple[float | None, list]:
+        """The sample at time ``t`` [s] before `sample_into` clips and scales it.
+
+        Returns:
+            ``(tr, pva)``: the trajectory time ``tr`` [s] (None while holding) and one list
+            of 3n floats, the position as Ruckig gives it (not clipped), the velocity and the
+            acceleration (not scaled); while holding the held position and zeros. The
+            compiled whole-body QP (`wbc.controllers.tracking_c`) clips and scales it.
+        """
+        if self._planned:
+            tr = max(t - self.start_time, 0.0)
+            p, v, a = self._traj.at_time(tr)[:3]
+            return tr, p + v + a
+        return None, self.sample(t)[0].tolist() + [0.0] * (2 * self.n)
+
+    def keep_position(self, tr: float, position: np.ndarray) -> np.ndarray:
+        """Keep ``position`` (n,), the clipped position at trajectory time ``tr`` [s].
+
+        `position` returns it while asked at that time again (see there); for whoever
+        clipped a `sample_raw` of a planned trajectory. Returns the copy kept (`kept`).
+        """
+        # (time, its sign: at_time(-0.0) need not be at_time(0.0), position)
+        self._kept_position = (tr, copysign(1.0, tr), position.copy())
+        return self._kept_position[2]
 
     def sample_many(self, times) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Samples at several times [s]: three arrays of shape (len(times), n)."""

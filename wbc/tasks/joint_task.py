@@ -47,6 +47,8 @@ class JointTask(ConstantJacobianTask):
         super().__init__(np.broadcast_to(np.asarray(weight, float), (n,)).copy())
         self.kp = _gain("kp", kp, n)
         self.kd = _gain("kd", kd, n)
+        self.kp.setflags(write=False)  # fixed, as the weight (a compiled tick reads them once)
+        self.kd.setflags(write=False)
 
     def is_active(self, ctx) -> bool:
         """Active while a reference is given."""
