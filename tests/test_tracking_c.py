@@ -17,6 +17,7 @@ from wbc import (
     JointGoal,
     QPConfig,
     ReferenceConfig,
+    TcpGoal,
     WbcInputError,
     WholeBodyQPController,
     make_controller,
@@ -120,6 +121,11 @@ def test_closed_loop_ticks_are_the_builders_bits(machine, config):
     for k in range(700):
         if k == 150:  # a new crane goal while moving; the suspension keeps its plan
             pair.set_goal(_goal(st, (-0.1, -0.05, 0.1, 0.1, 0.3, -0.4, 0.5), None))
+        if k == 220:  # a TCP goal, resolved in the next tick (the state checked again)
+            p0 = pair.fast.tcp_kinematics.position(plant.state.q)
+            pair.set_goal(TcpGoal(p0 + np.array([0.3, -0.2, 0.2])))
+        if k in (260, 262):  # the generic path for two ticks, then C again
+            pair.fast.compiled = not pair.fast.compiled
         if k == 300:
             for c in (pair.fast, pair.slow):
                 c.reset()
@@ -132,7 +138,7 @@ def test_closed_loop_ticks_are_the_builders_bits(machine, config):
                 c.build_qp(plant.state)
                 c.reference_ahead(0.013)
         plant.apply(pair.step(plant.state))
-    assert pair.compiled_ticks >= 690
+    assert pair.compiled_ticks >= 695
     assert numpy_governor[0] < 20  # the governor's errors came from C
 
 
