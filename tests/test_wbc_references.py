@@ -190,3 +190,29 @@ def test_kept_position_follows_the_trajectory(limits):
     ref.hold(goal)
     np.testing.assert_array_equal(ref.position(9.0), np.clip(goal, ref.position_lower,
                                                              ref.position_upper))
+
+
+@pytest.mark.parametrize("planned", [True, False])
+def test_raw_sample_clipped_and_scaled_is_sample_into(limits, planned):
+    """`sample_raw` is what `sample_into` clips and scales; `kept` is what it keeps."""
+    ref, start, goal = _crane_reference(limits, 3, 0.4)
+    if planned:
+        ref.plan(1.0, start, np.full(7, 0.01), np.zeros(7), goal)
+    else:
+        ref.hold(start)
+    for t in (0.0, 1.0, 1.37, 2.9, 1.0 + ref.duration + 1.0):
+        tr, pva = ref.sample_raw(t)
+        assert (tr is None) == (not planned) and len(pva) == 21
+        p, v, a = np.array(pva).reshape(3, 7)
+        for rate in (1.0, 0.37):
+            out = np.empty((3, 7))
+            ref.sample_into(t, rate, *out)
+            np.testing.assert_array_equal(out, [np.clip(p, ref.position_lower,
+                                                        ref.position_upper),
+                                                v * rate, a * rate**2])
+        if planned:
+            assert ref.kept(t) is ref._kept_position[2]  # what sample_into kept
+            kept = ref.keep_position(tr, np.zeros(7))
+            assert ref.kept(t) is kept and ref.kept(t + 3.0) is None  # another time
+        else:
+            assert ref.kept(t) is ref._hold

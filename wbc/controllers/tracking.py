@@ -51,11 +51,20 @@ class WholeBodyQPController(Controller):
 
     Registered as ``tracking`` without a force model (the QP without the force constraint).
 
+    Each tick's QP is `wbc.qp.QPBuilder`'s, the same bits whichever way it is made: by the
+    builder (`build_qp`, and ``compiled = False``), or by the compiled tick
+    (`wbc.controllers.tracking_c`: the nine axes' costs and bounds in one C call) with a
+    builder of the force model's tasks and constraints alone.
+
     Args:
         machine: The machine description.
         config: Settings.
         force_model: Normal-force model; None: no force constraint.
         tcp_kinematics: For `TcpGoal`.
+
+    Attributes:
+        tasks, constraints: The QP's terms, fixed at construction (tuples).
+        compiled: Use the compiled tick when a C compiler is there; False: the builder.
     """
 
     name = "tracking"
