@@ -55,7 +55,7 @@ def test_tick_pass_is_the_filters_calls():
     closure = PayloadEstimator(machine, fourth="cylinder-force", strokes="clip")
     fast, calls, python = (Observer(machine, spec, closure, compiled=c)
                            for c in (True, True, False))
-    calls._tick = None
+    calls._tick = calls._tail = None
     assert fast._tick is not None and python._tick is None
     rng = np.random.default_rng(2)
     held, clipped = 0, set()

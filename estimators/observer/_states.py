@@ -18,7 +18,7 @@ import numpy as np
 from models.coordinates import N_INDEPENDENT
 from models.state import MachineState, WheelContacts, check_rotation
 
-__all__ = ["STATE_SIZE", "StateBuffer", "wheel_contacts", "with_fields"]
+__all__ = ["STATE_SIZE", "StateBuffer", "trusted_state", "wheel_contacts", "with_fields"]
 
 # The float fields' places in a `StateBuffer`: the base's position (always zero: the
 # observer does not know it), rotation (row-major), twist, acceleration; then q, qd, qdd as
@@ -80,6 +80,23 @@ class StateBuffer:
         new.__dict__.update(zip(_STATE_NAMES, (*fields, float(time), None, buf[_SUSPENSION],
                                                servo_setpoint)))
         return new
+
+
+def trusted_state(buf: np.ndarray, time: float, servo_setpoint: np.ndarray,
+                  contacts: WheelContacts) -> MachineState:
+    """`StateBuffer.state` of a fresh buffer known valid, with ``contacts``.
+
+    The buffer (`STATE_SIZE`,) is taken over: finite, its rotation checked
+    (`BaseFilter.rotation_valid`), ``servo_setpoint`` read-only (the caller's tests).
+    """
+    buf.flags.writeable = False
+    joints = buf[_JOINTS].reshape(3, N_INDEPENDENT)
+    new = object.__new__(MachineState)
+    new.__dict__.update(zip(_STATE_NAMES, (
+        buf[_POSITION], buf[_ROTATION].reshape(3, 3), buf[_TWIST], buf[_ACCELERATION],
+        joints[0], joints[1], joints[2], float(time), contacts, buf[_SUSPENSION],
+        servo_setpoint)))
+    return new
 
 
 def with_fields(state: MachineState, **changes) -> MachineState:

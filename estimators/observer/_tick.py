@@ -78,10 +78,11 @@ class TickPass:
                        j._f_c, j.K, self.wheels, aa, ab, self.forces, self._out, lo, hi,
                        *self._samples)
 
-    def run(self, r: SensorReadings, dt: float) -> np.ndarray:
+    def run(self, r: SensorReadings, dt: float, copy: bool = True) -> np.ndarray:
         """The state's float fields (`_states.StateBuffer` layout), a fresh array.
 
-        ``dt``: the time since the observer's last tick [s] (the wheels' odometry).
+        ``dt``: the time since the observer's last tick [s] (the wheels' odometry);
+        ``copy``: False, the buffer itself (`_out`, written again by the next call).
 
         Raises:
             EstimatorError: A non-finite reading (the steps before it done, as the Python
@@ -114,4 +115,4 @@ class TickPass:
         if code:
             raise EstimatorError(_ERRORS[code])
         self._has_forces = bool(sc[12])
-        return self._out.copy()
+        return self._out.copy() if copy else self._out

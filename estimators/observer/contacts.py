@@ -38,16 +38,15 @@ class ContactTracker:
             is there; False: Python.
 
     Attributes:
-        drive: Each side's mean drive torque [N m] (left, right), None before any reading.
         wheel_acceleration: The wheels' spin accelerations [rad/s^2] (4 floats, FL, RL, FR,
             RR).
     """
 
     def __init__(self, radius: float, inertia: float, sphere: bool, compiled: bool = True):
         self.radius, self.inertia, self.sphere = float(radius), float(inertia), bool(sphere)
-        self.in_contact = [True] * 4
+        self._in_contact = [True] * 4  # Python's (`in_contact`)
         self._above = [0] * 4
-        self.drive: list | None = None
+        self._drive_py: list | None = None  # Python's (`drive`)
         self.wheel_acceleration = [0.0] * 4
         lib = contacts_c.compiled_contacts() if compiled else None
         self._c = None
@@ -65,17 +64,30 @@ class ContactTracker:
             self._flags_c = bind(lib.contact_flags, k, self._above_c, self._touching,
                                  self._drive, self._acc, self._fz, self._force)
 
+    @property
+    def in_contact(self) -> list:
+        """The contact flags (4 bools, FL, RL, FR, RR): C's buffer's, or Python's."""
+        if self._c is not None:
+            return (self._touching != 0.0).tolist()
+        return self._in_contact
+
+    @property
+    def drive(self) -> list | None:
+        """Each side's mean drive torque [N m] (left, right), None before any reading."""
+        if self._c is not None:
+            return self._drive[1:].tolist() if self._drive[0] != 0.0 else None
+        return self._drive_py
+
     def set_drive(self, torques: np.ndarray) -> None:
         """The tick's drive torques (k, 2) [N m], k > 0: their mean is each side's."""
         n = torques.shape[0]
         if self._c is None:
-            self.drive = (np.add.reduce(torques, 0) / n).tolist()
+            self._drive_py = (np.add.reduce(torques, 0) / n).tolist()
             return
         mean = self._drive[1:]
         np.add.reduce(torques, 0, out=mean)  # the same reduction and division
         np.divide(mean, n, out=mean)
         self._drive[0] = 1.0
-        self.drive = mean.tolist()
 
     def points(self, lowest: np.ndarray, up: list,
                previous: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool, bool]:
@@ -115,15 +127,13 @@ class ContactTracker:
             f = forces.tolist()
             self._above = above = [n + 1 if x > CONTACT_ON_N else 0
                                    for n, x in zip(self._above, f)]
-            self.in_contact = [(c and x >= CONTACT_OFF_N)
-                               or (not c and (n >= CONTACT_TICKS or x > CONTACT_LANDING_N))
-                               for c, x, n in zip(self.in_contact, f, above)]
-            return (np.array(self.in_contact), *self._force_py(forces))
+            self._in_contact = [(c and x >= CONTACT_OFF_N)
+                                or (not c and (n >= CONTACT_TICKS or x > CONTACT_LANDING_N))
+                                for c, x, n in zip(self._in_contact, f, above)]
+            return (np.array(self._in_contact), *self._force_py(forces))
         self._fz[:] = forces
         finite = self._flags_c()
-        flags = self._touching != 0.0
-        self.in_contact = flags.tolist()
-        return flags, self._force.copy(), bool(finite)
+        return self._touching != 0.0, self._force.copy(), bool(finite)
 
     def _force_py(self, forces: np.ndarray) -> tuple[np.ndarray, bool]:
         """`longitudinal` along fb x, (4, 3), and whether it is finite."""

@@ -38,7 +38,7 @@ import numpy as np
 from estimators.efforts import ActuatorEfforts
 from estimators.errors import EstimatorError
 from estimators.linearization import N_GENERALIZED
-from estimators.observer import filters_c, link_fusion
+from estimators.observer import _tail, filters_c, link_fusion
 from estimators.observer._states import StateBuffer, wheel_contacts, with_fields
 from estimators.observer._tick import TickPass
 from estimators.observer.base_filter import ANGULAR_ACCELERATION_TIME_CONSTANT, BaseFilter
@@ -122,8 +122,9 @@ class Observer:
         initial_payload_std: Its std [kg].
         compiled: Run the filters', the fit's and the contacts' arithmetic in C
             (`filters_c`, `fusion_c`, `contacts_c`: the same results to round-off; the
-            state's first part in one call, `_tick`) when a C compiler is there; False:
-            Python and numpy.
+            state's first part in one call, `_tick`; the rest of the tick in two more,
+            `_tail`, the Python steps' bits) when a C compiler is there; False: Python and
+            numpy.
     """
 
     crane_from_pressures = True  # `crane_pressures`; False: the encoders' alone
@@ -174,7 +175,8 @@ class Observer:
             self._force_bias[lt], event_variance_scale=EVENT_VARIANCE_SCALE,
             expected_pick_ticks=(link_fusion.LINK_EXPECTED_PICK_TICKS if has_links
                                  else EXPECTED_PICK_TICKS))
-        self._regression: list | None = None
+        self._regression = np.zeros(7)  # `_filtered`'s state
+        self._previous_four = _ONES.copy()  # the last estimate's four-wheel forces [N]
         self._wheel_angle = [0.0] * 4
         self._wheel_rate = [0.0] * 4
         self._wheel_acc = [0.0] * 4
@@ -215,6 +217,8 @@ class Observer:
         base_std = float(np.hypot(accel_std[0], link_fusion.LINK_LEVER * accel_std[3]))
         self.links = (link_fusion.LinkFusion(self.efforts, spec.link_accelerometers, base_std,
                                              qdd_std, compiled) if has_links else None)
+        # The tick after the filters' pass in two C calls, where it applies (`_tail`).
+        self._tail = _tail.tail_pass(self) if compiled else None
 
     # ------------------------------------------------------------------ uncertainty
     def _uncertainty_parts(self) -> tuple[np.ndarray, np.ndarray]:
@@ -266,8 +270,9 @@ class Observer:
     def _update(self, r: SensorReadings) -> ObserverEstimate:
         t = r.time
         dt = 0.0 if self._last_time is None else t - self._last_time
-        base, drive_torques = self.base, r.drive_torques.value
         stale = r.positions.value.shape[0] == 0 or r.pressures.value.shape[0] == 0
+        if self._tail is not None:  # the rest of the tick in two C calls (`_tail`)
+            return self._tail.update(r, dt, stale)
         if self._tick is not None:
             buf = StateBuffer(self._tick.run(r, dt))
             if r.pressures.value.shape[0]:
@@ -275,11 +280,23 @@ class Observer:
             forces = self._suspension if self._suspension is not None else _NO_FORCES
         else:
             buf, forces = self._state_fields(r, dt)
-        state = buf.state(t, r.servo_setpoint, base.rotation_valid)
-        if self.links is not None:  # the crane's accelerations from the link accelerometers
+        state = buf.state(t, r.servo_setpoint, self.base.rotation_valid)
+        return self._from_links(state, r, forces, dt, stale)
+
+    # The tick's steps after the state's first part, each handing on to the next (`_tail`
+    # takes over from any of them when its C does not cover the tick).
+    def _from_links(self, state: MachineState, r: SensorReadings, forces: np.ndarray,
+                    dt: float, stale: bool) -> ObserverEstimate:
+        """The crane's accelerations from the link accelerometers, then `_from_payload`."""
+        if self.links is not None:
             state = with_fields(state, qdd=self.links.accelerations(state,
                                                                      r.link_specific_force))
-        # Payload from the lift and tilt cylinders.
+        return self._from_payload(state, r, forces, dt, stale)
+
+    def _from_payload(self, state: MachineState, r: SensorReadings, forces: np.ndarray,
+                      dt: float, stale: bool) -> ObserverEstimate:
+        """The payload from the lift and tilt cylinders, then `_from_crane`."""
+        t = r.time
         f0, y = self.efforts.payload_regressor_at(state, _LIFT_TILT)
         f = forces.tolist()
         qd = state.qd
@@ -290,26 +307,43 @@ class Observer:
         mass = min(max(self.payload.mass, 0.0), 1e4)
         if self.crane_from_pressures:
             state = with_fields(state, qdd=self.crane.accelerations(state, forces, mass))
+        return self._from_contacts(state, r, mass, stale)
+
+    def _from_contacts(self, state: MachineState, r: SensorReadings, mass: float,
+                       stale: bool) -> ObserverEstimate:
+        """The contact points and flags at the payload ``mass`` [kg], then the estimate."""
         self.force_model.payload_mass = mass
+        drive_torques = r.drive_torques.value
         if drive_torques.shape[0]:
             self.contacts.set_drive(drive_torques)
         # The wheels' centres from the geometry (without contacts the estimator gives their
         # lowest points), the contact points below them along the ground's normal, then the
         # four-wheel forces at those points for the flags.
-        previous = self._last.forces_four if self._last is not None else _ONES
         points, normals, force, finite, force_finite = self.contacts.points(
-            self.force_model.contact_points(state), base.up, previous)
+            self.force_model.contact_points(state), self.base.up, self._previous_four)
         all_four = wheel_contacts(_ALL_FOUR, force, points, normals, finite and force_finite)
         four = np.asarray(self._four_wheel_forces(with_fields(state, contacts=all_four)),
                           float)
         flags, force, force_finite = self.contacts.update(four)
         contacts = wheel_contacts(flags, force, points, normals, finite and force_finite)
-        state = with_fields(state, contacts=contacts)
+        self._previous_four[:] = four
+        return self._estimate(with_fields(state, contacts=contacts), mass, four, r.time, stale)
+
+    def _estimate(self, state: MachineState, mass: float, four: np.ndarray, t: float,
+                  stale: bool) -> ObserverEstimate:
+        """The tick's `ObserverEstimate`, kept as the last.
+
+        Its fields are valid: made without the frozen dataclass's per-field setting.
+        """
         std = self.payload.std
-        unc = self._uncertainty.with_payload_mass(std)
+        est = object.__new__(ObserverEstimate)
+        est.__dict__.update(state=state, payload_mass=mass, payload_std=std,
+                            payload_event=self.payload.event,
+                            uncertainty=self._uncertainty.with_payload_mass(std),
+                            forces_four=four, stale=stale)
         self._last_time = t
-        self._last = ObserverEstimate(state, mass, std, self.payload.event, unc, four, stale)
-        return self._last
+        self._last = est
+        return est
 
     def _state_fields(self, r: SensorReadings, dt: float) -> tuple[StateBuffer, np.ndarray]:
         """The state's float fields and the cylinder forces [N] (5,), in Python (`_tick`).
@@ -378,10 +412,12 @@ class Observer:
         0.04 m/s^2 of noise several kN).
         """
         now = [*measured, *f0, *y]
-        if self._regression is None or not dt > 0:
-            self._regression = now
+        reg = self._regression  # [started, the three sides (6)]: `_tail`'s C writes it too
+        if reg[0] == 0.0 or not dt > 0:
+            z = now
         else:
             a = dt / (self._payload_filter_time + dt)
-            self._regression = [z + a * (n - z) for z, n in zip(self._regression, now)]
-        z = self._regression
+            z = [zi + a * (n - zi) for zi, n in zip(reg[1:].tolist(), now)]
+        reg[0] = 1.0
+        reg[1:] = z
         return z[:2], z[2:4], z[4:]
