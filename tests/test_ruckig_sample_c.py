@@ -107,3 +107,35 @@ def test_arrays_it_cannot_take_are_refused():
     assert not c.sample_into(times, 0.0, 1.0, np.empty((5, 3)), *good[1:])
     assert not c.sample_into(times[::2].copy(), 0.0, 1.0, *good)
     assert not c.load(ruckig.Trajectory(3))  # another number of axes
+
+
+@pytest.mark.parametrize("axes", ["crane", "suspension"])
+def test_reference_node_samples_are_the_bindings(machine, axes):
+    """`RuckigReference.sample_many_into` and `sample_columns_into` in C and through the
+    binding: the same bits into the MPC's node arrays (and nothing in the other axes'
+    columns), from starts inside and above the limits, at clock rates <= 1."""
+    from wbc import CRANE_AXES, SUSPENSION_AXES, AxisLimits, RuckigReference
+
+    limits = AxisLimits.from_machine(machine)
+    index = CRANE_AXES if axes == "crane" else SUSPENSION_AXES
+    rng = np.random.default_rng(3)
+    lo, hi = limits.position_lower[index], limits.position_upper[index]
+    for _ in range(40):
+        refs = [RuckigReference(limits, index, jerk_time=0.5) for _ in range(2)]
+        refs[1].compiled = False
+        start = rng.uniform(lo, hi)
+        velocity = rng.uniform(-1.2, 1.2, len(index)) * limits.velocity_upper[index]
+        goal = rng.uniform(lo, hi)
+        t0 = float(rng.uniform(0, 5))
+        for ref in refs:
+            ref.plan(t0, start, velocity, np.zeros(len(index)), goal)
+        assert refs[0]._compiled_loaded
+        times = t0 + float(rng.uniform(-0.5, refs[0].duration)) + np.linspace(0, 1.0, 13)
+        rate = float(rng.choice([1.0, 0.6, 0.0]))
+        out = [[np.full((13, 9), np.nan) for _ in range(3)] for _ in range(3)]
+        refs[0].sample_many_into(times, rate, *(a[:, refs[0].index] for a in out[0]))
+        refs[0].sample_columns_into(times, rate, *out[1])  # the controller's call
+        refs[1].sample_many_into(times, rate, *(a[:, refs[1].index] for a in out[2]))
+        for a, b, c in zip(*out):
+            assert np.array_equal(a, c, equal_nan=True)
+            assert np.array_equal(b, c, equal_nan=True)  # the other columns left NaN

@@ -250,8 +250,8 @@ class Controller(abc.ABC):
         for key, ref in self._references():
             tau, sigma = self._clock[key]
             i = ref.index
-            if isinstance(i, slice):  # columns as views: written in place
-                ref.sample_many_into(tau + sigma * offsets, sigma, p[:, i], v[:, i], a[:, i])
+            if isinstance(i, slice):  # its columns, written in place
+                ref.sample_columns_into(tau + sigma * offsets, sigma, p, v, a)
             else:
                 rp, rv, ra = (np.empty((offsets.size, ref.n)) for _ in range(3))
                 ref.sample_many_into(tau + sigma * offsets, sigma, rp, rv, ra)

@@ -10,6 +10,7 @@ import ruckig
 from models.numeric import clip
 from wbc.axes import N_AXES, AxisLimits, axis_index
 from wbc.errors import ConfigurationError, TrajectoryError, WbcInputError
+from wbc.references.sample_c import compiled_trajectory
 
 __all__ = ["RuckigReference"]
 
@@ -75,6 +76,11 @@ class RuckigReference:
         self._hold: np.ndarray | None = None
         self._planned = False
         self._kept_position: tuple | None = None  # see `position`
+        # `sample_many_into` in C (`wbc.references.sample_c`, Ruckig's bits), the profiles
+        # taken at each `plan`; None without a C compiler. `compiled` False: the binding.
+        self.compiled = True
+        self._compiled = compiled_trajectory(self.position_lower, self.position_upper)
+        self._compiled_loaded = False
 
     @property
     def n(self) -> int:
@@ -154,6 +160,8 @@ class RuckigReference:
         self.goal = g
         self._hold = None
         self._planned = True
+        self._compiled_loaded = (self._compiled is not None
+                                 and self._compiled.load(self._traj))
         return self.duration
 
     def sample(self, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -255,13 +263,30 @@ class RuckigReference:
         self.sample_many_into(times, 1.0, p, v, a)  # times 1.0: the same bits
         return p, v, a
 
+    def sample_columns_into(self, times: np.ndarray, rate: float, position: np.ndarray,
+                            velocity: np.ndarray, acceleration: np.ndarray) -> None:
+        """`sample_many_into` this reference's columns (`index`, a slice) of (m, 9) arrays.
+
+        The controller's node arrays of all nine axes, each reference writing its own
+        columns: the same numbers as `sample_many_into` of the columns' views, in C without
+        the views where it can (`wbc.references.sample_c`).
+        """
+        i = self.index
+        if not (self.compiled and self._planned and self._compiled_loaded
+                and isinstance(i, slice)
+                and self._compiled.sample_columns(times, self.start_time, rate, i.start,
+                                                  position, velocity, acceleration)):
+            self.sample_many_into(times, rate, position[:, i], velocity[:, i],
+                                  acceleration[:, i])
+
     def sample_many_into(self, times, rate: float, position: np.ndarray,
                          velocity: np.ndarray, acceleration: np.ndarray) -> None:
         """`sample_many` written into arrays of shape (len(times), n), views are fine.
 
         Velocities times ``rate``, accelerations times ``rate**2`` (the reference governor's
         clock rate), as `sample_into` scales one sample: no temporary arrays for the MPC's
-        node samples each tick.
+        node samples each tick. A planned trajectory is sampled in C where it can
+        (`wbc.references.sample_c`: every time and axis in one call, the binding's bits).
 
         Raises:
             TrajectoryError: Neither planned nor held.
@@ -273,10 +298,14 @@ class RuckigReference:
             velocity[...] = rate * 0.0  # what scaling the held zeros gives (NaN, -0.0)
             acceleration[...] = rate**2 * 0.0
             return
+        if (self.compiled and self._compiled_loaded
+                and self._compiled.sample_into(np.asarray(times, float), self.start_time, rate,
+                                               position, velocity, acceleration)):
+            return
         at = self._traj.at_time
         # One flat list of Python floats: numpy converts it at a third of the cost of the
-        # nested (times, 3, n) lists. ``max(t - t0, 0)`` as numpy's maximum (the same
-        # first-argument rule on ties and NaN).
+        # nested (times, 3, n) lists. ``max(t - t0, 0)`` as numpy's maximum (its rules on
+        # ties and NaN).
         flat: list = []
         extend = flat.extend
         for t in np.maximum(np.asarray(times, float) - self.start_time, 0.0).tolist():

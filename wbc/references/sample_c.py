@@ -49,14 +49,15 @@ static inline double clip(double x, double lo, double hi) {
 }
 
 /* Ruckig's at_time of n axes (profiles prof[n * SIZE], one section of length duration) at
-   max(times[k] - t0, 0) (numpy's maximum), k < m: position clipped into [lo, hi], velocity
-   times rate, acceleration times rate2, into rows k of pos, vel, acc (row stride ld). */
+   max(times[k] - t0, 0) (NaN kept; -0 gives +0, as numpy's SIMD maximum does, though the
+   callers' times never tie at -0), k < m: position clipped into [lo, hi], velocity times
+   rate, acceleration times rate2, into rows k of pos, vel, acc (row stride ld). */
 void sample(const double* prof, long n, double duration, double t0, const double* times,
             long m, double rate, double rate2, const double* lo, const double* hi,
             double* pos, double* vel, double* acc, long ld) {
   for (long k = 0; k < m; ++k) {
     double time = times[k] - t0;
-    time = (time >= 0.0 || isnan(time)) ? time : 0.0;
+    time = (time > 0.0 || isnan(time)) ? time : 0.0;
     for (long d = 0; d < n; ++d) {
       const double* f = prof + d * SIZE;
       double p, v, a;
@@ -164,6 +165,31 @@ class CompiledTrajectory:
         self._fun(*self._args, self.duration, t0, address(times), m, rate, rate**2,
                   *self._limits, address(position), address(velocity),
                   address(acceleration), ld // 8)
+        return True
+
+
+    def sample_columns(self, times: np.ndarray, t0: float, rate: float, first: int,
+                       position: np.ndarray, velocity: np.ndarray,
+                       acceleration: np.ndarray) -> bool:
+        """`sample_into` the columns ``first .. first + n`` of three (len(times), k) arrays.
+
+        The arrays: float64, C-contiguous, of one shape (the MPC's node arrays of all nine
+        axes, each reference writing its own columns): their addresses cost a fifth of a
+        strided view's. False (nothing written) for arrays it cannot take.
+        """
+        m, k = position.shape
+        if not (position.shape == velocity.shape == acceleration.shape and m == times.shape[0]
+                and 0 <= first and first + self.n <= k and position.dtype == velocity.dtype
+                == acceleration.dtype == times.dtype == np.float64):
+            return False
+        if not (position.flags.c_contiguous and velocity.flags.c_contiguous
+                and acceleration.flags.c_contiguous and times.flags.c_contiguous
+                and position.flags.writeable and velocity.flags.writeable
+                and acceleration.flags.writeable):
+            return False
+        self._fun(*self._args, self.duration, t0, address(times), m, rate, rate**2,
+                  *self._limits, address(position) + 8 * first, address(velocity) + 8 * first,
+                  address(acceleration) + 8 * first, k)
         return True
 
 
