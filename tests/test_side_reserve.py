@@ -152,6 +152,9 @@ def test_side_reserve_settings_are_checked():
         ForceConfig(side_reserve_z=2.0, soft=False)
     with pytest.raises(ConfigurationError, match="soft"):
         ForceConfig(side_reserve=1000.0, soft=False)
+    for junk in (np.ones(2), "yes", None):  # not a flag: said so, not numpy's truth error
+        with pytest.raises(ConfigurationError, match="soft must be True or False"):
+            ForceConfig(side_reserve=1000.0, soft=junk)
     res = SideReserveConstraint(None)
     with pytest.raises(ConfigurationError, match="side reserve"):
         res.set_reserve([1.0, -1.0])

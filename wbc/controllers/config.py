@@ -326,6 +326,7 @@ class ForceConfig:
         _positive(self, "margin", "leveling_weight", "drift_horizon", "governor_z",
                   "side_reserve", "side_reserve_z", "side_reserve_min_speed", allow_zero=True)
         _positive(self, "side_reserve_high_pass", "side_reserve_window", "side_reserve_time")
+        _flags(self, "soft", "speed_scale", "feedback")  # before `soft` is read below
         if (self.side_reserve > 0 or self.side_reserve_z > 0) and not self.soft:
             raise ConfigurationError("side_reserve or side_reserve_z > 0 needs soft force rows "
                                      "(soft=True)")
@@ -333,7 +334,6 @@ class ForceConfig:
             _positive(self, "warp_stiffness", allow_zero=True)
         _positive(self, "drift_time_constant", "governor_high_pass", "governor_window")
         _positive(self, "threshold_fraction", "speed_scale_min", allow_zero=True)
-        _flags(self, "soft", "speed_scale", "feedback")
         if self.thresholds is not None:
             t = _numbers(self, "thresholds", self.thresholds, 4)
             object.__setattr__(self, "thresholds", tuple(float(x) for x in t))
