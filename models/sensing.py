@@ -80,6 +80,9 @@ class ChannelSpec:
         scale: Scale-factor error standard deviation [-].
         resolution: Quantization step [unit]; 0 for none.
         latency: Delay from the instant measured to the report [s].
+        full_scale: The largest magnitude the sensor reports [unit] (its measurement
+            range); inf: none given. The observer refuses a tick whose IMU sample lies
+            beyond it (a corrupted sample, not a measurement).
         source: Where the figures come from (part and datasheet), for the docs.
     """
 
@@ -90,6 +93,7 @@ class ChannelSpec:
     scale: float = 0.0
     resolution: float = 0.0
     latency: float = 0.0
+    full_scale: float = math.inf
     source: str = ""
 
     def __post_init__(self):
@@ -97,6 +101,10 @@ class ChannelSpec:
             raise ModelError(f"sensor spec 'rate' must be > 0 Hz, got {self.rate!r}")
         for name in ("noise", "bias", "bias_drift", "scale", "resolution", "latency"):
             _finite_at_least(name, getattr(self, name))
+        fs = self.full_scale
+        if isinstance(fs, bool) or not isinstance(fs, (int, float)) or not fs > 0:
+            raise ModelError(f"sensor spec 'full_scale' must be a number > 0 (inf: none), "
+                             f"got {fs!r}")
 
     @property
     def exact(self) -> bool:

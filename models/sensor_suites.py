@@ -10,10 +10,11 @@ channel                part                                 datasheet figures us
 =====================  ===================================  ==============================
 IMU accelerometer      Xsens MTi-630 (MTi 600-series)        noise density 60 ug/sqrt(Hz),
                                                             in-run bias stability 10 ug;
-                                                            400 Hz output
+                                                            400 Hz output; range +-10 g
 IMU gyroscope          Xsens MTi-630                        noise density 0.007 deg/s/
                                                             sqrt(Hz), in-run bias
-                                                            stability 8 deg/h
+                                                            stability 8 deg/h; range
+                                                            +-2000 deg/s
 link accelerometers    Xsens MTi-630R (the IP68 version of  as the IMU's accelerometer
 (boom, telescope tip)  the same unit), accelerometer only
 stroke sensors         MTS Temposonics R-series (SSI),      resolution 1 um, repeatability
@@ -86,16 +87,21 @@ _GYRO_BIAS_STABILITY = 8.0 * _DEG / 3600.0  # [rad/s]
 _PRESSURE_FS = 400e5  # [Pa]
 _WHEEL_COUNTS = 60 * 40  # pulses per wheel revolution
 _DRIVE_TORQUE_FS = 8000.0  # [N m] a side's two wheels at the drive's 4 kN m each
+_ACC_RANGE = 10.0 * _G  # [m/s^2] the MTi 600-series' standard full ranges
+_GYRO_RANGE = 2000.0 * _DEG  # [rad/s]
 
 _REALISTIC_IMU = ImuSpec(
     accelerometer=ChannelSpec(
         rate=IMU_RATE, noise=_density(_ACC_DENSITY, IMU_RATE), bias=5 * _ACC_BIAS_STABILITY,
         bias_drift=_ACC_BIAS_STABILITY / math.sqrt(60.0), latency=0.002,
-        source="Xsens MTi-630: 60 ug/sqrt(Hz), in-run bias stability 10 ug"),
+        full_scale=_ACC_RANGE,
+        source="Xsens MTi-630: 60 ug/sqrt(Hz), in-run bias stability 10 ug, +-10 g"),
     gyroscope=ChannelSpec(
         rate=IMU_RATE, noise=_density(_GYRO_DENSITY, IMU_RATE), bias=5 * _GYRO_BIAS_STABILITY,
         bias_drift=_GYRO_BIAS_STABILITY / math.sqrt(60.0), latency=0.002,
-        source="Xsens MTi-630: 0.007 deg/s/sqrt(Hz), in-run bias stability 8 deg/h"),
+        full_scale=_GYRO_RANGE,
+        source="Xsens MTi-630: 0.007 deg/s/sqrt(Hz), in-run bias stability 8 deg/h, "
+               "+-2000 deg/s"),
     position=IMU_POSITION)
 
 REALISTIC = SensorSpec(
@@ -126,10 +132,12 @@ REALISTIC = SensorSpec(
                              source="WIKA MH-3 on the drive motor lines: <= 0.5 % FS"),
 )
 
-IDEAL = dataclasses.replace(
+IDEAL = dataclasses.replace(  # the same parts, their ranges included, without errors
     REALISTIC, name="ideal",
-    imu=ImuSpec(ChannelSpec(rate=IMU_RATE), ChannelSpec(rate=IMU_RATE), IMU_POSITION),
-    link_accelerometers=tuple(LinkAccelerometer(body, position, ChannelSpec(rate=IMU_RATE))
+    imu=ImuSpec(ChannelSpec(rate=IMU_RATE, full_scale=_ACC_RANGE),
+                ChannelSpec(rate=IMU_RATE, full_scale=_GYRO_RANGE), IMU_POSITION),
+    link_accelerometers=tuple(LinkAccelerometer(body, position,
+                                                ChannelSpec(rate=IMU_RATE, full_scale=_ACC_RANGE))
                               for body, position in (BOOM_ACCELEROMETER, TIP_ACCELEROMETER)),
     stroke=ChannelSpec(rate=FAST_RATE), angle=ChannelSpec(rate=FAST_RATE),
     pressure=ChannelSpec(rate=FAST_RATE), wheel_speed=ChannelSpec(rate=SLOW_RATE),

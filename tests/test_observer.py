@@ -310,6 +310,45 @@ def test_a_nan_reading_is_held_for_its_tick_and_the_observer_recovers(stream):
 
 
 @pytest.mark.parametrize("compiled", [True, False])
+@pytest.mark.parametrize("stream, value", [("angular_rate", 1e155), ("angular_rate", 40.0),
+                                           ("specific_force", 1e155),
+                                           ("specific_force", -120.0)])
+def test_an_imu_sample_beyond_full_scale_is_a_fault_held_for_its_tick(stream, value, compiled):
+    """One gyroscope or accelerometer sample beyond the MTi-630's range (2000 deg/s, 10 g):
+    a corrupted sample, refused before the chassis filter sees it; the observer goes on.
+    Before the gate a 1e155 rad/s sample made the attitude NaN for good and every later
+    tick raised `models.StateError` out of `Observer.update`."""
+    from estimators.observer.base_filter import IMU_FAULT
+
+    machine = build_reference_machine()
+    sim = Simulator(machine, T.side_slope(-5.0))
+    sim.reset(None, (8.0, 0.0, 0.0))
+    spec = sensor_suite("realistic", 3)
+    assert spec.imu.gyroscope.full_scale == pytest.approx(np.radians(2000.0))
+    sensors = SensorSimulator(sim, spec)
+    obs = Observer(machine, spec, PayloadEstimator(machine, fourth="cylinder-force",
+                                                   strokes="clip"), compiled=compiled)
+    sim.set_command(wheel_speeds=(0.5, 0.5))
+    for k in range(90):
+        sim.step(5)
+        r = sensors.readings(sim.time)
+        if k == 60:
+            s = getattr(r, stream)
+            v = s.value.copy()
+            v[-1, 1] = value
+            r = dataclasses.replace(r, **{stream: Samples(s.time, v)})
+            with pytest.raises(EstimatorError, match="full scale"):
+                obs._update(r)
+            assert IMU_FAULT.startswith("an IMU sample")
+        e = obs.update(r)
+        assert e.stale == (k == 60), k
+        st = e.state
+        for a in (st.base_rotation, st.base_twist, st.base_acceleration, st.qdd, e.forces_four):
+            assert np.all(np.isfinite(a)), k
+        assert np.isfinite(e.payload_mass)
+
+
+@pytest.mark.parametrize("compiled", [True, False])
 def test_a_position_spike_is_a_fault_held_for_its_tick(compiled):
     """One stroke sample 50 m off (a wire break): refused before the joint filter sees it,
     so the payload estimate and the state carry on as before; without the gate it went

@@ -81,6 +81,11 @@ def test_tail_pass_is_the_python_steps(links, monkeypatch):
     estimates, errors and kept state, and every hand-back code taken."""
     machine = build_reference_machine(payload_mass=10.0)
     spec = sensor_suite("realistic", 5)
+    # No IMU range: the absurd gyroscope sample of tick 327 reaches the links' kernel (with
+    # the MTi-630's range it is refused before the chassis filter, `IMU_FAULT`).
+    imu = spec.imu
+    spec = dataclasses.replace(spec, imu=dataclasses.replace(
+        imu, gyroscope=dataclasses.replace(imu.gyroscope, full_scale=float("inf"))))
     spec = spec if links else chassis_only(spec)
     sim = Simulator(machine, T.rough(4, max_slope_deg=8.0))
     sim.reset(None, (2.0, 0.0, 0.0))

@@ -208,6 +208,9 @@ def test_bad_suites_are_typed_errors(sim):
         sensor_suite("perfect")
     with pytest.raises(ModelError, match="rate"):
         dataclasses.replace(REALISTIC.stroke, rate=0.0)
+    for bad in (0.0, -1.0, float("nan"), "10 g", True):
+        with pytest.raises(ModelError, match="full_scale"):
+            dataclasses.replace(REALISTIC.imu.accelerometer, full_scale=bad)
 
 
 def test_pressure_force_is_the_mechanism_force_plus_the_seal_friction(sim):

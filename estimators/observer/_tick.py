@@ -16,7 +16,7 @@ import numpy as np
 
 from estimators.errors import EstimatorError
 from estimators.observer._states import STATE_SIZE
-from estimators.observer.base_filter import BaseFilter
+from estimators.observer.base_filter import IMU_FAULT, BaseFilter
 from estimators.observer.joint_filter import POSITION_FAULT, JointFilter
 from models.cbuild import bind
 from models.sensing import SensorReadings
@@ -25,7 +25,7 @@ __all__ = ["TickPass"]
 
 _ERRORS = {1: "wheel-speed or drive-torque readings hold NaN or inf",
            2: "IMU samples hold NaN or inf", 3: "position samples hold NaN or inf",
-           4: "pressure readings hold NaN or inf", 6: POSITION_FAULT}
+           4: "pressure readings hold NaN or inf", 6: POSITION_FAULT, 7: IMU_FAULT}
 _LEVEL = 5  # `observer_tick`: the IMU's means are in, the attitude is not levelled yet
 _CHANNELS = (3, 3, 9, 10, 2, 2)  # the streams' (`_streams`)
 
@@ -47,6 +47,8 @@ class TickPass:
         gate_lower, gate_upper: The position samples' gate (9,): a sample outside is a
             sensor fault (`POSITION_FAULT`), refused before the joint filter sees it.
         wheel_time_constant: The wheels' acceleration low-pass [s].
+        imu_full_scale: The gyroscope's [rad/s] and the accelerometer's [m/s^2] full scales:
+            a sample beyond is a fault (`IMU_FAULT`), refused before the chassis filter.
 
     Attributes:
         wheels: The wheels' angles [rad], rates [rad/s], accelerations [rad/s^2], (12,).
@@ -55,13 +57,15 @@ class TickPass:
 
     def __init__(self, lib, base: BaseFilter, joints: JointFilter, areas: np.ndarray,
                  lower: np.ndarray, upper: np.ndarray, gate_lower: np.ndarray,
-                 gate_upper: np.ndarray, wheel_time_constant: float):
+                 gate_upper: np.ndarray, wheel_time_constant: float,
+                 imu_full_scale: tuple[float, float] = (np.inf, np.inf)):
         self.base, self.joints, self._lib = base, joints, lib
         self.wheels = np.zeros(12)
         self.forces = np.zeros(5)
         self._out = np.zeros(STATE_SIZE)
-        self._sc = np.zeros(13)
+        self._sc = np.zeros(15)
         self._sc[3] = wheel_time_constant
+        self._sc[13:] = imu_full_scale
         self._has_forces = False  # a tick brought pressures (`forces` holds theirs)
         self._consts = (np.ascontiguousarray(areas[:, 0]), np.ascontiguousarray(areas[:, 1]),
                         np.concatenate([lower, gate_lower]).astype(float),
@@ -101,14 +105,14 @@ class TickPass:
         sc = self._sc
         sc[:3] = (0.0 if base._last_time is None else max(t - base._last_time, 0.0), dt,
                   max(t - r.positions.time[-1], 0.0) if kz else 0.0)
-        sc[4:] = (*counts, base._levelled, joints.initialized,
+        sc[4:13] = (*counts, base._levelled, joints.initialized,
                   self._has_forces or counts[3] > 0)
         code = self._c()
         if code == _LEVEL:  # first IMU tick: level the attitude on gravity, then again
             base.level(base._in[4:7])
             sc[10] = 1.0
             code = self._c()
-        if code not in (1, 2) and counts[0] and counts[1]:
+        if code not in (1, 2, 7) and counts[0] and counts[1]:
             base._last_time = t
         if code in (0, 4) and kz:  # (6: the joint filter has not seen the samples)
             joints.initialized = True

@@ -36,11 +36,16 @@ from models.cbuild import bind
 from models.rotations import cross3
 from models.state import ROTATION_TOLERANCE
 
+_any = np.logical_or.reduce  # `ndarray.any` without its Python dispatch (every tick)
+
 __all__ = ["ANGULAR_ACCELERATION_TIME_CONSTANT", "ATTITUDE_TIME_CONSTANT", "BaseFilter",
+           "IMU_FAULT",
            "ODOMETRY_ACCELERATION_TIME_CONSTANT"]
 
 ATTITUDE_TIME_CONSTANT = 2.0  # [s] the accelerometer's pull on the attitude
 ANGULAR_ACCELERATION_TIME_CONSTANT = 0.03  # [s]
+IMU_FAULT = ("an IMU sample beyond the sensor's full scale: a corrupted sample, not a "
+             "measurement")
 ODOMETRY_ACCELERATION_TIME_CONSTANT = 0.05  # [s] low-pass of the odometry's speed change
 _ROTATION_VALID = filters_c.BASE_STATE["rotation_valid"]
 _EYE = np.eye(3)
@@ -71,11 +76,15 @@ class BaseFilter:
         wheel_radius: [m].
         compiled: Run the tick's arithmetic in C (`filters_c`, the same results to
             round-off) when a C compiler is there; False: Python.
+        full_scale: The gyroscope's [rad/s] and the accelerometer's [m/s^2] measurement
+            ranges (`models.sensing.ChannelSpec.full_scale`): a tick with a sample beyond
+            either is refused (`IMU_FAULT`).
     """
 
     def __init__(self, imu_position, gravity: float, wheel_radius: float,
-                 compiled: bool = True):
+                 compiled: bool = True, full_scale: tuple[float, float] = (np.inf, np.inf)):
         self.p = np.asarray(imu_position, float)
+        self.full_scale = (float(full_scale[0]), float(full_scale[1]))
         self.g = float(gravity)
         self.r_wheel = float(wheel_radius)
         self._rotation = np.eye(3)
@@ -106,8 +115,17 @@ class BaseFilter:
 
     def update(self, time: float, rates: np.ndarray, forces: np.ndarray,
                wheel_speeds: np.ndarray | None) -> None:
-        """Take one tick's IMU samples ((k, 3) each) and the latest side speeds (2,)."""
+        """Take one tick's IMU samples ((k, 3) each) and the latest side speeds (2,).
+
+        Raises:
+            EstimatorError: A sample beyond its channel's `full_scale` (`IMU_FAULT`, before
+                anything changes), or a tick's mean not finite.
+        """
         n_w, n_f = rates.shape[0], forces.shape[0]
+        gyro, accelerometer = self.full_scale
+        if (_any(np.abs(rates) > gyro, None) if n_w else False) or (
+                _any(np.abs(forces) > accelerometer, None) if n_f else False):
+            raise EstimatorError(IMU_FAULT)
         if n_w == 0 or n_f == 0:
             return  # nothing new: keep the state (the caller flags the gap)
         dt = 0.0 if self._last_time is None else max(time - self._last_time, 0.0)

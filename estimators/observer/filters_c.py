@@ -224,13 +224,14 @@ int joint_step(double* x, long n, const double* F, const double* K, const double
    sc (in): base dt, the observer's dt, the joints' prediction dt, the wheels' acceleration
    time constant, the row counts of the IMU rates and forces, positions, pressures, wheel
    speeds and drive torques, 1.0 once levelled, 1.0 once the joints started, 1.0 once a
-   pressure came. The samples' buffers in that order, each of `rows` rows. wheels (12): the
-   wheels' angles, rates, accelerations; forces (5): the cylinders' (kept when none come);
-   out: the `StateBuffer` layout (65). Returns 0; 1 a non-finite wheel speed or drive torque;
-   2 a non-finite IMU mean; 3 a non-finite position; 6 a position outside its gate (lo[9 +
-   i], hi[9 + i]; the ranges of the clip are lo[i], hi[i]); 4 a non-finite cylinder force
-   (the earlier steps done, as the Python code's order); 5: not levelled (`in` holds the
-   means, nothing else done). */
+   pressure came, the gyroscope's and the accelerometer's full scales. The samples'
+   buffers in that order, each of `rows` rows. wheels (12): the wheels' angles, rates,
+   accelerations; forces (5): the cylinders' (kept when none come); out: the `StateBuffer`
+   layout (65). Returns 0; 1 a non-finite wheel speed or drive torque; 7 an IMU sample
+   beyond its full scale (NaN is code 2's); 2 a non-finite IMU mean; 3 a non-finite
+   position; 6 a position outside its gate (lo[9 + i], hi[9 + i]; the ranges of the clip
+   are lo[i], hi[i]); 4 a non-finite cylinder force (the earlier steps done, as the Python
+   code's order); 5: not levelled (`in` holds the means, nothing else done). */
 int observer_tick(const double* sc, double* s, const double* c, double* in, double* x,
                   const double* F, const double* K, double* wheels, const double* aa,
                   const double* ab, double* forces, double* out, const double* lo,
@@ -245,6 +246,10 @@ int observer_tick(const double* sc, double* s, const double* c, double* in, doub
     if (!isfinite(ws[i])) return 1;
   for (i = 0; i < 2 * kd; ++i)
     if (!isfinite(drive[i])) return 1;
+  for (i = 0; i < 3 * kw; ++i)
+    if (fabs(rates[i]) > sc[13]) return 7;
+  for (i = 0; i < 3 * kf; ++i)
+    if (fabs(spec[i]) > sc[14]) return 7;
   if (kw > 0 && kf > 0) {  /* mean(axis=0): row after row, then the division */
     for (j = 0; j < 3; ++j) { in[1 + j] = rates[j]; in[4 + j] = spec[j]; }
     for (i = 1; i < kw; ++i)

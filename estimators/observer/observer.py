@@ -135,8 +135,9 @@ class Observer:
         if not isinstance(spec, SensorSpec) or spec.oracle:
             raise EstimatorError("the observer needs a sensor suite with sensors (not oracle)")
         self.machine, self.spec, self.force_model = machine, spec, force_model
+        imu_range = (spec.imu.gyroscope.full_scale, spec.imu.accelerometer.full_scale)
         self.base = BaseFilter(spec.imu.position, machine.gravity, machine.wheel_radius,
-                               compiled=compiled)
+                               compiled=compiled, full_scale=imu_range)
         dt_pos = 1.0 / spec.stroke.rate
         noise = np.r_[np.full(N_LINEAR_AXES, spec.stroke.sample_std),
                       np.full(N_SERVO_AXES - N_LINEAR_AXES, spec.angle.sample_std)]
@@ -199,7 +200,8 @@ class Observer:
         self._tick = None  # the state's first part in one C call (`_tick`), else Python
         if lib is not None and self.base._c is not None and self.joints._c is not None:
             self._tick = TickPass(lib, self.base, self.joints, areas, self._q_lo,
-                                  self._q_hi, *self._gate, WHEEL_ACCELERATION_TIME_CONSTANT)
+                                  self._q_hi, *self._gate, WHEEL_ACCELERATION_TIME_CONSTANT,
+                                  imu_range)
             self.contacts.wheel_acceleration = self._tick.wheels[8:]  # read in place
         accel_std, qd_std = self._uncertainty_const
         self._uncertainty = StateUncertainty(
@@ -253,7 +255,8 @@ class Observer:
     def update(self, readings: SensorReadings) -> ObserverEstimate:
         """One control tick (module docstring).
 
-        A reading with NaN or inf is refused: the last estimate comes back marked ``stale``.
+        A reading with NaN or inf, a position far outside its axis's range or an IMU sample
+        beyond its full scale is refused: the last estimate comes back marked ``stale``.
 
         Raises:
             EstimatorError: Not `SensorReadings`, or a non-finite reading before any good one.
