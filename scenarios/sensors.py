@@ -45,8 +45,9 @@ from models.sensing import (
     cylinder_areas,
 )
 from scenarios.errors import SimulatorError
-from scenarios.listeners_c import N_STREAMS, compiled_delivery, compiled_sensors
+from scenarios.listeners_c import N_STREAMS, compiled_delivery, compiled_sensors, sensors_hooks
 from scenarios.simulator import Simulator
+from scenarios.step_c import StepHook
 
 __all__ = ["BACK_PRESSURE", "SensorSimulator"]
 
@@ -210,7 +211,8 @@ class SensorSimulator:
         names = sim.coordinates.independent_names
         self._press_act = ix.actuators[[names.index(c) for c in PRESSURE_CYLINDERS]]
         self._areas = cylinder_areas(sim.machine)
-        self._step = 0
+        self._n_step = np.zeros(1, np.int64)  # physics steps seen (shared with the C hook)
+        self._hook: np.ndarray | None = None  # `SENSORS_C`'s sensors_hook: counter, arguments
         self._compiled = self._bind_compiled(compiled)
         self._delivery = self._bind_delivery(rng)
         self._prime()
@@ -225,7 +227,7 @@ class SensorSimulator:
         qpos, qvel, t = self.sim.measured_instant
         latency = max(s.latency for s in self._streams)
         self(self.sim, qpos, qvel, t - latency)
-        self._step = 0
+        self._n_step[0] = 0
 
     def _bind_compiled(self, compiled: bool):
         """The arguments of `listeners_c.SENSORS_C` after the step's own; None: Python."""
@@ -246,6 +248,21 @@ class SensorSimulator:
                         times.ctypes.data, truths.ctypes.data, ix.ctypes.data,
                         par.ctypes.data, len(self._link_bodies))
 
+    def step_hook(self) -> StepHook | None:
+        """The recording in C for the simulator's compiled steps (`scenarios.step_c`)."""
+        hooks = sensors_hooks() if self._compiled is not None else None
+        if hooks is None:
+            return None
+        if self._hook is None:
+            self._hook = np.array([self._n_step.ctypes.data, *self._compiled[1]], np.int64)
+        return StepHook(*hooks, self._hook.ctypes.data, self._make_room)
+
+    def _make_room(self, steps: int) -> None:
+        for s in self._streams:
+            while s.count + steps > s.times.shape[0]:
+                s.grow()
+        self._buffers()
+
     def _buffers(self) -> None:
         """The compiled listener's capacities and buffer addresses, after a growth."""
         _, _, _, caps, times, truths = self._c_arrays
@@ -257,8 +274,8 @@ class SensorSimulator:
 
     def __call__(self, sim: Simulator, qpos, qvel, t: float) -> None:
         """Sample the streams due at the step that started at ``t`` (a step listener)."""
-        n = self._step
-        self._step += 1
+        n = int(self._n_step[0])
+        self._n_step[0] = n + 1
         if self._compiled is not None:
             record, args = self._compiled
             while record(sim.model._address, sim.data._address, qpos.ctypes.data,
