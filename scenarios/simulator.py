@@ -110,7 +110,7 @@ class Simulator:
                                         noise, self._rng)
         self.servos = servo_specs(machine, self.model.opt.timestep)
         servos = self.servos
-        self._rate_range = np.array([sp.rate_range for sp in servos])
+        self._rate_range = np.array([sp.rate_range for sp in servos]).T.copy()  # lo, hi
         self._wheel_range = self.model.actuator_ctrlrange[self.index.wheel_actuators].T.copy()
         self._stroke_range = np.array([sp.stroke_range for sp in servos])
         self._damping = DampingSchedule(self.model, self.index, machine, servos,
@@ -169,11 +169,11 @@ class Simulator:
         """Set the actuator command from an `ActuatorCommand` (held until changed)."""
         if not isinstance(command, ActuatorCommand):
             raise CommandError(f"expected an ActuatorCommand, got {command!r}")
-        lo, hi = self._rate_range[:, 0], self._rate_range[:, 1]
-        self._rates = np.minimum(np.maximum(command.servo_rates, lo), hi)
-        left, right = command.wheel_speeds
+        lo, hi = self._rate_range
+        np.minimum(np.maximum(command.servo_rates, lo), hi, out=self._rates)  # C reads it
+        left, right = command.wheel_speeds.tolist()
         lo, hi = self._wheel_range
-        self.data.ctrl[self.index.wheel_actuators] = np.minimum(np.maximum(
+        self.data.ctrl[self._wheel_ctrl] = np.minimum(np.maximum(
             np.array((left, left, right, right)), lo), hi)  # FL, RL, FR, RR
         if left == 0.0 and right == 0.0:
             if self._hold is None:
@@ -273,10 +273,6 @@ class Simulator:
         """
         if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
             raise SimulatorError(f"n must be a positive integer, got {n!r}")
-        d, ix = self.data, self.index
-        lo, hi = self._stroke_range[:, 0], self._stroke_range[:, 1]
-        band = self._windup_band
-        servo_ctrl, servo_dof = d.ctrl[self._servo_ctrl], ix.servo_dof
         done = 0
         while done < n:
             # The valve: the setpoint moves at the commanded rate within the stroke range (its
@@ -286,37 +282,46 @@ class Simulator:
             chunk = min(_WINDUP_STEPS, n - done)
             lead = self._lead()  # the damping this pose allows (`DampingSchedule`)
             self._damping_age += chunk
-            if self._c_step is not None:  # the loop below in C
-                self._setpoint, snap = self._c_step.run(chunk, n - 1 - done, self._setpoint,
-                                                        self._rates, lead, self._hold)
+            if self._c_step is None:
+                self._chunk(chunk, n - 1 - done, lead)
+            else:  # `_chunk` in C, the setpoint written in place
+                snap, warned = self._c_step.run(chunk, n - 1 - done, self._setpoint, self._hold)
                 if snap is not None:
                     self._snapshot, self._snapshot_setpoint = snap
-                done += chunk
-                continue
-            path = self._setpoint + np.outer(np.arange(chunk + 1), self.timestep * self._rates)
-            path = np.minimum(np.maximum(path, lo), hi)
-            for k in range(chunk):
-                if done + k == n - 1:
-                    self._setpoint = path[k]
-                    self._take_snapshot()
-                # Servo force kp (u - x) with u = setpoint - (kv / kp) x_dot: the damping is
-                # explicit, outside MuJoCo's implicit integration (see `models.mujoco`).
-                np.subtract(path[k], lead * d.qvel[servo_dof], out=servo_ctrl)
-                if self._hold is not None:
-                    self._hold_wheels()
-                if self._listeners:
-                    self._step_with_listeners()
-                else:
-                    self._contact_merge.step(d)
-            x = d.qpos[ix.servo_qpos]
-            self._setpoint = np.minimum(np.maximum(path[chunk], x - band), x + band)
+                if warned:
+                    self._check_warnings()
             done += chunk
-        self._check_warnings()
+        if self._c_step is None:
+            self._check_warnings()
+
+    def _chunk(self, chunk: int, snap: int, lead: np.ndarray) -> None:
+        """``chunk`` steps; the snapshot taken before step ``snap`` (if in the chunk)."""
+        d, ix = self.data, self.index
+        lo, hi = self._stroke_range[:, 0], self._stroke_range[:, 1]
+        servo_ctrl, servo_dof = d.ctrl[self._servo_ctrl], ix.servo_dof
+        path = self._setpoint + np.outer(np.arange(chunk + 1), self.timestep * self._rates)
+        path = np.minimum(np.maximum(path, lo), hi)
+        for k in range(chunk):
+            if k == snap:
+                self._setpoint = path[k]
+                self._take_snapshot()
+            # Servo force kp (u - x) with u = setpoint - (kv / kp) x_dot: the damping is
+            # explicit, outside MuJoCo's implicit integration (see `models.mujoco`).
+            np.subtract(path[k], lead * d.qvel[servo_dof], out=servo_ctrl)
+            if self._hold is not None:
+                self._hold_wheels()
+            if self._listeners:
+                self._step_with_listeners()
+            else:
+                self._contact_merge.step(d)
+        x = d.qpos[ix.servo_qpos]
+        band = self._windup_band
+        self._setpoint = np.minimum(np.maximum(path[chunk], x - band), x + band)
 
     def _lead(self) -> np.ndarray:
         if self._damping_age >= _DAMPING_UPDATE_STEPS:
-            self._damping_lead = self._damping.lead(self.data,
-                                                    self.data.qpos[self.index.independent_qpos])
+            self._damping_lead[:] = self._damping.lead(  # in place: the C reads it
+                self.data, self.data.qpos[self.index.independent_qpos])
             self._damping_age = 0
         return self._damping_lead
 
@@ -353,7 +358,8 @@ class Simulator:
             servo_ctrl=self._servo_ctrl.start, servo_dof=ix.servo_dof,
             servo_qpos=ix.servo_qpos, lo=self._stroke_range[:, 0], hi=self._stroke_range[:, 1],
             band=self._windup_band, wheel_qpos=self._wheel_qpos, wheel_ctrl=self._wheel_ctrl,
-            wheel_lo=wheel_lo, wheel_hi=wheel_hi, hold_gain=WHEEL_HOLD_GAIN),
+            wheel_lo=wheel_lo, wheel_hi=wheel_hi, hold_gain=WHEEL_HOLD_GAIN,
+            rates=self._rates, lead=self._damping_lead),
             self._listeners) if self._compiled else None
 
     def _step_with_listeners(self) -> None:

@@ -37,10 +37,11 @@ _MAX_SERVOS = 16
 # One chunk of `Simulator.step`: the setpoint path of the chunk clipped to the stroke range,
 # each step's servo inputs (path - lead * joint speed) and wheel hold, MuJoCo's step with the
 # contacts merged (`MERGE_C`'s `merge`, then the constraints rebuilt as `ContactMerge._rebuild`)
-# and the hooks' records; the snapshot of step `snap` (-1: none) before its inputs are set;
-# the next setpoint, the path's end within `band` of each stroke (anti-windup). Returns 0;
-# -1 - l before any step when hook l has no room for `chunk` records; -100 - l when hook l
-# did not record after all (a broken hook).
+# and the hooks' records; the snapshot of step `snap` (-1: none) before its inputs are set,
+# into `snapshot` (qpos, qvel, setpoint, time); the next setpoint, the path's end within `band`
+# of each stroke (anti-windup), in place. Returns 0; 1 when one of MuJoCo's warnings of a
+# diverged simulation has been counted; -1 - l before any step when hook l has no room for
+# `chunk` records; -100 - l when hook l did not record after all (a broken hook).
 STEP_C = MERGE_C + r"""
 #include <stddef.h>
 #include <stdlib.h>
@@ -52,7 +53,7 @@ typedef int (*hook_room)(void*, long);
 typedef struct {
   long n_servo, servo_ctrl;
   const long *servo_dof, *servo_qpos;
-  const double *lo, *hi, *band;
+  const double *lo, *hi, *band, *rates, *lead;
   const long *wheel_qpos, *wheel_ctrl;
   const double *wheel_lo, *wheel_hi;
   double hold_gain, dt;
@@ -90,9 +91,8 @@ static void merged_step(const mjModel* m, mjData* d, const step_setup* s) {
 }
 
 int step_chunk(const mjModel* m, mjData* d, const step_setup* s, int chunk, int snap,
-               const double* setpoint, const double* rates, const double* lead,
-               const double* hold, double* next_setpoint, double* snap_qpos,
-               double* snap_qvel, double* snap_time, double* snap_setpoint) {
+               double* setpoint, const double* hold, double* snapshot) {
+  const double *rates = s->rates, *lead = s->lead;
   double path[""" + str(MAX_CHUNK + 1) + "][" + str(_MAX_SERVOS) + r"""];
   long i, k, l, ns = s->n_servo;
   for (l = 0; l < s->n_hooks; ++l)
@@ -104,10 +104,10 @@ int step_chunk(const mjModel* m, mjData* d, const step_setup* s, int chunk, int 
   for (k = 0; k < chunk; ++k) {
     double t = d->time;
     if (k == snap) {
-      for (i = 0; i < m->nq; ++i) snap_qpos[i] = d->qpos[i];
-      for (i = 0; i < m->nv; ++i) snap_qvel[i] = d->qvel[i];
-      *snap_time = t;
-      for (i = 0; i < ns; ++i) snap_setpoint[i] = path[k][i];
+      for (i = 0; i < m->nq; ++i) snapshot[i] = d->qpos[i];
+      for (i = 0; i < m->nv; ++i) snapshot[m->nq + i] = d->qvel[i];
+      for (i = 0; i < ns; ++i) snapshot[m->nq + m->nv + i] = path[k][i];
+      snapshot[m->nq + m->nv + ns] = t;
     }
     for (i = 0; i < ns; ++i)
       d->ctrl[s->servo_ctrl + i] = path[k][i] - lead[i] * d->qvel[s->servo_dof[i]];
@@ -127,9 +127,10 @@ int step_chunk(const mjModel* m, mjData* d, const step_setup* s, int chunk, int 
   }
   for (i = 0; i < ns; ++i) {
     double x = d->qpos[s->servo_qpos[i]];
-    next_setpoint[i] = min_np(max_np(path[chunk][i], x - s->band[i]), x + s->band[i]);
+    setpoint[i] = min_np(max_np(path[chunk][i], x - s->band[i]), x + s->band[i]);
   }
-  return 0;
+  return d->warning[mjWARN_BADQPOS].number || d->warning[mjWARN_BADQVEL].number
+         || d->warning[mjWARN_BADQACC].number || d->warning[mjWARN_BADCTRL].number;
 }
 """
 
@@ -155,7 +156,8 @@ class _Setup(ctypes.Structure):
     _fields_ = [(name, ctypes.c_long if kind == "l" else ctypes.c_double if kind == "d"
                  else ctypes.c_void_p) for name, kind in (
         ("n_servo", "l"), ("servo_ctrl", "l"), ("servo_dof", "p"), ("servo_qpos", "p"),
-        ("lo", "p"), ("hi", "p"), ("band", "p"), ("wheel_qpos", "p"), ("wheel_ctrl", "p"),
+        ("lo", "p"), ("hi", "p"), ("band", "p"), ("rates", "p"), ("lead", "p"),
+        ("wheel_qpos", "p"), ("wheel_ctrl", "p"),
         ("wheel_lo", "p"), ("wheel_hi", "p"), ("hold_gain", "d"), ("dt", "d"),
         ("owner_of_geom", "p"), ("n_wheels", "l"), ("cos_angle", "d"), ("distance2", "d"),
         ("n_hooks", "l"), ("record", "p"), ("room", "p"), ("ctx", "p"), ("qpos", "p"),
@@ -165,7 +167,7 @@ class _Setup(ctypes.Structure):
 def _library():
     _P = ctypes.c_void_p
     return load_shared(STEP_C, "sim_step", {"step_chunk": (
-        [_P, _P, _P, ctypes.c_int, ctypes.c_int] + [_P] * 9, ctypes.c_int)},
+        [_P, _P, _P, ctypes.c_int, ctypes.c_int] + [_P] * 3, ctypes.c_int)},
         "the Python simulator step", mujoco=True)
 
 
@@ -179,6 +181,9 @@ class CompiledStep:
                 for k in ("servo_dof", "servo_qpos", "wheel_qpos", "wheel_ctrl")}
         floats = {k: np.ascontiguousarray(valve[k], float)
                   for k in ("lo", "hi", "band", "wheel_lo", "wheel_hi")}
+        for k in ("rates", "lead"):  # the simulator's own arrays, written in place
+            floats[k] = valve[k]
+            _read(floats[k])
         tables = [np.array([getattr(h, f) for h in hooks] or [0], np.uint64)
                   for f in ("record", "room", "ctx")]
         self._scratch = (np.zeros(m.nq), np.zeros(m.nv))
@@ -194,50 +199,46 @@ class CompiledStep:
         self._keep = (owner, ints, floats, tables)  # the C reads them
         self._hooks = hooks
         self._n_servo, self._nq, self._nv = len(floats["lo"]), m.nq, m.nv
-        self._time = np.zeros(1)
         self._call = fun
         self._fixed = (m._address, data._address, ctypes.addressof(self._setup))
 
-    def run(self, chunk: int, snap: int, setpoint: np.ndarray, rates: np.ndarray,
-            lead: np.ndarray, hold: np.ndarray | None):
+    def run(self, chunk: int, snap: int, setpoint: np.ndarray, hold: np.ndarray | None):
         """One chunk of `chunk` steps; the snapshot taken before step ``snap`` (if in it).
 
         Args:
             chunk: Steps, 1 to `MAX_CHUNK`.
             snap: The step whose starting state is the snapshot; outside the chunk: none.
-            setpoint: The valves' setpoints [m, rad] (float array, one per servo).
-            rates: The valves' rates [m/s, rad/s].
-            lead: The servos' damping leads [s] (`models.mujoco.DampingSchedule`).
+            setpoint: The valves' setpoints [m, rad] (a float array, one per servo): the
+                next ones on return (in place).
             hold: The braked wheels' held angles [rad] (4,), or None.
 
         Returns:
-            ``(next_setpoint, snapshot)``: the setpoint after the chunk, and
-            ``((qpos, qvel, time), setpoint)`` of the snapshot or None (new arrays).
+            ``(snapshot, warned)``: ``((qpos, qvel, time), setpoint)`` of the snapshot (new
+            arrays) or None; whether MuJoCo counted a warning of a diverged simulation.
         """
         if not 1 <= chunk <= MAX_CHUNK:
             raise SimulatorError(f"a compiled chunk has 1 to {MAX_CHUNK} steps, got {chunk}")
         taken = 0 <= snap < chunk
-        snap_q, snap_v, snap_s = ((np.empty(self._nq), np.empty(self._nv),
-                                   np.empty(self._n_servo)) if taken else (None,) * 3)
-        nxt = np.empty(self._n_servo)
-        args = (*self._fixed, chunk, snap if taken else -1, _read(setpoint), _read(rates),
-                _read(lead), None if hold is None else _read(hold), address(nxt),
-                None if snap_q is None else address(snap_q),
-                None if snap_v is None else address(snap_v), address(self._time),
-                None if snap_s is None else address(snap_s))
+        buffer = np.empty(self._nq + self._nv + self._n_servo + 1) if taken else None
+        args = (*self._fixed, chunk, snap if taken else -1, _read(setpoint),
+                None if hold is None else _read(hold), None if buffer is None else address(buffer))
         code = self._call(*args)
         while -100 < code < 0:  # a hook's buffers are full: grow them, then step
             self._hooks[-1 - code].make_room(chunk)
             code = self._call(*args)
-        if code:
+        if code < 0:
             raise SimulatorError(f"step hook {-100 - code} did not record a step")
-        snapshot = ((snap_q, snap_v, float(self._time[0])), snap_s) if taken else None
-        return nxt, snapshot
+        if not taken:
+            return None, code == 1
+        nq, nv = self._nq, self._nv
+        return ((buffer[:nq], buffer[nq:nq + nv], float(buffer[-1])), buffer[nq + nv:-1]), \
+            code == 1
 
 
 def _read(a: np.ndarray) -> int:
-    """The address of a float array the C reads (contiguous float64, checked)."""
-    if type(a) is not np.ndarray or a.dtype != np.float64 or not a.flags.c_contiguous:
+    """The address of a float array the C reads or writes (contiguous float64, checked)."""
+    if (type(a) is not np.ndarray or a.dtype != np.float64 or not a.flags.c_contiguous
+            or not a.flags.writeable):
         raise SimulatorError(f"expected a contiguous float64 array, got {a!r}")
     return address(a)
 
@@ -254,7 +255,9 @@ def compiled_step(model, data, merge, valve: dict, listeners) -> CompiledStep | 
         merge: The simulator's `models.mujoco.ContactMerge`.
         valve: The valves' constants: ``servo_ctrl`` (first servo actuator), ``servo_dof``,
             ``servo_qpos``, ``lo``, ``hi`` (stroke range), ``band`` (anti-windup),
-            ``wheel_qpos``, ``wheel_ctrl``, ``wheel_lo``, ``wheel_hi``, ``hold_gain``.
+            ``wheel_qpos``, ``wheel_ctrl``, ``wheel_lo``, ``wheel_hi``, ``hold_gain``; and the
+            simulator's ``rates`` and ``lead`` arrays, which the C reads at every call (the
+            simulator writes them in place).
         listeners: The step listeners, in their order.
     """
     if not merge.compiled or len(valve["lo"]) > _MAX_SERVOS:

@@ -6,6 +6,7 @@ import pytest
 from models import build_reference_machine
 from models.sensor_suites import sensor_suite
 from scenarios.closed_loop_scenarios import SCENARIOS, scenario_terrain
+from scenarios.errors import SimulationError
 from scenarios.physics_rate import NormalForceRecorder
 from scenarios.sensors import SensorSimulator
 from scenarios.simulator import Simulator
@@ -35,15 +36,16 @@ def _drive(sim: Simulator, sensors=None) -> list:
         sim.step(steps)
         qpos, qvel, t = sim.measured_instant
         state, contacts = sim.measure()
-        out += [sim.data.qpos, sim.data.qvel, sim.data.ctrl, sim.data.efc_force[:sim.data.nefc],
-                qpos, qvel, np.array([t, sim.time]), sim.servo_setpoint, sim._setpoint,
-                state.qdd, contacts.force_in_fb]
+        out += [np.array(a, copy=True) for a in (
+            sim.data.qpos, sim.data.qvel, sim.data.ctrl, sim.data.efc_force[:sim.data.nefc],
+            qpos, qvel, [t, sim.time], sim.servo_setpoint, sim._setpoint, state.qdd,
+            contacts.force_in_fb)]
         if sensors is not None:
             r = sensors.readings(sim.time)
             out += [s.time for s in (r.specific_force, r.wheel_speeds)] + [
                 s.value for s in (r.specific_force, r.angular_rate, r.positions, r.pressures,
                                   r.wheel_speeds, r.drive_torques, r.link_specific_force)]
-    return [np.array(a, copy=True) for a in out]
+    return out
 
 
 def test_compiled_steps_are_the_python_steps_to_the_bit():
@@ -78,3 +80,13 @@ def test_a_python_listener_sends_the_steps_back_to_python():
     assert len(seen) == 3
     sim.remove_step_listener(listener)
     assert sim._c_step is not None
+
+
+@pytest.mark.parametrize("compiled", [True, False])
+def test_a_diverged_simulation_raises_in_either_path(compiled, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)  # MuJoCo writes its warning to MUJOCO_LOG.TXT here
+    sim = _sim(compiled)
+    assert (sim._c_step is not None) == compiled
+    sim.data.qvel[0] = 1e11  # beyond MuJoCo's bound: its BADQVEL warning
+    with pytest.raises(SimulationError, match="BADQVEL"):
+        sim.step(5)
