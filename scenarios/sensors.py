@@ -30,10 +30,12 @@ What each sensor measures (the truth before the errors):
 from __future__ import annotations
 
 import functools
+import operator
 
 import mujoco
 import numpy as np
 
+from models.cbuild import address
 from models.rotations import cross3
 from models.sensing import (
     N_PRESSURE,
@@ -389,17 +391,18 @@ class SensorSimulator:
             scale.ctypes.data, scaled.ctypes.data, bias.ctypes.data, walk.ctypes.data,
             noise.ctypes.data, res.ctypes.data, slots.index(self._press), areas.ctypes.data,
             BACK_PRESSURE)
-        return count, count_tail, fill, rng, k, ordered, [slots.index(s) for s in ordered]
+        return (count, count_tail, fill, rng, k, ordered, [slots.index(s) for s in ordered],
+                [s.n for s in ordered])
 
     def _deliver_compiled(self, tick: float) -> dict:
         """Each stream's `Samples` by ``tick`` (`DELIVER_C`), by stream."""
-        count, count_tail, fill, rng, k, ordered, order = self._delivery
+        count, count_tail, fill, rng, k, ordered, order, widths = self._delivery
         z = rng.standard_normal(count(tick, *count_tail))
         ks = k.tolist()
         sizes = [ks[i] for i in order]
         out_t = np.empty(sum(sizes))
-        out_y = np.empty(sum(kk * s.n for kk, s in zip(sizes, ordered)))
-        fill(z.ctypes.data, out_t.ctypes.data, out_y.ctypes.data)
+        out_y = np.empty(sum(map(operator.mul, sizes, widths)))
+        fill(address(z), address(out_t), address(out_y))
         samples, first, first_y = {}, 0, 0
         for s, kk in zip(ordered, sizes):
             samples[s] = Samples.trusted(out_t[first:first + kk],
