@@ -242,8 +242,6 @@ def run_closed_loop(scenario: ClosedLoopScenario | str, out_dir: Path | None = N
     n_max = n_ticks + int(round(READY_TIMEOUT_SECONDS / CONTROL_PERIOD))
     truth = TruthColumns(sim, n_max)  # the log's rows, filled in place
     rows = {name: np.zeros((n_max, *shape), dtype) for name, shape, dtype in _LOOP_COLUMNS}
-    command, tcp_error, goal_index, last_given, distance, speed_scale, fallback, step_ms, \
-        measured_forces, payload_now, payload_estimate, force_margin, observer_ms = rows.values()
     truth_time, truth_position, true_q = truth.columns["time"], \
         truth.columns["base_position"], truth.true_q
     n_done = 0
@@ -315,17 +313,17 @@ def run_closed_loop(scenario: ClosedLoopScenario | str, out_dir: Path | None = N
                     else 0.0
                 wheels = cmd.wheel_speeds(w, w)
                 sim.apply(ActuatorCommand(cmd.cylinder_rates, cmd.wrist_rates, wheels))
-                command[k, :9], command[k, 9:] = cmd.rates, wheels
-                tcp_error[k], goal_index[k], last_given[k] = tcp_err, goals.index, \
-                    goals.last_given
-                distance[k] = float((truth_position[k] - x0) @ heading)
-                speed_scale[k], fallback[k] = cmd.wheel_speed_scale, cmd.fallback
-                step_ms[k] = 1e3 * step_s[k]
-                measured_forces[k] = cmd.info.get("measured_forces", _NO_FORCES)
-                payload_now[k] = (scenario.payload_event[1] if scenario.payload_event
-                                  and payload_done else scenario.payload_mass)
-                payload_estimate[k], force_margin[k] = obs.payload_mass, margin
-                observer_ms[k] = 1e3 * obs.observer_seconds
+                rows["command"][k, :9], rows["command"][k, 9:] = cmd.rates, wheels
+                rows["tcp_error"][k], rows["goal_index"][k] = tcp_err, goals.index
+                rows["last_goal_given"][k] = goals.last_given
+                rows["distance"][k] = float((truth_position[k] - x0) @ heading)
+                rows["speed_scale"][k], rows["fallback"][k] = cmd.wheel_speed_scale, cmd.fallback
+                rows["step_ms"][k] = 1e3 * step_s[k]
+                rows["measured_forces"][k] = cmd.info.get("measured_forces", _NO_FORCES)
+                rows["payload_now"][k] = (scenario.payload_event[1] if scenario.payload_event
+                                          and payload_done else scenario.payload_mass)
+                rows["payload_estimate"][k], rows["force_margin"][k] = obs.payload_mass, margin
+                rows["observer_ms"][k] = 1e3 * obs.observer_seconds
                 n_done = k + 1  # the tick's row is complete
                 sim.step(n_sub)
                 if k % 50 == 0:
