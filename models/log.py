@@ -184,9 +184,12 @@ class ScenarioLog:
             raise LogError(f"unknown log metadata {unknown}; valid: {sorted(META)}")
         self.meta = meta
         self._rows: dict[str, list] = {}
+        self._columns: dict[str, np.ndarray] = {}
         self.physics: dict[str, np.ndarray] = {}
 
     def __len__(self) -> int:
+        if "time" in self._columns:
+            return len(self._columns["time"])
         return len(self._rows.get("time", []))
 
     def append(self, state: MachineState, contacts: WheelContacts, command: np.ndarray,
@@ -230,6 +233,24 @@ class ScenarioLog:
             else:
                 column.append(v)
 
+    def set_columns(self, **columns) -> None:
+        """Attach whole columns (names from `COLUMNS`), the samples along the first axis.
+
+        For a run that fills arrays of its own in place, row by row (`scenarios.closed_loop`):
+        they are kept as given (not copied) and stand for `append`'s rows of their names.
+
+        Raises:
+            LogError: A name `COLUMNS` does not know, or columns of different lengths.
+        """
+        unknown = sorted(set(columns) - set(COLUMNS))
+        if unknown:
+            raise LogError(f"unknown log column(s) {unknown}; the schema (models.log.COLUMNS) "
+                           f"has {sorted(COLUMNS)}")
+        self._columns.update(columns)
+        lengths = {len(v) for v in self._columns.values()}
+        if len(lengths) > 1:
+            raise LogError(f"log columns of different lengths {sorted(lengths)}")
+
     def set_physics(self, **columns) -> None:
         """Attach the physics-rate arrays (names from `PHYSICS_COLUMNS`).
 
@@ -244,7 +265,8 @@ class ScenarioLog:
 
     def arrays(self) -> dict[str, np.ndarray]:
         """The samples stacked along a leading time axis (and the physics-rate arrays)."""
-        out = {k: np.stack(v) for k, v in self._rows.items()}
+        out = {k: np.stack(v) for k, v in self._rows.items() if k not in self._columns}
+        out.update(self._columns)
         out.update(self.physics)
         version, commit = _provenance()
         meta = {"schema_version": SCHEMA_VERSION, "package_version": version,

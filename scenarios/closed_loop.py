@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import contextlib
 import gc
+import math
 import sys
 import time
 from collections import deque
@@ -28,7 +29,6 @@ import numpy as np
 from estimators.uncertainty import closure_margin
 from models import build_reference_machine
 from models.log import ScenarioLog
-from models.state import MachineState
 from scenarios.closed_loop_scenarios import (
     CONTROL_PERIOD,
     DEFAULT_SCENARIO,
@@ -52,6 +52,7 @@ from scenarios.scenario_file import scenario_to_toml
 from scenarios.sensing import Sensing, check_sensors
 from scenarios.simulator import Simulator
 from scenarios.startup import READY_TIMEOUT_SECONDS, Readiness
+from scenarios.truth_log import TRUTH_COLUMNS, TruthColumns
 from wbc import (
     CONTROLLER_NAMES,
     ControllerConfig,
@@ -69,6 +70,17 @@ __all__ = ["DEFAULT_SCENARIO", "FORCE_CONFIDENCE", "SCENARIOS", "run_closed_loop
 FORCE_CONFIDENCE = 0.99  # one-sided: z = 2.33 standard deviations of each wheel's force
 _NO_FORCES = np.full(4, np.nan)  # the log's measured forces of a controller without them
 _NO_FORCES.flags.writeable = False
+# The loop's own columns of the log (beside the truth's, `scenarios.truth_log`), in the
+# order `ScenarioLog.append` wrote them: name, row shape, dtype.
+_LOOP_COLUMNS = (("command", (11,), float), ("tcp_error", (), float), ("goal_index", (), int),
+                 ("last_goal_given", (), bool), ("distance", (), float),
+                 ("speed_scale", (), float), ("fallback", (), bool), ("step_ms", (), float),
+                 ("measured_forces", (4,), float), ("payload_now", (), float),
+                 ("payload_estimate", (), float), ("force_margin", (4,), float),
+                 ("observer_ms", (), float))
+_LOG_ORDER = (*TRUTH_COLUMNS[:8], "command", *TRUTH_COLUMNS[8:-1],  # as `append` had them
+              *(name for name, _, _ in _LOOP_COLUMNS[1:9]), "com_world",
+              *(name for name, _, _ in _LOOP_COLUMNS[9:]))
 
 
 def _set_payload(sim: Simulator, mass: float) -> None:
@@ -228,6 +240,11 @@ def run_closed_loop(scenario: ClosedLoopScenario | str, out_dir: Path | None = N
     readiness = Readiness(machine, thr)
     n_ticks = int(round(duration / CONTROL_PERIOD))
     n_max = n_ticks + int(round(READY_TIMEOUT_SECONDS / CONTROL_PERIOD))
+    truth = TruthColumns(sim, n_max)  # the log's rows, filled in place
+    rows = {name: np.zeros((n_max, *shape), dtype) for name, shape, dtype in _LOOP_COLUMNS}
+    truth_time, truth_position, true_q = truth.columns["time"], \
+        truth.columns["base_position"], truth.true_q
+    n_done = 0
     step_s = np.zeros(n_max)
     fallbacks = 0
     payload_done = scenario.payload_event is None
@@ -243,8 +260,8 @@ def run_closed_loop(scenario: ClosedLoopScenario | str, out_dir: Path | None = N
         wall0 = time.perf_counter()
         try:
             for k in range(n_max):
-                truth_state, truth = sim.measure()
-                t = truth_state.time
+                truth.record(k)
+                t = float(truth_time[k])
                 obs = sensing.observe(t)
                 state = obs.state
                 readiness.set_payload(obs.payload_mass)
@@ -267,15 +284,15 @@ def run_closed_loop(scenario: ClosedLoopScenario | str, out_dir: Path | None = N
                         sensing.tell_payload(scenario.payload_event[1])
                         told = "pick"
                     payload_done = True
-                tcp_err = float(np.linalg.norm(kin.position(_true_q(sim, truth_state)) - tcp_goal))
+                tcp = kin.position(true_q)
+                tcp_err = _distance(tcp, tcp_goal)
                 new_goal = goals.update(tau, tcp_err)
                 if new_goal is not None:
                     ctrl.set_goal(new_goal)
-                    goal_q_full = _true_q(sim, truth_state).copy()
+                    goal_q_full = true_q.copy()
                     goal_q_full[2:9] = new_goal.crane
                     tcp_goal = kin.position(goal_q_full)
-                    tcp_err = float(np.linalg.norm(kin.position(_true_q(sim, truth_state))
-                                                   - tcp_goal))
+                    tcp_err = _distance(tcp, tcp_goal)
                 history.append(obs)
                 t0 = time.perf_counter()
                 seen = history[0]
@@ -296,21 +313,18 @@ def run_closed_loop(scenario: ClosedLoopScenario | str, out_dir: Path | None = N
                     else 0.0
                 wheels = cmd.wheel_speeds(w, w)
                 sim.apply(ActuatorCommand(cmd.cylinder_rates, cmd.wrist_rates, wheels))
-                info = cmd.info
-                qpos, qvel, _ = sim.measured_instant
-                log.append(truth_state, truth, np.concatenate([cmd.rates, wheels]),
-                           sim.closure_violation(), qpos=qpos, qvel=qvel,
-                           tcp_error=tcp_err, goal_index=goals.index,
-                           last_goal_given=goals.last_given,
-                           distance=float((truth_state.base_position - x0) @ heading),
-                           speed_scale=cmd.wheel_speed_scale, fallback=cmd.fallback,
-                           step_ms=1e3 * step_s[k],
-                           measured_forces=info.get("measured_forces", _NO_FORCES),
-                           com_world=sim.data.subtree_com[sim.index.base_body],
-                           payload_now=(scenario.payload_event[1] if scenario.payload_event
-                                        and payload_done else scenario.payload_mass),
-                           payload_estimate=obs.payload_mass, force_margin=margin,
-                           observer_ms=1e3 * obs.observer_seconds)
+                rows["command"][k, :9], rows["command"][k, 9:] = cmd.rates, wheels
+                rows["tcp_error"][k], rows["goal_index"][k] = tcp_err, goals.index
+                rows["last_goal_given"][k] = goals.last_given
+                rows["distance"][k] = float((truth_position[k] - x0) @ heading)
+                rows["speed_scale"][k], rows["fallback"][k] = cmd.wheel_speed_scale, cmd.fallback
+                rows["step_ms"][k] = 1e3 * step_s[k]
+                rows["measured_forces"][k] = cmd.info.get("measured_forces", _NO_FORCES)
+                rows["payload_now"][k] = (scenario.payload_event[1] if scenario.payload_event
+                                          and payload_done else scenario.payload_mass)
+                rows["payload_estimate"][k], rows["force_margin"][k] = obs.payload_mass, margin
+                rows["observer_ms"][k] = 1e3 * obs.observer_seconds
+                n_done = k + 1  # the tick's row is complete
                 sim.step(n_sub)
                 if k % 50 == 0:
                     bar.update(min(sim.time - readiness.offset, duration))
@@ -321,9 +335,10 @@ def run_closed_loop(scenario: ClosedLoopScenario | str, out_dir: Path | None = N
     wall = time.perf_counter() - wall0
     recorder.close()
     sensing.close()
-    n_done = len(log)
     if n_done == 0:  # nothing to save
         raise KeyboardInterrupt
+    columns = {**truth.rows(n_done), **{name: a[:n_done] for name, a in rows.items()}}
+    log.set_columns(**{name: columns[name] for name in _LOG_ORDER})
     log.set_physics(physics_time=recorder.time, physics_normal_force=recorder.normal_force)
     arrays = log.arrays()
     step_s = step_s[:n_done]
@@ -396,20 +411,10 @@ def _notice(text: str) -> None:
     print(text, file=sys.stderr, flush=True)
 
 
-def _true_q(sim: Simulator, state: MachineState) -> np.ndarray:
-    """Ground-truth independent coordinates, strokes clipped into their chains' ranges.
-
-    The measured state may be noisy; MuJoCo's soft joint limits let a stroke pass its end
-    by a little, which the kinematics reject.
-    """
-    if sim.noise is None:
-        q = state.q.copy()
-    else:
-        qpos, _, _ = sim.measured_instant
-        q = qpos[sim.index.independent_qpos]
-    strokes = list(sim.machine.coordinates.chain_indices)
-    q[strokes] = sim.machine.coordinates.clip(q)[strokes]
-    return q
+def _distance(a: np.ndarray, b: np.ndarray) -> float:
+    """``np.linalg.norm(a - b)`` of two points (3,), by its operations, without its checks."""
+    d = a - b
+    return math.sqrt(d.dot(d))
 
 
 def _tick_figures(step_s: np.ndarray) -> dict:

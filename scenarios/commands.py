@@ -12,16 +12,19 @@ from scenarios.errors import CommandError
 __all__ = ["ActuatorCommand", "rates_by_name"]
 
 
-def _vector(name: str, value, n: int) -> np.ndarray:
+def _vector(name: str, value, n: int, finite: bool = True) -> np.ndarray:
     try:
         a = np.array(value, dtype=float)  # a copy: the caller may reuse its buffer
     except (TypeError, ValueError) as exc:
         raise CommandError(f"{name} must be numbers, got {value!r}") from exc
     if a.shape != (n,):
         raise CommandError(f"{name} must have shape ({n},), got {a.shape}")
-    if not np.isfinite(a).all():
+    if finite and not np.isfinite(a).all():
         raise CommandError(f"{name} has non-finite entries: {a}")
     return a
+
+
+_FIELDS = (("cylinder_rates", 6), ("wrist_rates", 3), ("wheel_speeds", 2))
 
 
 def rates_by_name(name: str, value, names: tuple[str, ...]):
@@ -68,10 +71,17 @@ class ActuatorCommand:
     wheel_speeds: np.ndarray
 
     def __post_init__(self):
-        for name, n in (("cylinder_rates", 6), ("wrist_rates", 3), ("wheel_speeds", 2)):
-            a = _vector(name, getattr(self, name), n)
+        arrays = [_vector(name, getattr(self, name), n, finite=False) for name, n in _FIELDS]
+        every = np.concatenate(arrays)  # one finiteness test for all (a control tick's)
+        if not np.isfinite(every).all():
+            for (name, n), a in zip(_FIELDS, arrays):
+                _vector(name, a, n)  # names the first field with a non-finite entry
+        for (name, _), a in zip(_FIELDS, arrays):
             a.setflags(write=False)
             object.__setattr__(self, name, a)
+        servo = every[:9]
+        servo.setflags(write=False)
+        object.__setattr__(self, "_servo_rates", servo)
 
     @classmethod
     def zero(cls) -> ActuatorCommand:
@@ -80,5 +90,5 @@ class ActuatorCommand:
 
     @property
     def servo_rates(self) -> np.ndarray:
-        """Rates of the nine servos in independent order [m/s, rad/s], shape (9,)."""
-        return np.concatenate([self.cylinder_rates, self.wrist_rates])
+        """Rates of the nine servos in independent order [m/s, rad/s], shape (9,) (read-only)."""
+        return self._servo_rates

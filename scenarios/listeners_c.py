@@ -10,6 +10,8 @@ directly and calls MuJoCo's own functions (the library the bindings loaded,
 Both compute what the Python listeners compute, operation for operation (IEEE doubles in the
 same order, no fused multiply-adds: `models.cbuild`), so the recordings are the same bits;
 `tests/test_listeners_c.py` compares them. Without a compiler the Python listeners run.
+Each also has a step hook (``*_hook_record``, ``*_hook_room``: one record of its arguments)
+through which `scenarios.step_c` calls it from its own loop of physics steps.
 """
 
 from __future__ import annotations
@@ -19,7 +21,7 @@ import ctypes
 from models.cbuild import load_shared
 
 __all__ = ["DELIVER_C", "FORCES_C", "N_STREAMS", "SENSORS_C", "compiled_delivery",
-           "compiled_forces", "compiled_sensors"]
+           "compiled_forces", "compiled_sensors", "forces_hooks", "sensors_hooks"]
 
 N_STREAMS = 8  # IMU accelerometer, gyroscope, strokes, angles, pressures, wheels, drive, links
 
@@ -97,6 +99,30 @@ int sensors_record(const mjModel* m, mjData* d, const double* qpos, const double
     if (due[s]) times[s][count[s]++] = t;
   return 0;
 }
+
+/* The same as a step hook of `scenarios.step_c`: the step counter n and the arguments after
+   it in one record (kept by `SensorSimulator`). */
+typedef struct {
+  long* n; const long* every; long* count; const long* cap; double* const* times;
+  double* const* truths; const long* ix; const double* par; long n_links;
+} sensors_hook;
+
+int sensors_hook_record(void* ctx, const mjModel* m, mjData* d, const double* qpos,
+                        const double* qvel, double t) {
+  sensors_hook* h = (sensors_hook*)ctx;
+  if (sensors_record(m, d, qpos, qvel, t, *h->n, h->every, h->count, h->cap, h->times,
+                     h->truths, h->ix, h->par, (int)h->n_links)) return 1;
+  ++*h->n;
+  return 0;
+}
+
+int sensors_hook_room(void* ctx, long steps) {  /* every stream can take `steps` records */
+  const sensors_hook* h = (const sensors_hook*)ctx;
+  int s;
+  for (s = 0; s < N_STREAMS; ++s)
+    if (h->times[s] && h->count[s] + steps > h->cap[s]) return 0;
+  return 1;
+}
 """
 
 # One physics step of `NormalForceRecorder.__call__`: each wheel's normal force, the sum of
@@ -112,6 +138,24 @@ void forces_record(const mjData* d, const long* wheel_of_geom, double* out) {
     long wheel = w0 > w1 ? w0 : w1;
     if (wheel >= 0 && c->efc_address >= 0) out[wheel] += d->efc_force[c->efc_address];
   }
+}
+
+/* The same as a step hook of `scenarios.step_c`: samples n of cap, times, forces (cap, 4). */
+typedef struct { long n, cap; double* time; double* force; const long* wheel_of_geom; }
+    forces_hook;
+
+int forces_hook_record(void* ctx, const mjModel* m, mjData* d, const double* qpos,
+                       const double* qvel, double t) {
+  forces_hook* h = (forces_hook*)ctx;
+  if (h->n >= h->cap) return 1;
+  forces_record(d, h->wheel_of_geom, h->force + 4 * h->n);
+  h->time[h->n++] = t;
+  return 0;
+}
+
+int forces_hook_room(void* ctx, long steps) {
+  const forces_hook* h = (const forces_hook*)ctx;
+  return h->n + steps <= h->cap;
 }
 """
 
@@ -203,12 +247,34 @@ void deliver_fill(int ns, const long* order, const long* k, long* count,
 _P = ctypes.c_void_p
 
 
-def compiled_sensors():
-    """`SENSORS_C`'s ``sensors_record``, or None without a working compiler."""
-    lib = load_shared(SENSORS_C, "sensors_record", {"sensors_record": (
+def _sensors_lib():
+    return load_shared(SENSORS_C, "sensors_record", {"sensors_record": (
         [_P, _P, _P, _P, ctypes.c_double, ctypes.c_long] + [_P] * 7 + [ctypes.c_int],
         ctypes.c_int)}, "the Python sensors", mujoco=True)
+
+
+def _forces_lib():
+    return load_shared(FORCES_C, "forces_record", {"forces_record": ([_P, _P, _P], None)},
+                       "the Python force recorder", mujoco=True)
+
+
+def _hooks(lib, prefix: str) -> tuple[int, int] | None:
+    """The library's step hooks ``(record, room)`` as function addresses (`scenarios.step_c`)."""
+    if lib is None:
+        return None
+    return tuple(ctypes.cast(getattr(lib, f"{prefix}_hook_{part}"), _P).value
+                 for part in ("record", "room"))
+
+
+def compiled_sensors():
+    """`SENSORS_C`'s ``sensors_record``, or None without a working compiler."""
+    lib = _sensors_lib()
     return None if lib is None else lib.sensors_record
+
+
+def sensors_hooks() -> tuple[int, int] | None:
+    """`SENSORS_C`'s step hooks (record, room) as addresses, or None without a compiler."""
+    return _hooks(_sensors_lib(), "sensors")
 
 
 def compiled_delivery():
@@ -223,6 +289,10 @@ def compiled_delivery():
 
 def compiled_forces():
     """`FORCES_C`'s ``forces_record``, or None without a working compiler."""
-    lib = load_shared(FORCES_C, "forces_record", {"forces_record": ([_P, _P, _P], None)},
-                      "the Python force recorder", mujoco=True)
+    lib = _forces_lib()
     return None if lib is None else lib.forces_record
+
+
+def forces_hooks() -> tuple[int, int] | None:
+    """`FORCES_C`'s step hooks (record, room) as addresses, or None without a compiler."""
+    return _hooks(_forces_lib(), "forces")

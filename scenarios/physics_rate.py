@@ -13,8 +13,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from scenarios.listeners_c import compiled_forces
+from scenarios.listeners_c import compiled_forces, forces_hooks
 from scenarios.simulator import Simulator
+from scenarios.step_c import StepHook
 
 __all__ = ["NormalForceRecorder"]
 
@@ -38,16 +39,41 @@ class NormalForceRecorder:
         self._wheel_of_geom = wheel_of_geom.tolist()  # read per contact: Python ints
         self._wheel_of_geom_c = wheel_of_geom.astype(np.int64)  # kept alive: the C reads it
         self._record = compiled_forces() if compiled else None
-        self._time = np.zeros(_CHUNK)
-        self._force = np.zeros((_CHUNK, 4))
-        self._n = 0
+        # n, capacity, the buffers' and the wheel table's addresses: `FORCES_C`'s forces_hook
+        self._hook = np.zeros(5, np.int64)
+        self._time = np.zeros(0)
+        self._force = np.zeros((0, 4))
+        self._grow()
         sim.add_step_listener(self)
+
+    @property
+    def _n(self) -> int:
+        return int(self._hook[0])
+
+    @_n.setter
+    def _n(self, value: int) -> None:
+        self._hook[0] = value
+
+    def _grow(self) -> None:
+        self._time = np.concatenate([self._time, np.zeros(_CHUNK)])
+        self._force = np.concatenate([self._force, np.zeros((_CHUNK, 4))])
+        self._hook[1:] = (self._time.shape[0], self._time.ctypes.data, self._force.ctypes.data,
+                          self._wheel_of_geom_c.ctypes.data)
+
+    def step_hook(self) -> StepHook | None:
+        """The recorder in C for the simulator's compiled steps (`scenarios.step_c`)."""
+        hooks = forces_hooks() if self._record is not None else None
+        return None if hooks is None else StepHook(*hooks, self._hook.ctypes.data,
+                                                     self._make_room)
+
+    def _make_room(self, steps: int) -> None:
+        while self._n + steps > self._time.shape[0]:
+            self._grow()
 
     def __call__(self, sim: Simulator, qpos, qvel, t: float) -> None:
         """Record the step that started at ``t`` (a `Simulator` step listener)."""
         if self._n == self._time.shape[0]:
-            self._time = np.concatenate([self._time, np.zeros(_CHUNK)])
-            self._force = np.concatenate([self._force, np.zeros((_CHUNK, 4))])
+            self._grow()
         d = sim.data
         if self._record is not None:  # the loop below in C (`scenarios.listeners_c`)
             self._record(d._address, self._wheel_of_geom_c.ctypes.data,

@@ -30,10 +30,12 @@ What each sensor measures (the truth before the errors):
 from __future__ import annotations
 
 import functools
+import operator
 
 import mujoco
 import numpy as np
 
+from models.cbuild import address
 from models.rotations import cross3
 from models.sensing import (
     N_PRESSURE,
@@ -45,8 +47,9 @@ from models.sensing import (
     cylinder_areas,
 )
 from scenarios.errors import SimulatorError
-from scenarios.listeners_c import N_STREAMS, compiled_delivery, compiled_sensors
+from scenarios.listeners_c import N_STREAMS, compiled_delivery, compiled_sensors, sensors_hooks
 from scenarios.simulator import Simulator
+from scenarios.step_c import StepHook
 
 __all__ = ["BACK_PRESSURE", "SensorSimulator"]
 
@@ -210,7 +213,8 @@ class SensorSimulator:
         names = sim.coordinates.independent_names
         self._press_act = ix.actuators[[names.index(c) for c in PRESSURE_CYLINDERS]]
         self._areas = cylinder_areas(sim.machine)
-        self._step = 0
+        self._n_step = np.zeros(1, np.int64)  # physics steps seen (shared with the C hook)
+        self._hook: np.ndarray | None = None  # `SENSORS_C`'s sensors_hook: counter, arguments
         self._compiled = self._bind_compiled(compiled)
         self._delivery = self._bind_delivery(rng)
         self._prime()
@@ -225,7 +229,7 @@ class SensorSimulator:
         qpos, qvel, t = self.sim.measured_instant
         latency = max(s.latency for s in self._streams)
         self(self.sim, qpos, qvel, t - latency)
-        self._step = 0
+        self._n_step[0] = 0
 
     def _bind_compiled(self, compiled: bool):
         """The arguments of `listeners_c.SENSORS_C` after the step's own; None: Python."""
@@ -246,6 +250,21 @@ class SensorSimulator:
                         times.ctypes.data, truths.ctypes.data, ix.ctypes.data,
                         par.ctypes.data, len(self._link_bodies))
 
+    def step_hook(self) -> StepHook | None:
+        """The recording in C for the simulator's compiled steps (`scenarios.step_c`)."""
+        hooks = sensors_hooks() if self._compiled is not None else None
+        if hooks is None:
+            return None
+        if self._hook is None:
+            self._hook = np.array([self._n_step.ctypes.data, *self._compiled[1]], np.int64)
+        return StepHook(*hooks, self._hook.ctypes.data, self._make_room)
+
+    def _make_room(self, steps: int) -> None:
+        for s in self._streams:
+            while s.count + steps > s.times.shape[0]:
+                s.grow()
+        self._buffers()
+
     def _buffers(self) -> None:
         """The compiled listener's capacities and buffer addresses, after a growth."""
         _, _, _, caps, times, truths = self._c_arrays
@@ -257,8 +276,8 @@ class SensorSimulator:
 
     def __call__(self, sim: Simulator, qpos, qvel, t: float) -> None:
         """Sample the streams due at the step that started at ``t`` (a step listener)."""
-        n = self._step
-        self._step += 1
+        n = int(self._n_step[0])
+        self._n_step[0] = n + 1
         if self._compiled is not None:
             record, args = self._compiled
             while record(sim.model._address, sim.data._address, qpos.ctypes.data,
@@ -372,17 +391,18 @@ class SensorSimulator:
             scale.ctypes.data, scaled.ctypes.data, bias.ctypes.data, walk.ctypes.data,
             noise.ctypes.data, res.ctypes.data, slots.index(self._press), areas.ctypes.data,
             BACK_PRESSURE)
-        return count, count_tail, fill, rng, k, ordered, [slots.index(s) for s in ordered]
+        return (count, count_tail, fill, rng, k, ordered, [slots.index(s) for s in ordered],
+                [s.n for s in ordered])
 
     def _deliver_compiled(self, tick: float) -> dict:
         """Each stream's `Samples` by ``tick`` (`DELIVER_C`), by stream."""
-        count, count_tail, fill, rng, k, ordered, order = self._delivery
+        count, count_tail, fill, rng, k, ordered, order, widths = self._delivery
         z = rng.standard_normal(count(tick, *count_tail))
         ks = k.tolist()
         sizes = [ks[i] for i in order]
         out_t = np.empty(sum(sizes))
-        out_y = np.empty(sum(kk * s.n for kk, s in zip(sizes, ordered)))
-        fill(z.ctypes.data, out_t.ctypes.data, out_y.ctypes.data)
+        out_y = np.empty(sum(map(operator.mul, sizes, widths)))
+        fill(address(z), address(out_t), address(out_y))
         samples, first, first_y = {}, 0, 0
         for s, kk in zip(ordered, sizes):
             samples[s] = Samples.trusted(out_t[first:first + kk],

@@ -33,7 +33,6 @@ import math
 import mujoco
 import numpy as np
 
-from models.coordinates import N_INDEPENDENT
 from models.description import Machine
 from models.mujoco import (
     DEFAULT_TIMESTEP,
@@ -46,11 +45,11 @@ from models.mujoco import (
 )
 from models.state import MachineState, WheelContacts
 from models.terrain import Terrain
-from scenarios.base_motion import body_motion
 from scenarios.commands import ActuatorCommand, rates_by_name
 from scenarios.errors import CommandError, SimulationError, SimulatorError
-from scenarios.ground_truth import GroundTruthContacts
+from scenarios.measured import Measurement
 from scenarios.noise import MeasurementNoise
+from scenarios.step_c import compiled_step
 
 __all__ = ["Simulator"]
 
@@ -82,6 +81,8 @@ class Simulator:
         terrain: The ground.
         timestep: Simulation timestep [s].
         noise: Noise added to the measured state; None for exact measurements.
+        compiled: Step in C (`scenarios.step_c`, the same bits) where a compiler is there
+            and every step listener has a step hook; False: in Python.
 
     Attributes:
         machine, terrain: As given.
@@ -92,7 +93,7 @@ class Simulator:
     """
 
     def __init__(self, machine: Machine, terrain: Terrain, timestep: float = DEFAULT_TIMESTEP,
-                 noise: MeasurementNoise | None = None):
+                 noise: MeasurementNoise | None = None, compiled: bool = True):
         if noise is not None and not isinstance(noise, MeasurementNoise):
             raise SimulatorError(f"noise must be a MeasurementNoise or None, got {noise!r}")
         self.machine = machine
@@ -105,10 +106,11 @@ class Simulator:
         self._rng = np.random.default_rng(noise.seed if noise else 0)
         self._cylinders = self.index.independent_names[:6]
         self._wrist = self.index.independent_names[6:9]
-        self._contacts = GroundTruthContacts(self.model, self.index, machine, terrain)
+        self._measurement = Measurement(self.model, self.data, self.index, machine, terrain,
+                                        noise, self._rng)
         self.servos = servo_specs(machine, self.model.opt.timestep)
         servos = self.servos
-        self._rate_range = np.array([sp.rate_range for sp in servos])
+        self._rate_range = np.array([sp.rate_range for sp in servos]).T.copy()  # lo, hi
         self._wheel_range = self.model.actuator_ctrlrange[self.index.wheel_actuators].T.copy()
         self._stroke_range = np.array([sp.stroke_range for sp in servos])
         self._damping = DampingSchedule(self.model, self.index, machine, servos,
@@ -125,9 +127,6 @@ class Simulator:
             [max(map(abs, sp.force_range)) / sp.kp for sp in servos])
         self._setpoint = np.zeros(len(servos))
         self._rates = np.zeros(len(servos))
-        bindings = [(i, self.coordinates.binding(i)) for i in self.coordinates.chain_indices]
-        self._chain_rates = [(i, b.chain, self.index.dof_adr[b.driven_joint])
-                             for i, b in bindings]
         self._command = ActuatorCommand.zero()
         self._wheel_qpos = self.index.independent_qpos[9:13]
         self._wheel_ctrl = self.index.wheel_actuators
@@ -136,6 +135,8 @@ class Simulator:
         self._snapshot_setpoint = self._setpoint.copy()
         self._settled: dict = {}  # reset() arguments -> (settled MjData, servo setpoints)
         self._listeners: list = []
+        self._compiled = compiled
+        self._bind_step()
         self.reset()
 
     # ------------------------------------------------------------------ commands
@@ -168,11 +169,11 @@ class Simulator:
         """Set the actuator command from an `ActuatorCommand` (held until changed)."""
         if not isinstance(command, ActuatorCommand):
             raise CommandError(f"expected an ActuatorCommand, got {command!r}")
-        lo, hi = self._rate_range[:, 0], self._rate_range[:, 1]
-        self._rates = np.minimum(np.maximum(command.servo_rates, lo), hi)
-        left, right = command.wheel_speeds
+        lo, hi = self._rate_range
+        np.minimum(np.maximum(command.servo_rates, lo), hi, out=self._rates)  # C reads it
+        left, right = command.wheel_speeds.tolist()
         lo, hi = self._wheel_range
-        self.data.ctrl[self.index.wheel_actuators] = np.minimum(np.maximum(
+        self.data.ctrl[self._wheel_ctrl] = np.minimum(np.maximum(
             np.array((left, left, right, right)), lo), hi)  # FL, RL, FR, RR
         if left == 0.0 and right == 0.0:
             if self._hold is None:
@@ -272,10 +273,6 @@ class Simulator:
         """
         if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
             raise SimulatorError(f"n must be a positive integer, got {n!r}")
-        d, ix = self.data, self.index
-        lo, hi = self._stroke_range[:, 0], self._stroke_range[:, 1]
-        band = self._windup_band
-        servo_ctrl, servo_dof = d.ctrl[self._servo_ctrl], ix.servo_dof
         done = 0
         while done < n:
             # The valve: the setpoint moves at the commanded rate within the stroke range (its
@@ -285,30 +282,46 @@ class Simulator:
             chunk = min(_WINDUP_STEPS, n - done)
             lead = self._lead()  # the damping this pose allows (`DampingSchedule`)
             self._damping_age += chunk
-            path = self._setpoint + np.outer(np.arange(chunk + 1), self.timestep * self._rates)
-            path = np.minimum(np.maximum(path, lo), hi)
-            for k in range(chunk):
-                if done + k == n - 1:
-                    self._setpoint = path[k]
-                    self._take_snapshot()
-                # Servo force kp (u - x) with u = setpoint - (kv / kp) x_dot: the damping is
-                # explicit, outside MuJoCo's implicit integration (see `models.mujoco`).
-                np.subtract(path[k], lead * d.qvel[servo_dof], out=servo_ctrl)
-                if self._hold is not None:
-                    self._hold_wheels()
-                if self._listeners:
-                    self._step_with_listeners()
-                else:
-                    self._contact_merge.step(d)
-            x = d.qpos[ix.servo_qpos]
-            self._setpoint = np.minimum(np.maximum(path[chunk], x - band), x + band)
+            if self._c_step is None:
+                self._chunk(chunk, n - 1 - done, lead)
+            else:  # `_chunk` in C, the setpoint written in place
+                snap, warned = self._c_step.run(chunk, n - 1 - done, self._setpoint, self._hold)
+                if snap is not None:
+                    self._snapshot, self._snapshot_setpoint = snap
+                if warned:
+                    self._check_warnings()
             done += chunk
-        self._check_warnings()
+        if self._c_step is None:
+            self._check_warnings()
+
+    def _chunk(self, chunk: int, snap: int, lead: np.ndarray) -> None:
+        """``chunk`` steps; the snapshot taken before step ``snap`` (if in the chunk)."""
+        d, ix = self.data, self.index
+        lo, hi = self._stroke_range[:, 0], self._stroke_range[:, 1]
+        servo_ctrl, servo_dof = d.ctrl[self._servo_ctrl], ix.servo_dof
+        path = self._setpoint + np.outer(np.arange(chunk + 1), self.timestep * self._rates)
+        path = np.minimum(np.maximum(path, lo), hi)
+        for k in range(chunk):
+            if k == snap:
+                self._setpoint = path[k]
+                self._take_snapshot()
+            # Servo force kp (u - x) with u = setpoint - (kv / kp) x_dot: the damping is
+            # explicit, outside MuJoCo's implicit integration (see `models.mujoco`).
+            np.subtract(path[k], lead * d.qvel[servo_dof], out=servo_ctrl)
+            if self._hold is not None:
+                self._hold_wheels()
+            if self._listeners:
+                self._step_with_listeners()
+            else:
+                self._contact_merge.step(d)
+        x = d.qpos[ix.servo_qpos]
+        band = self._windup_band
+        self._setpoint = np.minimum(np.maximum(path[chunk], x - band), x + band)
 
     def _lead(self) -> np.ndarray:
         if self._damping_age >= _DAMPING_UPDATE_STEPS:
-            self._damping_lead = self._damping.lead(self.data,
-                                                    self.data.qpos[self.index.independent_qpos])
+            self._damping_lead[:] = self._damping.lead(  # in place: the C reads it
+                self.data, self.data.qpos[self.index.independent_qpos])
             self._damping_age = 0
         return self._damping_lead
 
@@ -330,11 +343,24 @@ class Simulator:
         if not callable(listener):
             raise SimulatorError(f"a step listener must be callable, got {listener!r}")
         self._listeners.append(listener)
+        self._bind_step()
 
     def remove_step_listener(self, listener) -> None:
         """Stop calling ``listener`` (no error if it was not added)."""
         if listener in self._listeners:
             self._listeners.remove(listener)
+            self._bind_step()
+
+    def _bind_step(self) -> None:
+        """The steps in C (`scenarios.step_c`) if compiled and every listener has a hook."""
+        ix, (wheel_lo, wheel_hi) = self.index, self._wheel_range
+        self._c_step = compiled_step(self.model, self.data, self._contact_merge, dict(
+            servo_ctrl=self._servo_ctrl.start, servo_dof=ix.servo_dof,
+            servo_qpos=ix.servo_qpos, lo=self._stroke_range[:, 0], hi=self._stroke_range[:, 1],
+            band=self._windup_band, wheel_qpos=self._wheel_qpos, wheel_ctrl=self._wheel_ctrl,
+            wheel_lo=wheel_lo, wheel_hi=wheel_hi, hold_gain=WHEEL_HOLD_GAIN,
+            rates=self._rates, lead=self._damping_lead),
+            self._listeners) if self._compiled else None
 
     def _step_with_listeners(self) -> None:
         d = self.data
@@ -393,43 +419,7 @@ class Simulator:
             ``contacts`` is MuJoCo's exact contact state (see `wheel_contacts`); without noise
             ``state.contacts`` is that same object.
         """
-        qpos, qvel, t = self._snapshot
-        d, ix = self.data, self.index
-        rotation = d.xmat[ix.base_body].reshape(3, 3).copy()  # of the measured instant
-        position = d.xpos[ix.base_body].copy()
-        twist, accel = body_motion(rotation, qvel[ix.base_dof], d.qacc[ix.base_dof])
-        truth = self.wheel_contacts(position, rotation)
-        q = qpos[ix.independent_qpos]
-        qd = qvel[ix.independent_dof].copy()
-        qdd = d.qacc[ix.independent_dof].copy()
-        # Stroke rates through the driven joint (eq. 6: x_dot = theta_dot / k1): MuJoCo's
-        # soft loop closures let the light piston's acceleration differ from the heavy driven
-        # link's by their stabilisation term, and the driven link carries the dynamics.
-        # (Python floats: numpy scalars' IEEE operations at a fraction of the cost.)
-        strokes, qvel_all, qacc_all = q.tolist(), qvel.tolist(), d.qacc.tolist()
-        for i, chain, dof in self._chain_rates:
-            k1, dk1 = chain.driven_rate_coefficients(strokes[i])
-            rate = qvel_all[dof] / k1
-            qd[i] = rate
-            qdd[i] = (qacc_all[dof] - dk1 * rate * rate) / k1
-        suspension = d.actuator_force[ix.suspension_actuators]
-        measured = truth
-        if self.noise is not None:
-            nz, rng = self.noise, self._rng
-            twist = twist + rng.normal(0.0, nz.base_twist, 6)
-            accel = accel + rng.normal(0.0, nz.base_acceleration, 6)
-            q = q + rng.normal(0.0, nz.q, N_INDEPENDENT)
-            qd = qd + rng.normal(0.0, nz.qd, N_INDEPENDENT)
-            qdd = qdd + rng.normal(0.0, nz.qdd, N_INDEPENDENT)
-            suspension = suspension + rng.normal(0.0, nz.suspension_force, 2)
-            measured = WheelContacts(
-                truth.in_contact.copy(),
-                truth.force_in_fb + rng.normal(0.0, nz.contact_force, (4, 3)),
-                truth.point_in_fb.copy(), truth.normal_in_fb.copy())
-        # This call's own arrays (the setpoint snapshot is replaced, never written): kept.
-        state = MachineState.from_owned(position, rotation, twist, accel, q, qd, qdd, t, measured,
-                                        suspension, self._snapshot_setpoint)
-        return state, truth
+        return self._measurement.measure(self._snapshot, self._snapshot_setpoint)
 
     def actuator_forces(self) -> np.ndarray:
         """All 13 actuator forces [N, N m] in independent order (MuJoCo's, oracle data)."""
@@ -447,4 +437,4 @@ class Simulator:
         if base_position is None or base_rotation is None:
             base_position = self.data.xpos[self.index.base_body]
             base_rotation = self.data.xmat[self.index.base_body].reshape(3, 3)
-        return self._contacts.read(self.data, base_position, base_rotation)
+        return self._measurement.contacts.read(self.data, base_position, base_rotation)

@@ -339,3 +339,12 @@ def test_frozen_heap_keeps_the_loop_out_of_the_collector():
     assert gc.get_freeze_count() == 0
 
 
+
+
+def test_the_task_distance_is_numpys_norm_to_the_bit():
+    from scenarios.closed_loop import _distance
+
+    rng = np.random.default_rng(11)
+    for _ in range(500):
+        a, b = rng.normal(size=3) * 10.0 ** rng.integers(-4, 3), rng.normal(size=3)
+        assert _distance(a, b) == float(np.linalg.norm(a - b))

@@ -356,3 +356,27 @@ def test_damping_schedule_keeps_the_explicit_servo_step_stable_at_every_pose(pay
     mujoco.mj_forward(model, data)
     np.testing.assert_array_equal(schedule.damping(data, q), schedule.designed)
     assert designed[0] <= 1 + 1e-7 and designed[1] > 1.2  # 1.40 at 10 kg, at the end stop
+
+
+def test_damping_schedule_maps_the_inertia_through_the_coordinates_jacobian_to_the_bit():
+    """Its own chain entries (`CylinderChain.driven_terms`) against `TreeCoordinates.jacobian`
+    at random poses, strokes a little past their ends (clipped), and a non-finite one."""
+    machine = build_reference_machine()
+    model = mm.build_model(machine, T.flat())
+    data = mujoco.MjData(model)
+    index = mm.MujocoIndex(model, machine)
+    schedule = mm.DampingSchedule(model, index, machine, mm.servo_specs(machine),
+                                  model.opt.timestep)
+    mujoco.mj_forward(model, data)
+    rng = np.random.default_rng(5)
+    lo, hi = np.maximum(COORDS.lower, -3.0), np.minimum(COORDS.upper, 3.0)
+    for _ in range(50):
+        q = rng.uniform(lo - 0.05, hi + 0.05)
+        schedule.damping(data, q)
+        clipped = q.copy()
+        clipped[:9] = np.clip(q[:9], schedule._stroke_range[0], schedule._stroke_range[1])
+        expected = schedule._jac.copy()
+        expected[index.tree_dof, 6:], _ = COORDS.jacobian(clipped)
+        assert schedule._jac.tobytes() == expected.tobytes()
+    with pytest.raises(StateError, match="non-finite"):
+        schedule.damping(data, np.full(13, np.nan))

@@ -152,6 +152,10 @@ class ContactMerge:
         """Whether `merge` runs the compiled `MERGE_C` (else `merge_reference`)."""
         return self._merge_c is not None
 
+    def c_arguments(self) -> tuple[np.ndarray, int, float, float]:
+        """`MERGE_C`'s rule for a caller in C: (geom -> wheel as int32, wheels, cos, d^2)."""
+        return self._owner_c, self._n_wheels, self._cos, self._distance2
+
     def merge(self, data: mujoco.MjData) -> int:
         """Exclude the coincident contacts in ``data.contact``; returns how many.
 

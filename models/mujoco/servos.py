@@ -293,6 +293,14 @@ class DampingSchedule:
         self._limit = SERVO_EXPLICIT_LIMIT / max(check_timestep(timestep), DEFAULT_TIMESTEP)
         self._jac = np.zeros((model.nv, 6 + N_INDEPENDENT))
         self._jac[index.base_dof, :6] = np.eye(6)
+        # `TreeCoordinates.jacobian`'s entries: ones but for each chain's driven joint and
+        # barrel, which `damping` writes (their k1, k2, by the same operations)
+        coords = self._coordinates
+        self._jac[self._tree_dof, 6:], _ = coords.jacobian(coords.home())
+        self._chain_entries = [
+            (i, b.chain, index.tree_dof[coords.index[b.driven_joint]],
+             index.tree_dof[coords.index[b.barrel]], 6 + i)
+            for i, b in ((i, coords.binding(i)) for i in coords.chain_indices)]
         self._mass = np.zeros((model.nv, model.nv))
 
     @property
@@ -310,7 +318,11 @@ class DampingSchedule:
         q = self._q
         q[:] = q_ind
         np.clip(q[:self._n], self._stroke_range[0], self._stroke_range[1], out=q[:self._n])
-        self._jac[self._tree_dof, 6:], _ = self._coordinates.jacobian(q)
+        if not np.isfinite(q).all():
+            self._coordinates.jacobian(q)  # raises, naming the coordinate
+        strokes, jac = q.tolist(), self._jac
+        for i, chain, driven, barrel, column in self._chain_entries:
+            _, _, jac[driven, column], jac[barrel, column], _, _ = chain.driven_terms(strokes[i])
         mujoco.mj_fullM(self._model, data, self._mass)
         free = free_inertia(self._jac.T @ self._mass @ self._jac)[:self._n]
         return np.minimum(self._kv, self._limit * free)
