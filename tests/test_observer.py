@@ -281,32 +281,48 @@ def test_contact_points_against_mujoco_with_the_bogies_pitched():
     assert np.mean(err_plane) < 0.01  # measured 5 mm against 17 mm
 
 
-@pytest.mark.parametrize("stream", ["specific_force", "angular_rate", "positions", "pressures",
-                                    "wheel_speeds", "drive_torques"])
-def test_a_nan_reading_is_held_for_its_tick_and_the_observer_recovers(stream):
-    """A glitch on one stream (NaN on every sample of one tick): that tick is held and
-    marked stale, the next good readings are used again, and nothing non-finite gets out."""
+def _glitched_drive(ticks, at, spoil, compiled=True, slew=0.0):
+    """Driving on a 5 deg side slope (the slew at ``slew`` [rad/s]) with the realistic
+    sensors, tick ``at``'s readings spoiled by ``spoil(readings, observer)``: that tick's
+    estimate is stale, every other one is not, and nothing non-finite gets out. Returns the
+    estimates."""
     machine = build_reference_machine()
     sim = Simulator(machine, T.side_slope(-5.0))
     sim.reset(None, (8.0, 0.0, 0.0))
-    sensors = SensorSimulator(sim, sensor_suite("realistic", 3))
-    obs = _observer(machine)
-    sim.set_command(wheel_speeds=(0.5, 0.5))
-    for k in range(120):
+    spec = sensor_suite("realistic", 3)
+    sensors = SensorSimulator(sim, spec)
+    obs = Observer(machine, spec, PayloadEstimator(machine, fourth="cylinder-force",
+                                                   strokes="clip"), compiled=compiled)
+    sim.set_command(cylinder_rates={"slew": slew}, wheel_speeds=(0.5, 0.5))
+    estimates = []
+    for k in range(ticks):
         sim.step(5)
         r = sensors.readings(sim.time)
-        if k == 60:
-            s = getattr(r, stream)
-            assert len(s), f"{stream} delivered nothing this tick"
-            r = dataclasses.replace(r, **{stream: Samples(s.time, np.full(s.value.shape,
-                                                                          np.nan))})
+        if k == at:
+            r = spoil(r, obs)
         e = obs.update(r)
-        assert e.stale == (k == 60), k
+        assert e.stale == (k == at), k
         st = e.state
         for a in (st.base_rotation, st.base_twist, st.base_acceleration, st.q, st.qd, st.qdd,
                   st.contacts.force_in_fb, e.forces_four):
             assert np.all(np.isfinite(a)), k
         assert np.isfinite(e.payload_mass) and np.isfinite(e.payload_std)
+        estimates.append(e)
+    return estimates
+
+
+@pytest.mark.parametrize("stream", ["specific_force", "angular_rate", "positions", "pressures",
+                                    "wheel_speeds", "drive_torques"])
+def test_a_nan_reading_is_held_for_its_tick_and_the_observer_recovers(stream):
+    """A glitch on one stream (NaN on every sample of one tick): that tick is held and
+    marked stale, the next good readings are used again, and nothing non-finite gets out."""
+    def spoil(r, obs):
+        s = getattr(r, stream)
+        assert len(s), f"{stream} delivered nothing this tick"
+        return dataclasses.replace(r, **{stream: Samples(s.time, np.full(s.value.shape,
+                                                                         np.nan))})
+
+    _glitched_drive(120, 60, spoil)
 
 
 @pytest.mark.parametrize("compiled", [True, False])
@@ -320,32 +336,20 @@ def test_an_imu_sample_beyond_full_scale_is_a_fault_held_for_its_tick(stream, va
     tick raised `models.StateError` out of `Observer.update`."""
     from estimators.observer.base_filter import IMU_FAULT
 
-    machine = build_reference_machine()
-    sim = Simulator(machine, T.side_slope(-5.0))
-    sim.reset(None, (8.0, 0.0, 0.0))
-    spec = sensor_suite("realistic", 3)
-    assert spec.imu.gyroscope.full_scale == pytest.approx(np.radians(2000.0))
-    sensors = SensorSimulator(sim, spec)
-    obs = Observer(machine, spec, PayloadEstimator(machine, fourth="cylinder-force",
-                                                   strokes="clip"), compiled=compiled)
-    sim.set_command(wheel_speeds=(0.5, 0.5))
-    for k in range(90):
-        sim.step(5)
-        r = sensors.readings(sim.time)
-        if k == 60:
-            s = getattr(r, stream)
-            v = s.value.copy()
-            v[-1, 1] = value
-            r = dataclasses.replace(r, **{stream: Samples(s.time, v)})
-            with pytest.raises(EstimatorError, match="full scale"):
-                obs._update(r)
-            assert IMU_FAULT.startswith("an IMU sample")
-        e = obs.update(r)
-        assert e.stale == (k == 60), k
-        st = e.state
-        for a in (st.base_rotation, st.base_twist, st.base_acceleration, st.qdd, e.forces_four):
-            assert np.all(np.isfinite(a)), k
-        assert np.isfinite(e.payload_mass)
+    assert sensor_suite("realistic").imu.gyroscope.full_scale == pytest.approx(
+        np.radians(2000.0))
+
+    def spoil(r, obs):
+        s = getattr(r, stream)
+        v = s.value.copy()
+        v[-1, 1] = value
+        r = dataclasses.replace(r, **{stream: Samples(s.time, v)})
+        with pytest.raises(EstimatorError, match="full scale"):
+            obs._update(r)
+        assert IMU_FAULT.startswith("an IMU sample")
+        return r
+
+    _glitched_drive(90, 60, spoil, compiled)
 
 
 @pytest.mark.parametrize("compiled", [True, False])
@@ -356,30 +360,17 @@ def test_a_position_spike_is_a_fault_held_for_its_tick(compiled):
     stale in the compiled path)."""
     from estimators.observer import POSITION_FAULT
 
-    machine = build_reference_machine()
-    sim = Simulator(machine, T.side_slope(-5.0))
-    sim.reset(None, (8.0, 0.0, 0.0))
-    sensors = SensorSimulator(sim, sensor_suite("realistic", 3))
-    obs = Observer(machine, sensor_suite("realistic", 3),
-                   PayloadEstimator(machine, fourth="cylinder-force", strokes="clip"),
-                   compiled=compiled)
-    sim.set_command(cylinder_rates={"slew": 0.1}, wheel_speeds=(0.5, 0.5))
-    masses = []
-    for k in range(80):
-        sim.step(5)
-        r = sensors.readings(sim.time)
-        if k == 40:
-            s = r.positions
-            value = s.value.copy()
-            value[-1, 2] += 50.0
-            r = dataclasses.replace(r, positions=Samples(s.time, value))
-            with pytest.raises(EstimatorError, match="sensor fault"):
-                obs._update(r)
-            assert POSITION_FAULT.startswith("a position sample")
-        e = obs.update(r)
-        assert e.stale == (k == 40), k
-        masses.append(e.payload_mass)
-        assert np.all(np.isfinite(e.state.qdd)) and np.isfinite(e.payload_std)
+    def spoil(r, obs):
+        s = r.positions
+        value = s.value.copy()
+        value[-1, 2] += 50.0
+        r = dataclasses.replace(r, positions=Samples(s.time, value))
+        with pytest.raises(EstimatorError, match="sensor fault"):
+            obs._update(r)
+        assert POSITION_FAULT.startswith("a position sample")
+        return r
+
+    masses = [e.payload_mass for e in _glitched_drive(80, 40, spoil, compiled, slew=0.1)]
     assert np.max(np.abs(np.diff(masses[35:50]))) < 20.0  # no jump through the spike
 
 

@@ -154,15 +154,22 @@ def test_axis_index_is_a_slice_only_where_the_axes_are_contiguous():
         np.testing.assert_array_equal(x[index], x[axes])
 
 
-@pytest.mark.parametrize("planned", [True, False])
-def test_position_and_sample_into_equal_sample(limits, planned):
-    """The per-tick paths read the same bits as `sample`, scaled as the governor does."""
+def _telescope_reference(limits, planned: bool):
+    """A crane reference planned 0.4 m out along the telescope from 1 s on, or held, and
+    times to sample it at: before, at and after its start and past its end."""
     ref, start, goal = _crane_reference(limits, 3, 0.4)
     if planned:
         ref.plan(1.0, start, np.full(7, 0.01), np.zeros(7), goal)
     else:
         ref.hold(start)
-    for t in (0.0, 1.0, 1.37, 2.9, 1.0 + ref.duration + 1.0):
+    return ref, (0.0, 1.0, 1.37, 2.9, 1.0 + ref.duration + 1.0)
+
+
+@pytest.mark.parametrize("planned", [True, False])
+def test_position_and_sample_into_equal_sample(limits, planned):
+    """The per-tick paths read the same bits as `sample`, scaled as the governor does."""
+    ref, times = _telescope_reference(limits, planned)
+    for t in times:
         p, v, a = ref.sample(t)
         np.testing.assert_array_equal(ref.position(t), p)
         for rate in (1.0, 0.37, 0.0):
@@ -195,12 +202,8 @@ def test_kept_position_follows_the_trajectory(limits):
 @pytest.mark.parametrize("planned", [True, False])
 def test_raw_sample_clipped_and_scaled_is_sample_into(limits, planned):
     """`sample_raw` is what `sample_into` clips and scales; `kept` is what it keeps."""
-    ref, start, goal = _crane_reference(limits, 3, 0.4)
-    if planned:
-        ref.plan(1.0, start, np.full(7, 0.01), np.zeros(7), goal)
-    else:
-        ref.hold(start)
-    for t in (0.0, 1.0, 1.37, 2.9, 1.0 + ref.duration + 1.0):
+    ref, times = _telescope_reference(limits, planned)
+    for t in times:
         tr, pva = ref.sample_raw(t)
         assert (tr is None) == (not planned) and len(pva) == 21
         p, v, a = np.array(pva).reshape(3, 7)
