@@ -59,3 +59,11 @@ def test_checked_qp_is_a_problem_like_qpsolvers_own():
     assert isinstance(fast, qpsolvers.Problem)
     assert vars(fast).keys() == vars(slow).keys()
     assert all(getattr(fast, k) is getattr(slow, k) for k in FIELDS)
+
+
+def test_build_profile_names_every_term():
+    from benchmarks.mpc_build import profile
+
+    figures = profile(steps=3)
+    assert {"build", "glue", "step", "solver", "HorizonNormalForceConstraint"} <= set(figures)
+    assert all(np.isfinite(v) for v in figures.values())
