@@ -37,6 +37,19 @@ class QP(qpsolvers.Problem):
         self.constant_rows = constant_rows
         self.diagonal_rows = diagonal_rows
 
+    @classmethod
+    def _of_checked(cls, P, q, G, h, lb, ub, constant_rows: tuple,
+                    diagonal_rows: tuple) -> QP:
+        """The QP of arrays `QPBuilder.build` made and checked, without `__init__`.
+
+        ``qpsolvers.Problem.__init__`` only reshapes a 1-D matrix or a 2-D vector, and the
+        builder's P and G are 2-D, its vectors 1-D: the same object, six calls fewer.
+        """
+        qp = cls.__new__(cls)
+        qp.P, qp.q, qp.G, qp.h, qp.A, qp.b, qp.lb, qp.ub = P, q, G, h, None, None, lb, ub
+        qp.constant_rows, qp.diagonal_rows = constant_rows, diagonal_rows
+        return qp
+
 
 class QPBuilder:
     r"""Builds the QP of every tick from fixed tasks and constraints (see `build_qp`).
@@ -81,24 +94,28 @@ class QPBuilder:
         """
         last, self._rows = self._rows, None
         n = Gs[0].shape[1]
-        # References to the last array: the tuple `last` and getrefcount's argument.
-        if (last is None or last[0].shape != (m, n) or sys.getrefcount(last[0]) != 2
-                or len(last[1]) != len(constant)
+        # References to the last array: the tuple `last`, getrefcount's argument and the
+        # kept views of its diagonal blocks.
+        if (last is None or last[0].shape != (m, n)
+                or sys.getrefcount(last[0]) != 2 + len(last[3]) or len(last[1]) != len(constant)
                 or not all(a[0] == b[0] and a[1] is b[1] for a, b in zip(last[1], constant))):
             G = np.concatenate(Gs)
+            views = {}
         else:
-            G = last[0]
-            kept = dict(last[2])  # first row -> the last tick's DiagonalBlocks there
+            G, kept, views = last[0], last[2], last[3]
             first = 0
             for block in Gs:
                 if block.flags.writeable:  # not a constant block
                     d = diagonal.get(first)
                     if d is not None and kept.get(first) == d and block.flags.c_contiguous:
-                        _blocks(G, first, d)[...] = _blocks(block, 0, d)
+                        view = views.get(first)
+                        if view is None or view[0] != d:  # the blocks' view of G, kept
+                            view = views[first] = (d, _blocks(G, first, d))
+                        view[1][...] = _blocks(block, 0, d)
                     else:
                         G[first:first + block.shape[0]] = block
                 first += block.shape[0]
-        self._rows = (G, constant, diagonal.items())
+        self._rows = (G, constant, diagonal, views)
         return G
 
     def _hessian(self, n: int, hessians: list) -> np.ndarray:
@@ -174,8 +191,7 @@ class QPBuilder:
         constant = tuple(constant)
         G = self._stacked_rows(Gs, constant, dict(diagonal), rows) if Gs else None
         h = np.concatenate(hs) if hs else None
-        return QP(P, q, G, h, None, None, lb, ub, constant_rows=constant,
-                  diagonal_rows=tuple(diagonal))
+        return QP._of_checked(P, q, G, h, lb, ub, constant, tuple(diagonal))
 
 
 def _blocks(G: np.ndarray, first: int, d) -> np.ndarray:
