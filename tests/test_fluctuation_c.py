@@ -72,3 +72,23 @@ def test_cap_on_odd_states_is_the_numpy_paths_bits():
         with np.errstate(all="ignore"):
             got, want = (g.cap(th, speed, contact) for g in (fast, slow))
         assert np.array(got).tobytes() == np.array(want).tobytes(), (trial, got, want)
+
+
+def test_a_deep_copy_runs_on_buffers_of_its_own():
+    import copy
+
+    fast, slow = _pair()
+    rng = np.random.default_rng(8)
+    for k in range(300):
+        f, speed = rng.normal(6e3, 2e3, 4), float(rng.uniform(0.2, 0.6))
+        for g in (fast, slow):
+            g.update(f, np.ones(4, bool), 0.01 * k, speed, 0.8)
+    twin = copy.deepcopy(fast)
+    assert twin.mean is twin._c.mean and twin._square is twin._c.square
+    assert twin._state is twin._c.state and twin._c.mean is not fast._c.mean
+    assert _bits(twin) == _bits(fast)
+    for k in range(300, 400):
+        f = rng.normal(6e3, 2e3, 4)
+        for g in (twin, slow):
+            g.update(f, np.ones(4, bool), 0.01 * k, 0.4, 0.8)
+    assert _bits(twin) == _bits(slow) != _bits(fast)

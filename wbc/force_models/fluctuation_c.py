@@ -87,6 +87,7 @@ class GovernorPass:
     """
 
     def __init__(self, lib):
+        self._lib = lib
         self.mean, self.square, self.state = np.zeros(4), np.zeros(4), np.zeros(2)
         self.forces, self.contact = np.zeros(4), np.zeros(4, bool)
         self.thresholds, self.per_speed = np.zeros(4), np.zeros(4)
@@ -96,6 +97,21 @@ class GovernorPass:
         self._ratios = bind(lib.governor_ratios, self.mean, self.per_speed, self.thresholds,
                             self.contact)
         self._quotients_at = address(self.quotients)
+
+    def __deepcopy__(self, memo) -> GovernorPass:
+        """A pass of its own (its calls bound to its own buffers), the buffers' values copied.
+
+        The copied buffers are entered in ``memo``: a governor copied with its pass keeps
+        its state in the new pass's buffers.
+        """
+        new = GovernorPass(self._lib)
+        memo[id(self)] = new
+        for name in ("mean", "square", "state", "forces", "contact", "thresholds",
+                     "per_speed", "out", "quotients"):
+            old = getattr(self, name)
+            getattr(new, name)[:] = old
+            memo[id(old)] = getattr(new, name)
+        return new
 
     @classmethod
     def make(cls) -> GovernorPass | None:
