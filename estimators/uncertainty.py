@@ -30,6 +30,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
+import threading
 from dataclasses import dataclass
 from statistics import NormalDist
 
@@ -138,21 +139,15 @@ def closure_margin(closure, model, state: MachineState, uncertainty: StateUncert
     """
     lin = closure.linearize(state)
     model_g = None if model is closure else model.linearize(state).G
-    fused = _compiled_margin() if hasattr(closure, "stepped_suspension_forces") else None
+    fused = _margin_pass() if hasattr(closure, "stepped_suspension_forces") else None
     if fused is not None and state.suspension_force is not None:
         stepped = closure.stepped_suspension_forces(state, _SUSPENSION_STEP)
         d_m = (closure.payload_sensitivity(state) if hasattr(closure, "payload_sensitivity")
                else None)
-        arrays = (lin.G, model_g, lin.d_qd, stepped, d_m, lin.in_contact)
-        if stepped is not None and all(a is None or a.flags.c_contiguous for a in arrays):
-            unc, margin = uncertainty, np.empty(4)
-            if not fused(lin.G.ctypes.data, None if model_g is None else model_g.ctypes.data,
-                         N_GENERALIZED, unc.acceleration.ctypes.data, lin.d_qd.ctypes.data,
-                         N_INDEPENDENT, unc.qd.ctypes.data, stepped.ctypes.data,
-                         _SUSPENSION_STEP, unc.suspension_force.ctypes.data,
-                         None if d_m is None else d_m.ctypes.data, unc.payload_mass,
-                         lin.in_contact.ctypes.data, _quantile(_confidence(confidence)),
-                         margin.ctypes.data):
+        if stepped is not None:
+            margin = fused(lin.G, model_g, lin.d_qd, stepped, d_m, lin.in_contact,
+                           uncertainty, _quantile(_confidence(confidence)))
+            if margin is not None:
                 return margin
     if model_g is not None:
         lin = dataclasses.replace(lin, G=lin.G - model_g)  # checks that it is finite
@@ -167,6 +162,22 @@ def _compiled_margin():
     from estimators.uncertainty_c import compiled_margin
 
     return compiled_margin()
+
+
+_PASSES = threading.local()  # each thread's `MarginPass` (its buffers are written per call)
+
+
+def _margin_pass():
+    """This thread's `estimators.uncertainty_c.MarginPass`, or None without a compiler."""
+    try:
+        return _PASSES.margin
+    except AttributeError:
+        from estimators.uncertainty_c import MarginPass
+
+        fun = _compiled_margin()
+        _PASSES.margin = None if fun is None else MarginPass(fun, N_GENERALIZED,
+                                                             N_INDEPENDENT, _SUSPENSION_STEP)
+        return _PASSES.margin
 
 
 def model_normal_forces(model, state: MachineState) -> np.ndarray:

@@ -59,3 +59,27 @@ def test_a_non_finite_load_split_is_refused():
         closure_margin(closure, model, s, unc, 0.99)
     with pytest.raises(EstimatorError, match="confidence"):
         closure_margin(closure, closure, s, unc, 1.5)
+
+
+@pytest.mark.skipif(_compiled_margin() is None, reason="no C compiler")
+def test_margin_pass_on_kept_buffers_is_numpys_to_the_bit():
+    """`MarginPass` with and without the model's G and the payload term, wheels lifted."""
+    from estimators.uncertainty_c import MarginPass
+
+    fused = MarginPass(_compiled_margin(), 19, 13, 100.0)
+    rng = np.random.default_rng(5)
+    for k in range(24):
+        g_c, g_m = rng.normal(0, 1e3, (4, 19)), rng.normal(0, 1e3, (4, 19))
+        d_qd, stepped = rng.normal(0, 1e2, (4, 13)), rng.uniform(0, 2e4, (3, 4))
+        d_m, contact = rng.normal(0, 10, 4), rng.uniform(size=4) < 0.8
+        unc = StateUncertainty(rng.uniform(0.0, 0.1, 19), rng.uniform(0.0, 0.02, 13),
+                               rng.uniform(0.0, 500.0, 2), float(rng.uniform(0.0, 40.0)))
+        for model, payload in ((g_m, d_m), (None, d_m), (g_m, None)):
+            g = g_c if model is None else g_c - model
+            lin = SimpleNamespace(G=g, d_qd=d_qd, in_contact=contact)
+            d_s = ((stepped[1:] - stepped[0]) / 100.0).T
+            want = force_margin(normal_force_std(lin, unc, d_s, payload), 0.99)
+            got = fused(g_c, model, d_qd, stepped, payload, contact, unc, 2.3263478740408408)
+            assert got.tobytes() == want.tobytes(), (k, model is None, payload is None)
+    g_c[1, 3] = np.inf
+    assert fused(g_c, None, d_qd, stepped, d_m, contact, unc, 2.33) is None

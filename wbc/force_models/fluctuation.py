@@ -47,6 +47,7 @@ import math
 import numpy as np
 
 from models.numeric import clip
+from wbc.force_models.fluctuation_c import GovernorPass
 
 __all__ = ["SideLoadFluctuation", "SpeedGovernor"]
 
@@ -75,6 +76,10 @@ class SpeedGovernor:
         self.window = float(window)
         self.drive_time_constant = float(drive_time_constant)
         self.min_speed = float(min_speed)
+        # The tick in C on kept buffers (`fluctuation_c`), loaded here, not in a tick; None
+        # without a compiler. The filters' state lives in its buffers then.
+        self._c = GovernorPass.make()
+        self._state = np.zeros(2) if self._c is None else self._c.state
         self.reset()
 
     def reset(self) -> None:
@@ -82,9 +87,31 @@ class SpeedGovernor:
         self.mean: np.ndarray | None = None
         self.per_speed = np.zeros(4)  # k [N s/m]
         self.scale_lag = 1.0
-        self._square = np.zeros(4)
+        if self._c is None:
+            self._square = np.zeros(4)
+        else:
+            self._square = self._c.square
+            self._square[:] = 0.0
         self._speed_square = 0.0
         self._time: float | None = None
+
+    @property
+    def scale_lag(self) -> float:
+        """``s_lag``: the commanded scale through the drive's lag."""
+        return float(self._state[0])
+
+    @scale_lag.setter
+    def scale_lag(self, value: float) -> None:
+        self._state[0] = value
+
+    @property
+    def _speed_square(self) -> float:
+        """The mean square of the speed over the window [m^2/s^2]."""
+        return float(self._state[1])
+
+    @_speed_square.setter
+    def _speed_square(self, value: float) -> None:
+        self._state[1] = value
 
     def update(self, forces, in_contact, time: float, speed: float,
                speed_scale: float) -> None:
@@ -99,10 +126,25 @@ class SpeedGovernor:
         """
         dt = 0.0 if self._time is None else time - self._time
         self._time = float(time)
+        c = self._c
+        if (c is not None and self.mean is c.mean and self._square is c.square
+                and forces is not c.mean and _quad(forces, float)
+                and _quad(in_contact, bool)):
+            per_speed = c.update(forces, in_contact, dt, speed, speed_scale,
+                                 (self.drive_time_constant, self.high_pass, self.window,
+                                  self.min_speed))
+            if per_speed is not None:
+                self.per_speed = per_speed
+            return
         if dt > 0:
             self.scale_lag += dt / (self.drive_time_constant + dt) * (speed_scale
                                                                       - self.scale_lag)
         f = np.asarray(forces, float)
+        if c is not None and self.mean is None and self._square is c.square:
+            if _usable(f, in_contact, speed):  # the first sample starts the kept mean
+                c.mean[:] = f
+                self.mean = c.mean
+            return
         if _usable(f, in_contact, speed) and _swing_step(self, f, dt, speed >= self.min_speed):
             a = dt / (self.window + dt)
             self._speed_square += a * (speed * speed - self._speed_square)
@@ -118,6 +160,12 @@ class SpeedGovernor:
         """
         if self.mean is None:
             return 1.0
+        c = self._c
+        if (c is not None and self.mean is c.mean and _quad(thresholds, float)
+                and _quad(in_contact, bool) and _quad(self.per_speed, float)):
+            ratios = c.ratios(self.per_speed, thresholds, in_contact, speed, self.z,
+                              _MIN_SCALE)
+            return 1.0 if ratios is None else float(clip(_min(ratios), 0.0, 1.0))
         per_speed = self.per_speed.tolist()
         if not any(k > 0 for k in per_speed):
             return 1.0
@@ -205,6 +253,11 @@ class SideLoadFluctuation:
         side = f[0::2] + f[1::2]  # (FL + RL, FR + RR)
         if _swing_step(self, side, dt, speed >= self.min_speed):
             self.sigma = np.sqrt(self._square)
+
+
+def _quad(a, dtype) -> bool:
+    """``a`` is a (4,) array of ``dtype`` (what the compiled governor takes)."""
+    return type(a) is np.ndarray and a.shape == (4,) and a.dtype == dtype
 
 
 def _usable(forces: np.ndarray, in_contact, speed: float) -> bool:
