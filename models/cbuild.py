@@ -28,8 +28,8 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["HOST_OPTIONS", "address", "bind", "cache_dir", "compile_shared", "load_shared",
-           "mujoco_options"]
+__all__ = ["BufferSlot", "HOST_OPTIONS", "address", "bind", "cache_dir", "compile_shared",
+           "load_shared", "mujoco_options"]
 
 _log = logging.getLogger(__name__)
 
@@ -188,3 +188,24 @@ def bind(fun, *args):
     """
     return functools.partial(fun, *(a.ctypes.data if isinstance(a, np.ndarray) else a
                                     for a in args))
+
+
+class BufferSlot:
+    """A number kept in one slot of an array attribute that C code reads and writes.
+
+    ``x = BufferSlot("_state", 0)`` in a class body makes ``obj.x`` read
+    ``kind(obj._state[0])`` and ``obj.x = v`` write ``obj._state[0] = v``: a filter's state
+    that a compiled pass updates in place stays an attribute to the Python around it.
+    """
+
+    def __init__(self, buffer: str, index: int, kind: type = float, doc: str | None = None):
+        self.buffer, self.index, self.kind = buffer, index, kind
+        self.__doc__ = doc
+
+    def __get__(self, obj, owner=None):
+        if obj is None:
+            return self
+        return self.kind(getattr(obj, self.buffer)[self.index])
+
+    def __set__(self, obj, value) -> None:
+        getattr(obj, self.buffer)[self.index] = value

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from models.cbuild import BufferSlot
 from scenarios.listeners_c import compiled_forces, forces_hooks
 from scenarios.simulator import Simulator
 from scenarios.step_c import StepHook
@@ -46,13 +47,7 @@ class NormalForceRecorder:
         self._grow()
         sim.add_step_listener(self)
 
-    @property
-    def _n(self) -> int:
-        return int(self._hook[0])
-
-    @_n.setter
-    def _n(self, value: int) -> None:
-        self._hook[0] = value
+    _n = BufferSlot("_hook", 0, int, doc="Samples recorded (the C hook counts them too).")
 
     def _grow(self) -> None:
         self._time = np.concatenate([self._time, np.zeros(_CHUNK)])

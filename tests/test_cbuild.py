@@ -110,3 +110,24 @@ def test_load_shared_sets_signatures_loads_once_and_falls_back_without_a_compile
     lib = load_shared(source, "probe", signatures, "Python")
     assert lib.twice(1.25) == 2.5  # the signature set: a double, not an int
     assert load_shared(source, "probe", signatures, "Python") is lib
+
+
+def test_a_buffer_slot_reads_and_writes_its_array():
+    """`BufferSlot`: the attribute is the array's slot, in its kind, both ways."""
+    import numpy as np
+
+    from models.cbuild import BufferSlot
+
+    class Counter:
+        n = BufferSlot("_buf", 1, int)
+        x = BufferSlot("_buf", 0, doc="a float")
+
+        def __init__(self):
+            self._buf = np.array([0.5, 3.0])
+
+    c = Counter()
+    assert (c.n, c.x) == (3, 0.5) and type(c.n) is int and type(c.x) is float
+    c.n += 2
+    c.x = -1.25
+    assert c._buf.tolist() == [-1.25, 5.0]
+    assert Counter.x.__doc__ == "a float"

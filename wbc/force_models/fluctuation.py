@@ -46,6 +46,7 @@ import math
 
 import numpy as np
 
+from models.cbuild import BufferSlot
 from models.numeric import clip
 from wbc.force_models.fluctuation_c import GovernorPass
 
@@ -95,23 +96,10 @@ class SpeedGovernor:
         self._speed_square = 0.0
         self._time: float | None = None
 
-    @property
-    def scale_lag(self) -> float:
-        """``s_lag``: the commanded scale through the drive's lag."""
-        return float(self._state[0])
-
-    @scale_lag.setter
-    def scale_lag(self, value: float) -> None:
-        self._state[0] = value
-
-    @property
-    def _speed_square(self) -> float:
-        """The mean square of the speed over the window [m^2/s^2]."""
-        return float(self._state[1])
-
-    @_speed_square.setter
-    def _speed_square(self, value: float) -> None:
-        self._state[1] = value
+    scale_lag = BufferSlot("_state", 0, doc="``s_lag``: the commanded scale through the "
+                                            "drive's lag.")
+    _speed_square = BufferSlot("_state", 1, doc="The mean square of the speed over the window "
+                                                "[m^2/s^2].")
 
     def update(self, forces, in_contact, time: float, speed: float,
                speed_scale: float) -> None:
