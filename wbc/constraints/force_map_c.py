@@ -24,7 +24,7 @@ from models.coordinates import N_INDEPENDENT, SUSPENSION
 from wbc.axes import N_AXES
 from wbc.force_models.feedback import DIAGONAL
 
-__all__ = ["FORCE_MAP_C", "CompiledForceMap", "compiled_force_map"]
+__all__ = ["FORCE_MAP_C", "CompiledForceMap", "compiled_force_map", "row_offsets"]
 
 # Integer header `iv` (then `which` and `j` of every node), double header `dv`, pointers `p`.
 _I_NAMES = ("n_eval", "n_steps", "n", "row_len", "off_g", "off_dq", "off_dqd", "off_g0",
@@ -217,18 +217,41 @@ class CompiledForceMap:
         rowed = slices is not None and all(o.__dict__.get("_views") is views for o in lins)
         width = lins[0].__dict__["_row"].size if rowed else _OWN_ROW
         self._buffers(struct, n_steps, n, scale, (len(lins), width))
-        a, iv, dv = self.arrays, self.iv, self.dv
-        rows = a["rows"]
+        rows = self.arrays["rows"]
         if rowed:
             for k, lin in enumerate(lins):
                 rows[k] = lin.__dict__["_row"]
-            offsets = (slices["G"][0].start, slices["d_q"][0].start,
-                       slices["d_qd"][0].start, slices["g0"][0].start)
+            offsets = row_offsets(views)
         else:
             for k, lin in enumerate(lins):
                 for name, (lo, hi) in _OWN_FIELDS.items():
                     rows[k, lo:hi] = np.ravel(getattr(lin, name))
             offsets = tuple(lo for lo, _ in _OWN_FIELDS.values())
+        return self._run(struct, n, width, offsets, ctx, qn, vn, zero_suspension, warp,
+                         direction, bias, drift, s_prev, brake_time)
+
+    def evaluate_rows(self, struct, n_steps: int, n: int, scale, first: np.ndarray,
+                      later: np.ndarray, offsets: tuple, ctx, qn, vn, *,
+                      zero_suspension: bool, warp, direction, bias, drift, s_prev: float,
+                      brake_time: float | None) -> tuple[np.ndarray, np.ndarray]:
+        """`evaluate` of linearizations given as kernel rows: the same ``(A, b)``, bit for bit.
+
+        ``first``: node 0's row (width,), ``later``: the later nodes' rows (m, width), both
+        laid out as ``offsets`` (`row_offsets`) say; copied in, not kept.
+        """
+        width = first.size
+        self._buffers(struct, n_steps, n, scale, (1 + len(later), width))
+        rows = self.arrays["rows"]
+        rows[0] = first
+        rows[1:] = later
+        return self._run(struct, n, width, offsets, ctx, qn, vn, zero_suspension, warp,
+                         direction, bias, drift, s_prev, brake_time)
+
+    def _run(self, struct, n: int, width: int, offsets: tuple, ctx, qn, vn,
+             zero_suspension: bool, warp, direction, bias, drift, s_prev: float,
+             brake_time: float | None) -> tuple[np.ndarray, np.ndarray]:
+        """The C call on the rows in the buffer (`_buffers`) and this tick's other inputs."""
+        a, iv, dv = self.arrays, self.iv, self.dv
         iv[_ROW_HEADER] = (width, *offsets)
         iv[_TERM_FLAGS] = (zero_suspension, warp is not None, direction is not None,
                            bias is not None, drift is not None)
@@ -254,6 +277,13 @@ class CompiledForceMap:
         if self._fun(self.pointers, self._iv_at, self._dv_at, at, at + 8 * m * n) != 0:
             raise ValueError(f"force map: inconsistent sizes {iv[:4].tolist()}")
         return out[:m * n].reshape(m, n), out[m * n:]
+
+
+def row_offsets(views) -> tuple[int, int, int, int]:
+    """Where ``G``, ``d_q``, ``d_qd``, ``g0`` start in a row of ``views`` (`RowViews`)."""
+    slices = views.slices
+    return (slices["G"][0].start, slices["d_q"][0].start, slices["d_qd"][0].start,
+            slices["g0"][0].start)
 
 
 def _same(x, y) -> bool:

@@ -9,7 +9,7 @@ import numpy as np
 from estimators.linearization import ForceLinearization
 from models.coordinates import N_INDEPENDENT, SUSPENSION
 from wbc.axes import N_AXES
-from wbc.constraints.force_map_c import compiled_force_map
+from wbc.constraints.force_map_c import compiled_force_map, row_offsets
 from wbc.constraints.force_rows import ForceRowsConstraint
 from wbc.drive_model import speed_scale_direction
 from wbc.errors import ConfigurationError
@@ -185,16 +185,26 @@ class HorizonNormalForceConstraint(ForceRowsConstraint):
             (N + 1, 9)) with node 0 the measured state (its measured axes, which may differ
             from the prediction's start ``ctx.q`` by the servo deflection's vibration).
         """
-        pred = ctx.prediction
-        start, u = pred.start_times, ctx.nominal_inputs
+        return self._linearize(ctx, linearize_forces(self.model, ctx.state),
+                               *self._nominal(ctx))
+
+    def _nominal(self, ctx) -> tuple[np.ndarray, np.ndarray]:
+        """The nominal positions and velocities (N + 1, 9), node 0 the measured state's."""
+        pred, u = ctx.prediction, ctx.nominal_inputs
         qn = np.empty((u.shape[0] + 1, N_AXES))
         vn = np.empty_like(qn)
         qn[0], vn[0] = ctx.state.q[:N_AXES], ctx.state.qd[:N_AXES]
         np.add(ctx.free_positions, pred.Lq @ u, out=qn[1:])  # `CondensedPrediction.trajectory`
         np.add(ctx.free_velocities, pred.Lv @ u, out=vn[1:])
+        return qn, vn
+
+    def _linearize(self, ctx, first: ForceLinearization, qn: np.ndarray, vn: np.ndarray
+                   ) -> tuple:
+        """`linearize` with node 0's linearization ``first`` and the nominal ``qn``, ``vn``."""
+        start = ctx.prediction.start_times
         steps = self._structure(ctx).steps
         st = ctx.state
-        lins = [linearize_forces(self.model, st)]  # steps[0] = 0: the measured state
+        lins = [first]  # steps[0] = 0: the measured state
         later = steps[1:]
         batch = getattr(self.model, "linearize_states", None)
         if batch is not None and later.size:  # the later nodes in one compiled call
@@ -219,10 +229,66 @@ class HorizonNormalForceConstraint(ForceRowsConstraint):
         return self._forces_map(ctx, self.linearize(ctx), in_contact)
 
     def _forces_and_flags(self, ctx) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """`forces_map`, the flags from its linearization at node 0, ``ctx.state``."""
-        linearized = self.linearize(ctx)
-        flags = linearized_contact_flags(ctx.state, linearized[1][0])
+        """`forces_map`, the flags from its linearization at node 0, ``ctx.state``.
+
+        With the C force map and a model that gives the later nodes' kernel rows
+        (``linearize_rows``, `estimators.payload.PayloadEstimator`) and node 0's linearization
+        as a row, the rows go to the C without a linearization object per node
+        (`_rows_map`): the bits of `forces_map`.
+        """
+        first = linearize_forces(self.model, ctx.state)
+        flags = linearized_contact_flags(ctx.state, first)
+        qn, vn = self._nominal(ctx)
+        fast = self._rows_map(ctx, first, flags, qn, vn)
+        if fast is not None:
+            return (*fast, flags)
+        linearized = self._linearize(ctx, first, qn, vn)
         return (*self._forces_map(ctx, linearized, flags), flags)
+
+    def _rows_map(self, ctx, first: ForceLinearization, in_contact, qn: np.ndarray,
+                  vn: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+        """`_forces_map` in C on kernel rows, or None where that needs the objects.
+
+        None: no C force map, a model without ``linearize_rows``, node 0 without a kernel
+        row (tipping, the quasi-static method), or later nodes ``linearize_rows`` leaves
+        to one by one (out of range, singular): nothing was kept or counted.
+        """
+        lay = ctx.layout
+        kernel = self._kernel() if lay.n_axes == N_AXES else None
+        rows_of = getattr(self.model, "linearize_rows", None)
+        fields = first.__dict__
+        views = fields.get("_views")
+        if kernel is None or rows_of is None or getattr(views, "slices", None) is None:
+            return None
+        struct = self._structure(ctx)
+        steps = struct.steps
+        later = steps[1:]
+        row0 = fields["_row"]
+        if later.size:
+            rows = rows_of(ctx.state, ctx.prediction.start_times[later], qn[later], vn[later])
+            if rows is None or rows.shape[1] != row0.size:
+                return None
+        else:
+            rows = row0[:0]
+        self.linearization_steps = steps
+        direction, warp, drift, s_prev = self._terms(ctx, in_contact)
+        return kernel.evaluate_rows(
+            struct, lay.n_steps, lay.n, lay.scale, row0, rows, row_offsets(views), ctx, qn,
+            vn, zero_suspension=ctx.warp is not None, warp=warp, direction=direction,
+            bias=None if ctx.feedback is None else ctx.feedback.bias, drift=drift,
+            s_prev=s_prev, brake_time=self.terminal_brake_time)
+
+    def _terms(self, ctx, in_contact) -> tuple:
+        """``(direction, warp, drift, s_prev)`` of `_forces_map` (None: no such term)."""
+        lay, st = ctx.layout, ctx.state
+        direction = (speed_scale_direction(st, ctx.speed_scale, self.drive_time_constant)
+                     if lay.scale is not None else None)
+        # On three wheels the warp is free: the suspension sets the lifted wheel down
+        # without moving load (`lifted_wheel_thresholds` keeps the load it will need).
+        warp = ctx.warp if _all(np.asarray(in_contact, dtype=bool)) else None
+        drift = (ctx.warp_drift if warp is not None and ctx.warp_drift is not None
+                 else None)
+        return direction, warp, drift, max(ctx.speed_scale, _MIN_SCALE)
 
     def _forces_map(self, ctx, linearized: tuple, in_contact) -> tuple[np.ndarray, np.ndarray]:
         """`forces_map` from `linearize`'s result."""
@@ -233,17 +299,10 @@ class HorizonNormalForceConstraint(ForceRowsConstraint):
         self.linearization_steps = steps
         n_eval, which, j = struct.n_eval, struct.which, struct.j
         st = ctx.state
-        direction = (speed_scale_direction(st, ctx.speed_scale, self.drive_time_constant)
-                     if lay.scale is not None else None)
         omega = st.qd[N_AXES:N_INDEPENDENT]
-        # On three wheels the warp is free: the suspension sets the lifted wheel down
-        # without moving load (`lifted_wheel_thresholds` keeps the load it will need).
         if in_contact is None:
             in_contact = linearized_contact_flags(st, lins[0])
-        warp = ctx.warp if _all(np.asarray(in_contact, dtype=bool)) else None
-        drift = (ctx.warp_drift if warp is not None and ctx.warp_drift is not None
-                 else None)
-        s_prev = max(ctx.speed_scale, _MIN_SCALE)
+        direction, warp, drift, s_prev = self._terms(ctx, in_contact)
         kernel = self._kernel() if na == N_AXES else None
         if kernel is not None:
             return kernel.evaluate(
