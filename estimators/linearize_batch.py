@@ -70,7 +70,8 @@ static void rotation_at(const double* r0, const double* w, double t, double* rot
 }
 
 /* Row k: the template row with the base rotation rot[k] (9) (with iv[PREDICT], the
-   template's rotation moved on at its angular velocity for dt[k], `rotation_at`), no
+   template's rotation moved on at its angular velocity for dt[k], `rotation_at`, written to
+   rot[k] first), no
    accelerations, coordinates 0..m-1 and their velocities qa[k], va[k], the others moved on
    at their velocities: q + dt[k] * qd (the template's). Returns 0; -2: row k's q leaves
    [lo, hi] (k not evaluated); -3: row k's output is not finite or its condition not below
@@ -78,8 +79,9 @@ static void rotation_at(const double* r0, const double* w, double t, double* rot
 int linearize_rows(kernel_t f, const double* const* p, const ci* iv, const double* max_cond,
                    double* out, ci* iw, double* w) {
   const ci n = iv[N], n_in = iv[N_IN], n_out = iv[N_OUT], m = iv[M], nq = iv[NQ];
-  const double *tmpl = p[0], *rot = p[1], *qa = p[2], *va = p[3], *dt = p[4];
+  const double *tmpl = p[0], *qa = p[2], *va = p[3], *dt = p[4];
   const double *lo = p[5], *hi = p[6];
+  double* rot = (double*)p[1];
   double row[n_in];
   const double* arg[iv[SZ_ARG]];
   double* res[iv[SZ_RES]];
@@ -92,8 +94,8 @@ int linearize_rows(kernel_t f, const double* const* p, const ci* iv, const doubl
     double* q = row + iv[Q];
     double* qd = row + iv[QD];
     double* o = out + k * n_out;
-    if (iv[PREDICT]) rotation_at(tmpl + iv[ROT], tmpl + iv[TWIST] + 3, dt[k], row + iv[ROT]);
-    else for (c = 0; c < 9; ++c) row[iv[ROT] + c] = rot[k * 9 + c];
+    if (iv[PREDICT]) rotation_at(tmpl + iv[ROT], tmpl + iv[TWIST] + 3, dt[k], rot + k * 9);
+    for (c = 0; c < 9; ++c) row[iv[ROT] + c] = rot[k * 9 + c];
     for (c = 0; c < m; ++c) { q[c] = qa[k * m + c]; qd[c] = va[k * m + c]; }
     for (c = m; c < nq; ++c) q[c] = tmpl[iv[Q] + c] + dt[k] * tmpl[iv[QD] + c];
     for (c = 0; c < nq; ++c)
@@ -113,7 +115,8 @@ _PREDICT = _IV.index("predict")
 class _Nodes:
     """One thread's buffers for up to ``capacity`` rows of ``m`` given coordinates.
 
-    The template row, the rows' inputs and outputs, and the C call bound to them.
+    The template row, the rows' inputs (``rot``: the base rotations given, or those the C
+    predicted) and outputs, and the C call bound to them.
     """
 
     def __init__(self, lib, kernel, capacity: int, m: int):

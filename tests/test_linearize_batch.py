@@ -5,7 +5,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from estimators.linearize_batch import linearize_states
+from estimators.linearize_batch import linearize_rows, linearize_states
 from estimators.payload import PayloadEstimator
 from models import build_reference_machine
 from models.coordinates import WHEELS
@@ -98,6 +98,48 @@ def test_what_it_leaves_to_one_by_one(est):
     assert est.linearize_states(replace(state, contacts=tipping), dt, rot, q, qd) is None
     assert linearize_states(est._est, state, dt[:0], rot[:0], q[:0], qd[:0]) is None
     assert est.linearize_states(state, dt, rot, q, qd) is not None  # and still works
+
+
+def test_predicted_rotations_are_pinocchios_bits(est):
+    """`linearize_rows` predicts the base rotations in C: `predict_base_rotations`' bits.
+
+    Twists from 1e-9 rad/s to a few rad/s, rotation angles just under and over the end
+    of exp6's Taylor branch (eps^(1/4) ~ 1.2e-4 rad, where its terms show in the bits), and
+    dt = 0.
+    """
+    rng = np.random.default_rng(5)
+    for k in range(90):
+        twist = rng.standard_normal(6) * 10.0 ** rng.uniform(-9, 0.5)
+        dt, _, q, qd = _nodes(_state(rng), rng, 3)
+        if k % 3 == 1:  # the middle node's angle near the branch's end
+            twist[3:] *= rng.uniform(3e-5, 3e-4) / (np.linalg.norm(twist[3:]) * dt[1])
+        if k % 4 == 0:
+            dt[0] = 0.0
+        state = replace(_state(rng), base_twist=twist)
+        rot = predict_base_rotations(state, dt)
+        want = est.linearize_states(state, dt, rot, q, qd)
+        got = est.linearize_rows(state, dt, q, qd)
+        if want is None:
+            assert got is None
+            continue
+        np.testing.assert_array_equal(got, np.stack([w.__dict__["_row"] for w in want]))
+        # the rotations themselves (most of their last bits vanish in the rows)
+        np.testing.assert_array_equal(est._est._calls.__dict__["linearize_rows"].rot[:3], rot)
+
+
+def test_rows_are_a_kept_buffer(est):
+    """Rows of the thread's buffer (no copy), overwritten by the next call; None as before."""
+    rng = np.random.default_rng(6)
+    state = _state(rng)
+    dt, rot, q, qd = _nodes(state, rng, 3)
+    rows = est.linearize_rows(state, dt, q, qd)
+    kept = rows.copy()
+    assert est.linearize_rows(state, dt[:2], q[:2] + 1e-3, qd[:2]).base is rows.base
+    assert not np.array_equal(rows[:2], kept[:2])
+    far = q.copy()
+    far[1, 2] = 50.0
+    assert est.linearize_rows(state, dt, far, qd) is None
+    assert linearize_rows(est._est, state, dt[:0], q[:0], qd[:0]) is None
 
 
 def test_the_caches_are_not_touched(est):
