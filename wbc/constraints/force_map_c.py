@@ -10,7 +10,9 @@ j]`` in the column of step j's input to axis a. Compiled once with the system co
 (`models.cbuild`) and called through ctypes with one block of pointers; the numpy version
 stays as the fallback without a compiler and as the test's oracle
 (`tests/test_force_map_c.py`: the same ``A`` to the bit where the numpy sums hold one
-nonzero term, ``b`` to round-off).
+nonzero term, ``b`` to round-off). The linearizations come in as their kernel rows: read
+from `ForceLinearization` objects (`CompiledForceMap.evaluate`), or handed over as rows
+(`CompiledForceMap.evaluate_rows`, the MPC's tick: `tests/test_horizon_rows.py`).
 """
 
 from __future__ import annotations
@@ -174,12 +176,18 @@ class CompiledForceMap:
     def __init__(self, fun):
         self._fun = fun
         self._key: tuple | None = None
+        self._header: tuple | None = None
 
     def _buffers(self, struct, n_steps: int, n: int, scale, rows_shape: tuple) -> None:
         """The buffers of a structure (`HorizonNormalForceConstraint._structure`)."""
+        kept = self._key
+        if (kept is not None and kept[0] is struct and kept[1] == n_steps and kept[2] == n
+                and kept[3] == scale and kept[4] == rows_shape):
+            return  # the common case, without the key's tuple
         key = (struct, n_steps, n, scale, rows_shape)
-        if self._key is not None and all(map(_same, self._key, key)):
+        if kept is not None and all(map(_same, kept, key)):
             return
+        self._header = None  # the new ``iv`` has no row header and flags yet (`_run`)
         N, n_eval = n_steps, struct.n_eval
         head = len(_I_NAMES)
         iv = self.iv = np.zeros(head + 2 * n_eval, np.int64)
@@ -252,9 +260,12 @@ class CompiledForceMap:
              brake_time: float | None) -> tuple[np.ndarray, np.ndarray]:
         """The C call on the rows in the buffer (`_buffers`) and this tick's other inputs."""
         a, iv, dv = self.arrays, self.iv, self.dv
-        iv[_ROW_HEADER] = (width, *offsets)
-        iv[_TERM_FLAGS] = (zero_suspension, warp is not None, direction is not None,
-                           bias is not None, drift is not None)
+        header = (width, *offsets, zero_suspension, warp is not None, direction is not None,
+                  bias is not None, drift is not None)
+        if header != self._header:  # written when it changes (a wheel lifts, a term comes)
+            iv[_ROW_HEADER] = header[:5]
+            iv[_TERM_FLAGS] = header[5:]
+            self._header = header
         a["omega"][:] = ctx.state.qd[NA:NQ]
         a["free_q"][:] = ctx.free_positions
         a["free_v"][:] = ctx.free_velocities
@@ -269,7 +280,9 @@ class CompiledForceMap:
             a["bias"][:] = bias
         if drift is not None:
             a["drift"][:] = drift[:struct.n_eval]
-        dv[:] = (ctx.speed_scale, 1.0 if brake_time is None else brake_time, s_prev)
+        dv[0] = ctx.speed_scale
+        dv[1] = 1.0 if brake_time is None else brake_time
+        dv[2] = s_prev
         # A, then b, in one fresh block: one address to take (`models.cbuild.address`)
         m = NW * struct.n_eval
         out = np.empty(m * (n + 1))

@@ -100,7 +100,10 @@ class HorizonNormalForceConstraint(ForceRowsConstraint):
         linearization_steps: Steps at which the model was evaluated at the last call.
         compiled: `forces_map` in C (`wbc.constraints.force_map_c`: one call a tick, the
             same numbers to round-off) when a C compiler is there; False: numpy (the
-            reference).
+            reference). With a model that gives its nodes' kernel rows
+            (`estimators.payload.PayloadEstimator.linearize_rows`), a tick's rows are made
+            from those rows without a `ForceLinearization` per node (`_rows_map`, the bits
+            of the C `forces_map`).
     """
 
     def __init__(self, model: NormalForceModel, thresholds, n_linearizations: int = 3,
@@ -126,12 +129,14 @@ class HorizonNormalForceConstraint(ForceRowsConstraint):
         self._compiled_map = compiled_force_map()
         self.linearization_steps: np.ndarray = np.zeros(0, dtype=int)
         self._structure_cache: tuple | None = None  # (key, structure, last context)
+        self._offsets: tuple = (None, None)  # (row views, `row_offsets`) of `_rows_map`
         self._warp_cache: tuple | None = None
 
     def _structure(self, ctx) -> SimpleNamespace:
         """What the layout, step lengths, period and settings fix: built once for them.
 
-        ``steps`` (the linearization steps), ``which`` (the one each evaluation node uses),
+        ``steps`` (the linearization steps, ``later_steps`` those after 0, at the start
+        times ``later_times``), ``which`` (the one each evaluation node uses),
         ``j = steps[which]``, ``n_eval``, ``times`` (the nodes' times), ``since_j`` (time
         since node ``j``, (n_eval, 1)), ``decay`` (the drive's ``exp(-t / tau)``,
         (n_eval, 1)), ``u_flat`` (flat indices of the input blocks in A), ``Pq``, ``Pv``
@@ -163,6 +168,7 @@ class HorizonNormalForceConstraint(ForceRowsConstraint):
             nodes = np.flatnonzero(times[:n_eval] >= self.start_time - 1e-12)
             cache = (key, SimpleNamespace(
                 steps=steps, which=which, j=j, n_eval=n_eval, n_u=n_u, times=times,
+                later_steps=steps[1:], later_times=times[steps[1:]],
                 since_j=(times[:n_eval] - times[j])[:, None],
                 decay=np.exp(-times[:n_eval] / self.drive_time_constant)[:, None],
                 u_flat=u_flat, Pq=pred.Pq.reshape(N, na, lay.n)[:n_eval - 1],
@@ -261,19 +267,20 @@ class HorizonNormalForceConstraint(ForceRowsConstraint):
         if kernel is None or rows_of is None or getattr(views, "slices", None) is None:
             return None
         struct = self._structure(ctx)
-        steps = struct.steps
-        later = steps[1:]
+        later = struct.later_steps
         row0 = fields["_row"]
         if later.size:
-            rows = rows_of(ctx.state, ctx.prediction.start_times[later], qn[later], vn[later])
+            rows = rows_of(ctx.state, struct.later_times, qn[later], vn[later])
             if rows is None or rows.shape[1] != row0.size:
                 return None
         else:
             rows = row0[:0]
-        self.linearization_steps = steps
+        self.linearization_steps = struct.steps
+        if self._offsets[0] is not views:
+            self._offsets = (views, row_offsets(views))
         direction, warp, drift, s_prev = self._terms(ctx, in_contact)
         return kernel.evaluate_rows(
-            struct, lay.n_steps, lay.n, lay.scale, row0, rows, row_offsets(views), ctx, qn,
+            struct, lay.n_steps, lay.n, lay.scale, row0, rows, self._offsets[1], ctx, qn,
             vn, zero_suspension=ctx.warp is not None, warp=warp, direction=direction,
             bias=None if ctx.feedback is None else ctx.feedback.bias, drift=drift,
             s_prev=s_prev, brake_time=self.terminal_brake_time)
