@@ -30,7 +30,7 @@ from estimators.linearization import ForceLinearization
 from models.cbuild import bind, load_shared
 from models.state import MachineState
 
-__all__ = ["NODES_C", "library", "linearize_rows", "linearize_states"]
+__all__ = ["NODES_C", "library", "linearize_first", "linearize_rows", "linearize_states"]
 
 NODES_C = r"""
 #include <float.h>
@@ -38,7 +38,7 @@ NODES_C = r"""
 typedef long long ci;
 typedef int (*kernel_t)(const double** arg, double** res, ci* iw, double* w, int mem);
 enum { N, N_IN, N_OUT, M, NQ, SZ_ARG, SZ_RES, ROT, ACC, N_ACC, Q, QD, QDD, COND, SUM, TWIST,
-       PREDICT };
+       PREDICT, FIRST };
 
 /* rot = r0 exp(w t), row-major (9): the rotation of pinocchio's `SE3(r0, p) * exp6(twist t)`
    (`wbc.mpc.prediction.predict_base_rotations`) to the bit: exp6's rotation as
@@ -73,23 +73,33 @@ static void rotation_at(const double* r0, const double* w, double t, double* rot
    template's rotation moved on at its angular velocity for dt[k], `rotation_at`, written to
    rot[k] first), no
    accelerations, coordinates 0..m-1 and their velocities qa[k], va[k], the others moved on
-   at their velocities: q + dt[k] * qd (the template's). Returns 0; -2: row k's q leaves
-   [lo, hi] (k not evaluated); -3: row k's output is not finite or its condition not below
-   max_cond. p: template, rot, qa, va, dt, lo, hi. */
+   at their velocities: q + dt[k] * qd (the template's). With iv[FIRST], the template row
+   itself first (its q replaced by q0 where iv[FIRST] is 2: clipped), out's row 0, and the
+   n rows after it. Returns 0; -2: row k's q leaves [lo, hi] (k not evaluated); -3: row k's
+   output is not finite or its condition not below max_cond; -4: so is the template's
+   (nothing else evaluated). p: template, rot, qa, va, dt, lo, hi, q0. */
 int linearize_rows(kernel_t f, const double* const* p, const ci* iv, const double* max_cond,
                    double* out, ci* iw, double* w) {
   const ci n = iv[N], n_in = iv[N_IN], n_out = iv[N_OUT], m = iv[M], nq = iv[NQ];
   const double *tmpl = p[0], *qa = p[2], *va = p[3], *dt = p[4];
-  const double *lo = p[5], *hi = p[6];
+  const double *lo = p[5], *hi = p[6], *q0 = p[7];
   double* rot = (double*)p[1];
   double row[n_in];
   const double* arg[iv[SZ_ARG]];
   double* res[iv[SZ_RES]];
   ci k, c;
   for (c = 0; c < n_in; ++c) row[c] = tmpl[c];
+  arg[0] = row;
+  if (iv[FIRST]) {  /* the state itself, with its accelerations */
+    if (iv[FIRST] == 2)
+      for (c = 0; c < nq; ++c) row[iv[Q] + c] = q0[c];
+    res[0] = out;
+    if (f(arg, res, iw, w, 0)) return -4;
+    if (!(isfinite(out[iv[SUM]]) && out[iv[COND]] < max_cond[0])) return -4;
+    out += n_out;
+  }
   for (c = 0; c < iv[N_ACC]; ++c) row[iv[ACC] + c] = 0.0;
   for (c = 0; c < nq; ++c) row[iv[QDD] + c] = 0.0;
-  arg[0] = row;
   for (k = 0; k < n; ++k) {
     double* q = row + iv[Q];
     double* qd = row + iv[QD];
@@ -108,15 +118,16 @@ int linearize_rows(kernel_t f, const double* const* p, const ci* iv, const doubl
 }
 """
 _IV = ("n", "n_in", "n_out", "m", "nq", "sz_arg", "sz_res", "rot", "acc", "n_acc", "q", "qd",
-       "qdd", "cond", "sum", "twist", "predict")
-_PREDICT = _IV.index("predict")
+       "qdd", "cond", "sum", "twist", "predict", "first")
+_PREDICT, _FIRST = _IV.index("predict"), _IV.index("first")
 
 
 class _Nodes:
     """One thread's buffers for up to ``capacity`` rows of ``m`` given coordinates.
 
     The template row, the rows' inputs (``rot``: the base rotations given, or those the C
-    predicted) and outputs, and the C call bound to them.
+    predicted; ``q0``: the state's clipped coordinates) and outputs (one row more, for the
+    state itself), and the C call bound to them.
     """
 
     def __init__(self, lib, kernel, capacity: int, m: int):
@@ -128,13 +139,14 @@ class _Nodes:
         self.rot = np.zeros((capacity, 3, 3))
         self.qa, self.va = np.zeros((capacity, m)), np.zeros((capacity, m))
         self.dt = np.zeros(capacity)
-        self.out = np.zeros((capacity, lay.der_size))
+        self.q0 = np.zeros(nq)
+        self.out = np.zeros((capacity + 1, lay.der_size))
         cond, total = ROW_CHECKS["nf_derivatives"]
         self.iv = np.array([capacity, lay.size, lay.der_size, m, nq, kernel.sz_arg,
                             kernel.sz_res, lay.rotation.start, lay.acceleration.start,
                             lay.acceleration.stop - lay.acceleration.start, lay.q.start,
-                            lay.qd.start, lay.qdd.start, cond, total, lay.twist.start, 0],
-                           np.int64)
+                            lay.qd.start, lay.qdd.start, cond, total, lay.twist.start, 0,
+                            0], np.int64)
         self.max_cond = np.array([SINGULAR_CONDITION])
         self.ranges = self.bounds = None  # an estimator's ``_bounds``, `range_bounds`
         self._lib, self._kernel = lib, kernel
@@ -143,7 +155,8 @@ class _Nodes:
         """The C call on these buffers for ``est``'s coordinate ranges."""
         if self.ranges is not est._bounds:
             self.ranges, self.bounds = est._bounds, range_bounds(est)  # kept: pointed at
-            arrays = (self.template, self.rot, self.qa, self.va, self.dt, *self.bounds)
+            arrays = (self.template, self.rot, self.qa, self.va, self.dt, *self.bounds,
+                      self.q0)
             self.pointers = (ctypes.c_void_p * len(arrays))(*(a.ctypes.data for a in arrays))
             iw, w = self._kernel.workspace()
             self.call = bind(self._lib.linearize_rows, self._kernel.address, self.pointers,
@@ -183,7 +196,7 @@ def linearize_states(est, state: MachineState, dt: np.ndarray, rotation: np.ndar
     done = _evaluate(est, state, dt, rotation, q_head, qd_head)
     if done is None:
         return None
-    rows, sel, flags = done
+    rows, sel, flags, _ = done
     rows = rows.copy()
     rows.flags.writeable = False
     mode = sel.mode
@@ -211,14 +224,60 @@ def linearize_rows(est, state: MachineState, dt: np.ndarray, q_head: np.ndarray,
     return None if done is None else done[0]
 
 
-def _evaluate(est, state: MachineState, dt: np.ndarray, rotation: np.ndarray | None,
-              q_head: np.ndarray, qd_head: np.ndarray) -> tuple | None:
-    """(kept output rows (n, .), `Selectors`, contact flags) of the n states, or None.
+def linearize_first(est, state: MachineState, dt: np.ndarray, q_head: np.ndarray,
+                    qd_head: np.ndarray) -> tuple[ForceLinearization, np.ndarray | None] | None:
+    """``est.linearize(state)`` and the rows of `linearize_rows`, in one C call.
 
-    ``rotation`` None: each state's rotation predicted in C (`linearize_rows`).
+    The state itself is the loop's first row: its input row is the one `est.linearize`
+    packs (the same template; coordinates outside their ranges clipped as the estimator's
+    ``strokes="clip"`` policy does, counted in its ``n_clipped``), evaluated by the same
+    kernel: its `ForceLinearization` is `est.linearize`'s, bit for bit.
+
+    Returns:
+        (the state's linearization, the n later rows (a view of the kept buffer, valid until
+        the next call) or None where `linearize_rows` gives None: the later states then
+        go one by one). None, with nothing counted, where ``est.linearize`` must take the
+        state (no compiled kernel, the quasi-static method, tipping, a coordinate out of
+        range under ``strokes="raise"``, a singular or non-finite row: it raises or solves).
+    """
+    if not isinstance(state, MachineState):
+        return None
+    values = state.q.tolist()
+    for i, lo, hi in est._bounds:  # `NormalForceEstimator._checked`'s test
+        if not lo <= values[i] <= hi:
+            if est.strokes == "raise":
+                return None
+            q0, clipped = est._packer.clipped(state.q)
+            break
+    else:
+        q0, clipped = None, ()
+    done = _evaluate(est, state, dt, None, q_head, qd_head, 1 if q0 is None else 2, q0)
+    if done is None:
+        return None
+    out, sel, flags, status = done
+    if status == -4:  # the state's own row: `est.linearize` says why
+        return None
+    if q0 is not None:
+        est.n_clipped += 1
+    # a read-only copy of the row, as `NormalForceEstimator.linearize` makes it
+    first = ForceLinearization.from_row(
+        {"in_contact": flags, "mode": sel.mode, "clipped": clipped, "time": state.time},
+        LINEARIZATION_VIEWS, np.frombuffer(out[0].tobytes()))
+    return first, (out[1:] if status == 0 else None)
+
+
+def _evaluate(est, state: MachineState, dt: np.ndarray, rotation: np.ndarray | None,
+              q_head: np.ndarray, qd_head: np.ndarray, first: int = 0,
+              q0: np.ndarray | None = None) -> tuple | None:
+    """(kept output rows, `Selectors`, contact flags, C status) of the n states, or None.
+
+    ``rotation`` None: each state's rotation predicted in C (`linearize_rows`). ``first``
+    1: the state itself first (out's row 0, then the n states), 2: with its coordinates
+    ``q0`` (`linearize_first`). None: nothing evaluated; without ``first``, also a nonzero
+    status.
     """
     n, m = q_head.shape
-    if est.backend != "compiled" or est._qs is not None or n == 0:
+    if est.backend != "compiled" or est._qs is not None or n + first == 0:
         return None
     calls = est._calls.__dict__
     nodes = calls.get("linearize_rows")
@@ -229,11 +288,14 @@ def _evaluate(est, state: MachineState, dt: np.ndarray, rotation: np.ndarray | N
         kernel = est._kernels.kernel("nf_derivatives")
         if not isinstance(kernel, Compiled):  # it did not compile: CasADi's VM
             return None
-        nodes = calls["linearize_rows"] = _Nodes(lib, kernel, n, m)
+        nodes = calls["linearize_rows"] = _Nodes(lib, kernel, max(n, 1), m)
     sel, flags = est._pack(nodes.template, state, est.D, est.beta, nodes.raw)
     if sel.tipping:
         return None
     iv = nodes.iv
+    iv[_FIRST] = bool(first) + (q0 is not None)
+    if q0 is not None:
+        nodes.q0[:] = q0
     if rotation is None:
         iv[_PREDICT] = 1
     else:
@@ -243,6 +305,7 @@ def _evaluate(est, state: MachineState, dt: np.ndarray, rotation: np.ndarray | N
     nodes.va[:n] = qd_head
     nodes.dt[:n] = dt
     iv[0] = n
-    if nodes.bound(est)() != 0:
+    status = nodes.bound(est)()
+    if status != 0 and not first:
         return None
-    return nodes.out[:n], sel, flags
+    return nodes.out[:n + bool(first)], sel, flags, status

@@ -1,9 +1,10 @@
 """The MPC force rows' tick path on kernel rows (`HorizonNormalForceConstraint._rows_map`).
 
-The tick reads node 0's linearization and the later nodes' kernel rows
-(`estimators.linearize_batch.linearize_rows`, base rotations predicted in C) straight into
-the C force map; `forces_map` (one `ForceLinearization` per node, the rotations of
-`wbc.mpc.prediction.predict_base_rotations`) is the reference: the same bits, on real ticks.
+The tick linearizes node 0 and the later nodes in one compiled call
+(`estimators.payload.PayloadEstimator.linearize_nodes`, base rotations predicted in C) and
+hands the rows straight to the C force map; `forces_map` (the model's `linearize`, one
+`ForceLinearization` per node, the rotations of `wbc.mpc.prediction.predict_base_rotations`)
+is the reference: the same bits, on real ticks.
 """
 
 import dataclasses
@@ -59,6 +60,8 @@ def _both(con, ctx):
     finally:
         del con._rows_map
     steps = con.linearization_steps
+    if hasattr(con.model, "_last"):
+        con.model._last = None  # node 0 linearized again by `linearize`, not the tick's
     A_ref, b_ref = con.forces_map(ctx, flags)
     np.testing.assert_array_equal(steps, con.linearization_steps)
     return (A, b, flags), (A_ref, b_ref), used
@@ -97,7 +100,7 @@ def test_three_wheels_a_drift_and_no_feedback(machine):
 
 
 class _ObjectsOnly:
-    """The model without ``linearize_rows``: the tick takes the objects' path."""
+    """The model without ``linearize_nodes``: the tick takes the objects' path."""
 
     def __init__(self, model):
         self.model = model
@@ -111,6 +114,10 @@ class _ObjectsOnly:
     def linearize_states(self, *args):
         return self.model.linearize_states(*args)
 
+    @property
+    def n_clipped(self):
+        return self.model.n_clipped
+
 
 def test_without_rows_the_objects_path_gives_the_same(machine):
     ctrl, states = _turning_mpc(machine, False)
@@ -123,14 +130,14 @@ def test_without_rows_the_objects_path_gives_the_same(machine):
         (A_obj, b_obj, flags_obj), _, used = _both(con, ctx)
     finally:
         con.model = model
-    assert used == [False]
+    assert not any(used)
     np.testing.assert_array_equal(A, A_obj)
     np.testing.assert_array_equal(b, b_obj)
     np.testing.assert_array_equal(flags, flags_obj)
 
 
 def test_nodes_it_leaves_to_one_by_one_fall_back(machine):
-    """A later node out of range: `linearize_rows` says None; the objects' path clips it."""
+    """A later node out of range: no rows; the objects' path clips it (node 0 kept)."""
     ctrl, states = _turning_mpc(machine, False)
     con = ctrl.force_constraint
     ctx = ctrl.context(states[-1])
@@ -140,6 +147,6 @@ def test_nodes_it_leaves_to_one_by_one_fall_back(machine):
     ctx = dataclasses.replace(ctx, nominal_inputs=far)
     clipped = con.model.n_clipped
     (A, b, _), (A_ref, b_ref), used = _both(con, ctx)
-    assert used == [False] and con.model.n_clipped > clipped
+    assert not any(used) and con.model.n_clipped > clipped
     np.testing.assert_array_equal(A, A_ref)
     np.testing.assert_array_equal(b, b_ref)

@@ -5,7 +5,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from estimators.linearize_batch import linearize_rows, linearize_states
+from estimators.linearize_batch import linearize_first, linearize_rows, linearize_states
 from estimators.payload import PayloadEstimator
 from models import build_reference_machine
 from models.coordinates import WHEELS
@@ -140,6 +140,89 @@ def test_rows_are_a_kept_buffer(est):
     far[1, 2] = 50.0
     assert est.linearize_rows(state, dt, far, qd) is None
     assert linearize_rows(est._est, state, dt[:0], q[:0], qd[:0]) is None
+
+
+def _same_linearization(a, b):
+    np.testing.assert_array_equal(a.__dict__["_row"], b.__dict__["_row"])
+    np.testing.assert_array_equal(a.in_contact, b.in_contact)
+    assert (a.mode, a.clipped, a.time) == (b.mode, b.clipped, b.time)
+    assert not a.__dict__["_row"].flags.writeable
+
+
+def test_the_first_row_is_linearize(est):
+    """`linearize_first`: the state's linearization is `linearize`'s bits.
+
+    Measured contacts, three wheels, cylinder forces, payloads, strokes past their ends
+    (clipped and counted; the later nodes past them too: no rows, node 0 still given).
+    """
+    rng = np.random.default_rng(12)
+    n_clipped = 0
+    seen = set()
+    for k in range(24):
+        contacts = None
+        if k % 3 == 1:
+            contacts = WheelContacts(np.array([True, True, k % 2 == 0, k % 2 == 1]),
+                                     100 * rng.normal(size=(4, 3)), rng.normal(size=(4, 3)),
+                                     np.tile([0.0, 0.0, 1.0], (4, 1)))
+        state = _state(rng, contacts, rng.uniform(2e4, 5e4, 2) if k % 2 else None)
+        _, _, i, _, upper = est._est._packer.ranges[k % 3]
+        if k % 4 == 2:  # a stroke past its end
+            q = state.q.copy()
+            q[i] = upper + 0.01
+            state = replace(state, q=q)
+        est.payload_mass = rng.uniform(0.0, 400.0)
+        dt, rot, q, qd = _nodes(state, rng, 2 + k % 2)
+        if k % 8 == 2:  # the later nodes in range (else they are left to one by one)
+            q[:, i] = upper - 0.01
+        before = est.n_clipped
+        done = linearize_first(est._est, state, dt, q, qd)
+        assert done is not None
+        counted = est.n_clipped - before
+        ref = est._est.linearize(state)
+        assert est.n_clipped - before == 2 * counted  # counted once by each
+        n_clipped += counted
+        _same_linearization(done[0], ref)
+        rows = None if done[1] is None else done[1].copy()
+        seen.add((counted, rows is None))
+        want = est.linearize_rows(state, dt, q, qd)
+        assert (rows is None) == (want is None)
+        if rows is not None:
+            np.testing.assert_array_equal(rows, want)
+    assert n_clipped == 6 and seen >= {(0, False), (1, False), (1, True)}
+
+
+def test_what_the_first_row_leaves_to_linearize():
+    """Out of range under ``strokes="raise"``, tipping: None, nothing counted."""
+    strict = PayloadEstimator(MACHINE)
+    if strict._est.backend != "compiled":
+        pytest.skip("no C compiler")
+    rng = np.random.default_rng(13)
+    state = _state(rng)
+    dt, _, q, qd = _nodes(state, rng, 2)
+    assert linearize_first(strict._est, state, dt, q, qd) is not None
+    far = state.q.copy()
+    _, _, i, _, upper = strict._est._packer.ranges[0]
+    far[i] = upper + 0.01
+    assert linearize_first(strict._est, replace(state, q=far), dt, q, qd) is None
+    tipping = WheelContacts(np.array([True, False, False, True]), np.zeros((4, 3)),
+                            np.zeros((4, 3)), np.tile([0.0, 0.0, 1.0], (4, 1)))
+    assert linearize_first(strict._est, replace(state, contacts=tipping), dt, q, qd) is None
+    assert strict.n_clipped == 0
+
+
+def test_linearize_nodes_keeps_the_first(est):
+    """`PayloadEstimator.linearize_nodes` keeps node 0 as `linearize` does, and reuses it."""
+    rng = np.random.default_rng(14)
+    state = _state(rng)
+    dt, _, q, qd = _nodes(state, rng, 2)
+    lin, rows = est.linearize_nodes(state, dt, q, qd)
+    assert est.linearize(state) is lin
+    rows = rows.copy()
+    again, rows_again = est.linearize_nodes(state, dt, q, qd)
+    assert again is lin
+    np.testing.assert_array_equal(rows_again, rows)
+    kept = est.linearize(_state(rng))
+    assert est.linearize_nodes(state, dt, q, qd)[0] is not kept
 
 
 def test_the_caches_are_not_touched(est):

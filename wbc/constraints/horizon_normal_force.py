@@ -17,6 +17,7 @@ from wbc.force_models.feedback import DIAGONAL
 from wbc.force_models.protocol import (
     NormalForceModel,
     linearize_forces,
+    linearize_nodes,
     linearized_contact_flags,
 )
 from wbc.mpc.prediction import nominal_state, predict_base_rotations
@@ -101,7 +102,7 @@ class HorizonNormalForceConstraint(ForceRowsConstraint):
         compiled: `forces_map` in C (`wbc.constraints.force_map_c`: one call a tick, the
             same numbers to round-off) when a C compiler is there; False: numpy (the
             reference). With a model that gives its nodes' kernel rows
-            (`estimators.payload.PayloadEstimator.linearize_rows`), a tick's rows are made
+            (`estimators.payload.PayloadEstimator.linearize_nodes`), a tick's rows are made
             from those rows without a `ForceLinearization` per node (`_rows_map`, the bits
             of the C `forces_map`).
     """
@@ -237,49 +238,50 @@ class HorizonNormalForceConstraint(ForceRowsConstraint):
     def _forces_and_flags(self, ctx) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """`forces_map`, the flags from its linearization at node 0, ``ctx.state``.
 
-        With the C force map and a model that gives the later nodes' kernel rows
-        (``linearize_rows``, `estimators.payload.PayloadEstimator`) and node 0's linearization
-        as a row, the rows go to the C without a linearization object per node
-        (`_rows_map`): the bits of `forces_map`.
+        With the C force map and a model that linearizes the horizon's nodes into kernel
+        rows (``linearize_nodes``, `estimators.payload.PayloadEstimator`: node 0 and the
+        later nodes in one compiled call), the rows go to the C without a linearization
+        object per later node (`_rows_map`): the bits of `forces_map`.
         """
-        first = linearize_forces(self.model, ctx.state)
-        flags = linearized_contact_flags(ctx.state, first)
+        st = ctx.state
         qn, vn = self._nominal(ctx)
-        fast = self._rows_map(ctx, first, flags, qn, vn)
-        if fast is not None:
-            return (*fast, flags)
+        rows = None
+        if (self._kernel() is not None and ctx.layout.n_axes == N_AXES
+                and hasattr(self.model, "linearize_nodes")):
+            struct = self._structure(ctx)
+            later = struct.later_steps
+            first, rows = linearize_nodes(self.model, st, struct.later_times, qn[later],
+                                          vn[later])
+        else:
+            first = linearize_forces(self.model, st)
+        flags = linearized_contact_flags(st, first)
+        if rows is not None:
+            fast = self._rows_map(ctx, first, rows, flags, qn, vn)
+            if fast is not None:
+                return (*fast, flags)
         linearized = self._linearize(ctx, first, qn, vn)
         return (*self._forces_map(ctx, linearized, flags), flags)
 
-    def _rows_map(self, ctx, first: ForceLinearization, in_contact, qn: np.ndarray,
-                  vn: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
-        """`_forces_map` in C on kernel rows, or None where that needs the objects.
+    def _rows_map(self, ctx, first: ForceLinearization, rows: np.ndarray, in_contact,
+                  qn: np.ndarray, vn: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+        """`_forces_map` in C on node 0's kernel row and the later nodes' ``rows``.
 
-        None: no C force map, a model without ``linearize_rows``, node 0 without a kernel
-        row (tipping, the quasi-static method), or later nodes ``linearize_rows`` leaves
-        to one by one (out of range, singular): nothing was kept or counted.
+        None where that needs the objects: node 0 without a kernel row (a tipping state's
+        least squares), rows of another length.
         """
-        lay = ctx.layout
-        kernel = self._kernel() if lay.n_axes == N_AXES else None
-        rows_of = getattr(self.model, "linearize_rows", None)
         fields = first.__dict__
         views = fields.get("_views")
-        if kernel is None or rows_of is None or getattr(views, "slices", None) is None:
+        row0 = fields.get("_row")
+        if (getattr(views, "slices", None) is None or row0 is None
+                or rows.shape[1] != row0.size):
             return None
+        lay = ctx.layout
         struct = self._structure(ctx)
-        later = struct.later_steps
-        row0 = fields["_row"]
-        if later.size:
-            rows = rows_of(ctx.state, struct.later_times, qn[later], vn[later])
-            if rows is None or rows.shape[1] != row0.size:
-                return None
-        else:
-            rows = row0[:0]
         self.linearization_steps = struct.steps
         if self._offsets[0] is not views:
             self._offsets = (views, row_offsets(views))
         direction, warp, drift, s_prev = self._terms(ctx, in_contact)
-        return kernel.evaluate_rows(
+        return self._compiled_map.evaluate_rows(
             struct, lay.n_steps, lay.n, lay.scale, row0, rows, self._offsets[1], ctx, qn,
             vn, zero_suspension=ctx.warp is not None, warp=warp, direction=direction,
             bias=None if ctx.feedback is None else ctx.feedback.bias, drift=drift,
