@@ -28,7 +28,7 @@ from estimators._symbolic import LAYOUT
 from estimators.batch import SINGULAR_CONDITION
 from estimators.estimator import NormalForceEstimator
 from estimators.linearization import ForceLinearization
-from estimators.linearize_batch import linearize_states
+from estimators.linearize_batch import linearize_first, linearize_rows, linearize_states
 from estimators.results import Estimate
 from estimators.suspension_response import stepped_forces
 from models.description import Machine
@@ -264,6 +264,39 @@ class PayloadEstimator:
         The states are new ones: no cache is read or written.
         """
         return linearize_states(self._est, state, dt, rotation, q_head, qd_head)
+
+    def linearize_rows(self, state: MachineState, dt: np.ndarray, q_head: np.ndarray,
+                       qd_head: np.ndarray) -> np.ndarray | None:
+        """The kernel rows of `linearize_states` with the base at its constant twist.
+
+        `estimators.linearize_batch.linearize_rows` at the current payload mass: the rows
+        (n, der_size) of a kept buffer, valid until the next call; None where the states
+        must be linearized one by one.
+        """
+        return linearize_rows(self._est, state, dt, q_head, qd_head)
+
+    def linearize_nodes(self, state: MachineState, dt: np.ndarray, q_head: np.ndarray,
+                        qd_head: np.ndarray) -> tuple[ForceLinearization, np.ndarray | None]:
+        """`linearize` of ``state`` and `linearize_rows` of the states after it.
+
+        One compiled call for both where ``state``'s linearization is not kept already
+        (`estimators.linearize_batch.linearize_first`: `linearize`'s bits, kept as
+        `linearize` keeps it), else `linearize` and `linearize_rows`.
+
+        Returns:
+            (``linearize(state)``, the later rows or None, as `linearize_rows` gives them).
+
+        Raises:
+            As `linearize`.
+        """
+        key = self._key()
+        last = self._last
+        if last is None or last[0] is not state or last[1] != key:
+            done = linearize_first(self._est, state, dt, q_head, qd_head)
+            if done is not None:
+                self._last = (state, key, done[0])
+                return done
+        return self.linearize(state), linearize_rows(self._est, state, dt, q_head, qd_head)
 
     def normal_forces_batch(self, batch, payload, strict: bool = False) -> np.ndarray:
         """Normal forces [N] (N, 4) of a `StateBatch`, each row at its own payload [kg] (N,).

@@ -10,7 +10,9 @@ j]`` in the column of step j's input to axis a. Compiled once with the system co
 (`models.cbuild`) and called through ctypes with one block of pointers; the numpy version
 stays as the fallback without a compiler and as the test's oracle
 (`tests/test_force_map_c.py`: the same ``A`` to the bit where the numpy sums hold one
-nonzero term, ``b`` to round-off).
+nonzero term, ``b`` to round-off). The linearizations come in as their kernel rows: read
+from `ForceLinearization` objects (`CompiledForceMap.evaluate`), or handed over as rows
+(`CompiledForceMap.evaluate_rows`, the MPC's tick: `tests/test_horizon_rows.py`).
 """
 
 from __future__ import annotations
@@ -24,7 +26,7 @@ from models.coordinates import N_INDEPENDENT, SUSPENSION
 from wbc.axes import N_AXES
 from wbc.force_models.feedback import DIAGONAL
 
-__all__ = ["FORCE_MAP_C", "CompiledForceMap", "compiled_force_map"]
+__all__ = ["FORCE_MAP_C", "CompiledForceMap", "compiled_force_map", "row_offsets"]
 
 # Integer header `iv` (then `which` and `j` of every node), double header `dv`, pointers `p`.
 _I_NAMES = ("n_eval", "n_steps", "n", "row_len", "off_g", "off_dq", "off_dqd", "off_g0",
@@ -174,12 +176,18 @@ class CompiledForceMap:
     def __init__(self, fun):
         self._fun = fun
         self._key: tuple | None = None
+        self._header: tuple | None = None
 
     def _buffers(self, struct, n_steps: int, n: int, scale, rows_shape: tuple) -> None:
         """The buffers of a structure (`HorizonNormalForceConstraint._structure`)."""
+        kept = self._key
+        if (kept is not None and kept[0] is struct and kept[1] == n_steps and kept[2] == n
+                and kept[3] == scale and kept[4] == rows_shape):
+            return  # the common case, without the key's tuple
         key = (struct, n_steps, n, scale, rows_shape)
-        if self._key is not None and all(map(_same, self._key, key)):
+        if kept is not None and all(map(_same, kept, key)):
             return
+        self._header = None  # the new ``iv`` has no row header and flags yet (`_run`)
         N, n_eval = n_steps, struct.n_eval
         head = len(_I_NAMES)
         iv = self.iv = np.zeros(head + 2 * n_eval, np.int64)
@@ -217,21 +225,47 @@ class CompiledForceMap:
         rowed = slices is not None and all(o.__dict__.get("_views") is views for o in lins)
         width = lins[0].__dict__["_row"].size if rowed else _OWN_ROW
         self._buffers(struct, n_steps, n, scale, (len(lins), width))
-        a, iv, dv = self.arrays, self.iv, self.dv
-        rows = a["rows"]
+        rows = self.arrays["rows"]
         if rowed:
             for k, lin in enumerate(lins):
                 rows[k] = lin.__dict__["_row"]
-            offsets = (slices["G"][0].start, slices["d_q"][0].start,
-                       slices["d_qd"][0].start, slices["g0"][0].start)
+            offsets = row_offsets(views)
         else:
             for k, lin in enumerate(lins):
                 for name, (lo, hi) in _OWN_FIELDS.items():
                     rows[k, lo:hi] = np.ravel(getattr(lin, name))
             offsets = tuple(lo for lo, _ in _OWN_FIELDS.values())
-        iv[_ROW_HEADER] = (width, *offsets)
-        iv[_TERM_FLAGS] = (zero_suspension, warp is not None, direction is not None,
-                           bias is not None, drift is not None)
+        return self._run(struct, n, width, offsets, ctx, qn, vn, zero_suspension, warp,
+                         direction, bias, drift, s_prev, brake_time)
+
+    def evaluate_rows(self, struct, n_steps: int, n: int, scale, first: np.ndarray,
+                      later: np.ndarray, offsets: tuple, ctx, qn, vn, *,
+                      zero_suspension: bool, warp, direction, bias, drift, s_prev: float,
+                      brake_time: float | None) -> tuple[np.ndarray, np.ndarray]:
+        """`evaluate` of linearizations given as kernel rows: the same ``(A, b)``, bit for bit.
+
+        ``first``: node 0's row (width,), ``later``: the later nodes' rows (m, width), both
+        laid out as ``offsets`` (`row_offsets`) say; copied in, not kept.
+        """
+        width = first.size
+        self._buffers(struct, n_steps, n, scale, (1 + len(later), width))
+        rows = self.arrays["rows"]
+        rows[0] = first
+        rows[1:] = later
+        return self._run(struct, n, width, offsets, ctx, qn, vn, zero_suspension, warp,
+                         direction, bias, drift, s_prev, brake_time)
+
+    def _run(self, struct, n: int, width: int, offsets: tuple, ctx, qn, vn,
+             zero_suspension: bool, warp, direction, bias, drift, s_prev: float,
+             brake_time: float | None) -> tuple[np.ndarray, np.ndarray]:
+        """The C call on the rows in the buffer (`_buffers`) and this tick's other inputs."""
+        a, iv, dv = self.arrays, self.iv, self.dv
+        header = (width, *offsets, zero_suspension, warp is not None, direction is not None,
+                  bias is not None, drift is not None)
+        if header != self._header:  # written when it changes (a wheel lifts, a term comes)
+            iv[_ROW_HEADER] = header[:5]
+            iv[_TERM_FLAGS] = header[5:]
+            self._header = header
         a["omega"][:] = ctx.state.qd[NA:NQ]
         a["free_q"][:] = ctx.free_positions
         a["free_v"][:] = ctx.free_velocities
@@ -246,7 +280,9 @@ class CompiledForceMap:
             a["bias"][:] = bias
         if drift is not None:
             a["drift"][:] = drift[:struct.n_eval]
-        dv[:] = (ctx.speed_scale, 1.0 if brake_time is None else brake_time, s_prev)
+        dv[0] = ctx.speed_scale
+        dv[1] = 1.0 if brake_time is None else brake_time
+        dv[2] = s_prev
         # A, then b, in one fresh block: one address to take (`models.cbuild.address`)
         m = NW * struct.n_eval
         out = np.empty(m * (n + 1))
@@ -254,6 +290,13 @@ class CompiledForceMap:
         if self._fun(self.pointers, self._iv_at, self._dv_at, at, at + 8 * m * n) != 0:
             raise ValueError(f"force map: inconsistent sizes {iv[:4].tolist()}")
         return out[:m * n].reshape(m, n), out[m * n:]
+
+
+def row_offsets(views) -> tuple[int, int, int, int]:
+    """Where ``G``, ``d_q``, ``d_qd``, ``g0`` start in a row of ``views`` (`RowViews`)."""
+    slices = views.slices
+    return (slices["G"][0].start, slices["d_q"][0].start, slices["d_qd"][0].start,
+            slices["g0"][0].start)
 
 
 def _same(x, y) -> bool:

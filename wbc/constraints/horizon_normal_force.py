@@ -9,7 +9,7 @@ import numpy as np
 from estimators.linearization import ForceLinearization
 from models.coordinates import N_INDEPENDENT, SUSPENSION
 from wbc.axes import N_AXES
-from wbc.constraints.force_map_c import compiled_force_map
+from wbc.constraints.force_map_c import compiled_force_map, row_offsets
 from wbc.constraints.force_rows import ForceRowsConstraint
 from wbc.drive_model import speed_scale_direction
 from wbc.errors import ConfigurationError
@@ -17,6 +17,7 @@ from wbc.force_models.feedback import DIAGONAL
 from wbc.force_models.protocol import (
     NormalForceModel,
     linearize_forces,
+    linearize_nodes,
     linearized_contact_flags,
 )
 from wbc.mpc.prediction import nominal_state, predict_base_rotations
@@ -100,7 +101,10 @@ class HorizonNormalForceConstraint(ForceRowsConstraint):
         linearization_steps: Steps at which the model was evaluated at the last call.
         compiled: `forces_map` in C (`wbc.constraints.force_map_c`: one call a tick, the
             same numbers to round-off) when a C compiler is there; False: numpy (the
-            reference).
+            reference). With a model that gives its nodes' kernel rows
+            (`estimators.payload.PayloadEstimator.linearize_nodes`), a tick's rows are made
+            from those rows without a `ForceLinearization` per node (`_rows_map`, the bits
+            of the C `forces_map`).
     """
 
     def __init__(self, model: NormalForceModel, thresholds, n_linearizations: int = 3,
@@ -126,12 +130,14 @@ class HorizonNormalForceConstraint(ForceRowsConstraint):
         self._compiled_map = compiled_force_map()
         self.linearization_steps: np.ndarray = np.zeros(0, dtype=int)
         self._structure_cache: tuple | None = None  # (key, structure, last context)
+        self._offsets: tuple = (None, None)  # (row views, `row_offsets`) of `_rows_map`
         self._warp_cache: tuple | None = None
 
     def _structure(self, ctx) -> SimpleNamespace:
         """What the layout, step lengths, period and settings fix: built once for them.
 
-        ``steps`` (the linearization steps), ``which`` (the one each evaluation node uses),
+        ``steps`` (the linearization steps, ``later_steps`` those after 0, at the start
+        times ``later_times``), ``which`` (the one each evaluation node uses),
         ``j = steps[which]``, ``n_eval``, ``times`` (the nodes' times), ``since_j`` (time
         since node ``j``, (n_eval, 1)), ``decay`` (the drive's ``exp(-t / tau)``,
         (n_eval, 1)), ``u_flat`` (flat indices of the input blocks in A), ``Pq``, ``Pv``
@@ -163,6 +169,7 @@ class HorizonNormalForceConstraint(ForceRowsConstraint):
             nodes = np.flatnonzero(times[:n_eval] >= self.start_time - 1e-12)
             cache = (key, SimpleNamespace(
                 steps=steps, which=which, j=j, n_eval=n_eval, n_u=n_u, times=times,
+                later_steps=steps[1:], later_times=times[steps[1:]],
                 since_j=(times[:n_eval] - times[j])[:, None],
                 decay=np.exp(-times[:n_eval] / self.drive_time_constant)[:, None],
                 u_flat=u_flat, Pq=pred.Pq.reshape(N, na, lay.n)[:n_eval - 1],
@@ -185,16 +192,26 @@ class HorizonNormalForceConstraint(ForceRowsConstraint):
             (N + 1, 9)) with node 0 the measured state (its measured axes, which may differ
             from the prediction's start ``ctx.q`` by the servo deflection's vibration).
         """
-        pred = ctx.prediction
-        start, u = pred.start_times, ctx.nominal_inputs
+        return self._linearize(ctx, linearize_forces(self.model, ctx.state),
+                               *self._nominal(ctx))
+
+    def _nominal(self, ctx) -> tuple[np.ndarray, np.ndarray]:
+        """The nominal positions and velocities (N + 1, 9), node 0 the measured state's."""
+        pred, u = ctx.prediction, ctx.nominal_inputs
         qn = np.empty((u.shape[0] + 1, N_AXES))
         vn = np.empty_like(qn)
         qn[0], vn[0] = ctx.state.q[:N_AXES], ctx.state.qd[:N_AXES]
         np.add(ctx.free_positions, pred.Lq @ u, out=qn[1:])  # `CondensedPrediction.trajectory`
         np.add(ctx.free_velocities, pred.Lv @ u, out=vn[1:])
+        return qn, vn
+
+    def _linearize(self, ctx, first: ForceLinearization, qn: np.ndarray, vn: np.ndarray
+                   ) -> tuple:
+        """`linearize` with node 0's linearization ``first`` and the nominal ``qn``, ``vn``."""
+        start = ctx.prediction.start_times
         steps = self._structure(ctx).steps
         st = ctx.state
-        lins = [linearize_forces(self.model, st)]  # steps[0] = 0: the measured state
+        lins = [first]  # steps[0] = 0: the measured state
         later = steps[1:]
         batch = getattr(self.model, "linearize_states", None)
         if batch is not None and later.size:  # the later nodes in one compiled call
@@ -219,10 +236,68 @@ class HorizonNormalForceConstraint(ForceRowsConstraint):
         return self._forces_map(ctx, self.linearize(ctx), in_contact)
 
     def _forces_and_flags(self, ctx) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """`forces_map`, the flags from its linearization at node 0, ``ctx.state``."""
-        linearized = self.linearize(ctx)
-        flags = linearized_contact_flags(ctx.state, linearized[1][0])
+        """`forces_map`, the flags from its linearization at node 0, ``ctx.state``.
+
+        With the C force map and a model that linearizes the horizon's nodes into kernel
+        rows (``linearize_nodes``, `estimators.payload.PayloadEstimator`: node 0 and the
+        later nodes in one compiled call), the rows go to the C without a linearization
+        object per later node (`_rows_map`): the bits of `forces_map`.
+        """
+        st = ctx.state
+        qn, vn = self._nominal(ctx)
+        rows = None
+        if (self._kernel() is not None and ctx.layout.n_axes == N_AXES
+                and hasattr(self.model, "linearize_nodes")):
+            struct = self._structure(ctx)
+            later = struct.later_steps
+            first, rows = linearize_nodes(self.model, st, struct.later_times, qn[later],
+                                          vn[later])
+        else:
+            first = linearize_forces(self.model, st)
+        flags = linearized_contact_flags(st, first)
+        if rows is not None:
+            fast = self._rows_map(ctx, first, rows, flags, qn, vn)
+            if fast is not None:
+                return (*fast, flags)
+        linearized = self._linearize(ctx, first, qn, vn)
         return (*self._forces_map(ctx, linearized, flags), flags)
+
+    def _rows_map(self, ctx, first: ForceLinearization, rows: np.ndarray, in_contact,
+                  qn: np.ndarray, vn: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+        """`_forces_map` in C on node 0's kernel row and the later nodes' ``rows``.
+
+        None where that needs the objects: node 0 without a kernel row (a tipping state's
+        least squares), rows of another length.
+        """
+        fields = first.__dict__
+        views = fields.get("_views")
+        row0 = fields.get("_row")
+        if (getattr(views, "slices", None) is None or row0 is None
+                or rows.shape[1] != row0.size):
+            return None
+        lay = ctx.layout
+        struct = self._structure(ctx)
+        self.linearization_steps = struct.steps
+        if self._offsets[0] is not views:
+            self._offsets = (views, row_offsets(views))
+        direction, warp, drift, s_prev = self._terms(ctx, in_contact)
+        return self._compiled_map.evaluate_rows(
+            struct, lay.n_steps, lay.n, lay.scale, row0, rows, self._offsets[1], ctx, qn,
+            vn, zero_suspension=ctx.warp is not None, warp=warp, direction=direction,
+            bias=None if ctx.feedback is None else ctx.feedback.bias, drift=drift,
+            s_prev=s_prev, brake_time=self.terminal_brake_time)
+
+    def _terms(self, ctx, in_contact) -> tuple:
+        """``(direction, warp, drift, s_prev)`` of `_forces_map` (None: no such term)."""
+        lay, st = ctx.layout, ctx.state
+        direction = (speed_scale_direction(st, ctx.speed_scale, self.drive_time_constant)
+                     if lay.scale is not None else None)
+        # On three wheels the warp is free: the suspension sets the lifted wheel down
+        # without moving load (`lifted_wheel_thresholds` keeps the load it will need).
+        warp = ctx.warp if _all(np.asarray(in_contact, dtype=bool)) else None
+        drift = (ctx.warp_drift if warp is not None and ctx.warp_drift is not None
+                 else None)
+        return direction, warp, drift, max(ctx.speed_scale, _MIN_SCALE)
 
     def _forces_map(self, ctx, linearized: tuple, in_contact) -> tuple[np.ndarray, np.ndarray]:
         """`forces_map` from `linearize`'s result."""
@@ -233,17 +308,10 @@ class HorizonNormalForceConstraint(ForceRowsConstraint):
         self.linearization_steps = steps
         n_eval, which, j = struct.n_eval, struct.which, struct.j
         st = ctx.state
-        direction = (speed_scale_direction(st, ctx.speed_scale, self.drive_time_constant)
-                     if lay.scale is not None else None)
         omega = st.qd[N_AXES:N_INDEPENDENT]
-        # On three wheels the warp is free: the suspension sets the lifted wheel down
-        # without moving load (`lifted_wheel_thresholds` keeps the load it will need).
         if in_contact is None:
             in_contact = linearized_contact_flags(st, lins[0])
-        warp = ctx.warp if _all(np.asarray(in_contact, dtype=bool)) else None
-        drift = (ctx.warp_drift if warp is not None and ctx.warp_drift is not None
-                 else None)
-        s_prev = max(ctx.speed_scale, _MIN_SCALE)
+        direction, warp, drift, s_prev = self._terms(ctx, in_contact)
         kernel = self._kernel() if na == N_AXES else None
         if kernel is not None:
             return kernel.evaluate(

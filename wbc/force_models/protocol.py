@@ -26,7 +26,7 @@ from models.state import MachineState
 from wbc.errors import ForceModelError
 
 __all__ = ["MODEL_ERRORS", "NormalForceEstimate", "NormalForceModel", "contact_flags",
-           "linearize_forces", "linearized_contact_flags"]
+           "linearize_forces", "linearize_nodes", "linearized_contact_flags"]
 
 # What a force model may raise at a state it cannot evaluate (singular system, stroke out
 # of range under the "raise" policy, a non-finite linearization): the loop falls back.
@@ -78,6 +78,26 @@ def linearize_forces(model: NormalForceModel, state: MachineState) -> ForceLinea
         raise ForceModelError(f"force model returned a {type(lin).__name__}, expected an "
                               f"estimators.linearization.ForceLinearization")
     return lin
+
+
+def linearize_nodes(model, state: MachineState, dt: np.ndarray, q_head: np.ndarray,
+                    qd_head: np.ndarray) -> tuple[ForceLinearization, np.ndarray | None]:
+    """``model.linearize_nodes(...)`` (`estimators.payload.PayloadEstimator`), failures typed.
+
+    A model's optional fast path for a horizon: `linearize_forces` of ``state`` and the
+    kernel rows of the states after it (or None: they go one by one), in one call.
+
+    Raises:
+        ForceModelError: As `linearize_forces`.
+    """
+    try:
+        lin, rows = model.linearize_nodes(state, dt, q_head, qd_head)
+    except MODEL_ERRORS as exc:
+        raise _failure(state, exc) from exc
+    if not isinstance(lin, ForceLinearization):
+        raise ForceModelError(f"force model returned a {type(lin).__name__}, expected an "
+                              f"estimators.linearization.ForceLinearization")
+    return lin, rows
 
 
 def contact_flags(model: NormalForceModel, state: MachineState) -> np.ndarray:

@@ -1,0 +1,152 @@
+"""The MPC force rows' tick path on kernel rows (`HorizonNormalForceConstraint._rows_map`).
+
+The tick linearizes node 0 and the later nodes in one compiled call
+(`estimators.payload.PayloadEstimator.linearize_nodes`, base rotations predicted in C) and
+hands the rows straight to the C force map; `forces_map` (the model's `linearize`, one
+`ForceLinearization` per node, the rotations of `wbc.mpc.prediction.predict_base_rotations`)
+is the reference: the same bits, on real ticks.
+"""
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from models.state import WheelContacts
+from testkit.plant import KinematicPlant, make_state
+from wbc import ControllerConfig, ForceConfig, JointGoal, MpcConfig, MpcController
+from wbc.axes import SUSPENSION_AXES
+from wbc.constraints.force_map_c import compiled_force_map
+from wbc.controllers.registry import estimator_models
+
+DT = 0.01
+
+pytestmark = pytest.mark.skipif(compiled_force_map() is None, reason="no C compiler")
+
+
+def _turning_mpc(machine, speed_scale: bool, ticks: int = 5):
+    """mpc-full with the estimator, driving and turning on a tilted base, a crane move."""
+    model, feedback = estimator_models(machine, "full")
+    if not hasattr(model, "linearize_rows") or model._est.backend != "compiled":
+        pytest.skip("no compiled estimator")
+    cfg = ControllerConfig(force=ForceConfig(speed_scale=speed_scale), mpc=MpcConfig())
+    ctrl = MpcController(machine, cfg, force_model=model, feedback=feedback)
+    st = make_state(machine)
+    ctrl.set_goal(JointGoal(crane=st.q[2:9] + np.array([0.05, -0.05, 0.05, 0.2, 0, 0, 0]),
+                            suspension=st.q[SUSPENSION_AXES] + 0.02))
+    plant = KinematicPlant(dataclasses.replace(
+        st, qd=np.r_[st.qd[:9], np.full(4, 1.5)],
+        base_twist=np.array([0.4, 0.05, 0.0, 0.02, -0.03, 0.15])), DT)
+    states = []
+    for _ in range(ticks):
+        plant.apply(ctrl.step(plant.state))
+        states.append(plant.state)
+    return ctrl, states
+
+
+def _both(con, ctx):
+    """(A, b, flags) of the tick path, of `forces_map` on the objects; and the rows path ran."""
+    used = []
+    rows_map = con._rows_map
+
+    def spy(*args):
+        result = rows_map(*args)
+        used.append(result is not None)
+        return result
+
+    con._rows_map = spy
+    try:
+        A, b, flags = con._forces_and_flags(ctx)
+    finally:
+        del con._rows_map
+    steps = con.linearization_steps
+    if hasattr(con.model, "_last"):
+        con.model._last = None  # node 0 linearized again by `linearize`, not the tick's
+    A_ref, b_ref = con.forces_map(ctx, flags)
+    np.testing.assert_array_equal(steps, con.linearization_steps)
+    return (A, b, flags), (A_ref, b_ref), used
+
+
+@pytest.mark.parametrize("speed_scale", [False, True])
+def test_the_tick_path_is_forces_maps_bits(machine, speed_scale):
+    ctrl, states = _turning_mpc(machine, speed_scale)
+    con = ctrl.force_constraint
+    for st in states[-3:]:
+        ctx = ctrl.context(st)
+        assert np.any(ctx.nominal_inputs != 0) and np.any(st.base_twist[3:] != 0)
+        (A, b, flags), (A_ref, b_ref), used = _both(con, ctx)
+        assert used == [True] and len(con.linearization_steps) > 1
+        np.testing.assert_array_equal(A, A_ref)
+        np.testing.assert_array_equal(b, b_ref)
+        np.testing.assert_array_equal(flags, con.model.linearize(st).in_contact)
+
+
+def test_three_wheels_a_drift_and_no_feedback(machine):
+    ctrl, states = _turning_mpc(machine, True)
+    con = ctrl.force_constraint
+    st = states[-1]
+    points = con.model.estimate(st).contact_points  # the wheels' lowest points
+    lifted = WheelContacts(np.array([True, True, True, False]), np.zeros((4, 3)), points,
+                           np.tile(st.base_rotation[2], (4, 1)))  # a rear wheel lifted
+    ctx = ctrl.context(dataclasses.replace(st, contacts=lifted))
+    drifting = dataclasses.replace(ctrl.context(st),
+                                   warp_drift=np.linspace(-50.0, 80.0, ctx.n_steps + 1))
+    assert drifting.warp is not None
+    for c, wheels in ((ctx, 3), (dataclasses.replace(ctx, feedback=None), 3), (drifting, 4)):
+        (A, b, flags), (A_ref, b_ref), used = _both(con, c)
+        assert used == [True] and flags.sum() == wheels
+        np.testing.assert_array_equal(A, A_ref)
+        np.testing.assert_array_equal(b, b_ref)
+
+
+class _ObjectsOnly:
+    """The model without ``linearize_nodes``: the tick takes the objects' path."""
+
+    def __init__(self, model):
+        self.model = model
+
+    def estimate(self, state):
+        return self.model.estimate(state)
+
+    def linearize(self, state):
+        return self.model.linearize(state)
+
+    def linearize_states(self, *args):
+        return self.model.linearize_states(*args)
+
+    @property
+    def n_clipped(self):
+        return self.model.n_clipped
+
+
+def test_without_rows_the_objects_path_gives_the_same(machine):
+    ctrl, states = _turning_mpc(machine, False)
+    con = ctrl.force_constraint
+    ctx = ctrl.context(states[-1])
+    A, b, flags = con._forces_and_flags(ctx)
+    model = con.model
+    con.model = _ObjectsOnly(model)
+    try:
+        (A_obj, b_obj, flags_obj), _, used = _both(con, ctx)
+    finally:
+        con.model = model
+    assert not any(used)
+    np.testing.assert_array_equal(A, A_obj)
+    np.testing.assert_array_equal(b, b_obj)
+    np.testing.assert_array_equal(flags, flags_obj)
+
+
+def test_nodes_it_leaves_to_one_by_one_fall_back(machine):
+    """A later node out of range: no rows; the objects' path clips it (node 0 kept)."""
+    ctrl, states = _turning_mpc(machine, False)
+    con = ctrl.force_constraint
+    ctx = ctrl.context(states[-1])
+    far = ctx.nominal_inputs.copy()
+    far[:] = 0.0
+    far[:, 1] = 40.0  # the telescope far past its range at the later nodes
+    ctx = dataclasses.replace(ctx, nominal_inputs=far)
+    clipped = con.model.n_clipped
+    (A, b, _), (A_ref, b_ref), used = _both(con, ctx)
+    assert not any(used) and con.model.n_clipped > clipped
+    np.testing.assert_array_equal(A, A_ref)
+    np.testing.assert_array_equal(b, b_ref)
