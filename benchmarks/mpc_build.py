@@ -46,9 +46,11 @@ def profile(steps: int = 600) -> dict:
     for con in planner.constraints:
         terms.append(type(con).__name__)
         _timed(timings, con, "compute", terms[-1])
-        if hasattr(con, "linearize") and hasattr(con, "_forces_map"):
-            _timed(timings, con, "linearize", f"  {terms[-1]}.linearize")
-            _timed(timings, con, "_forces_map", f"  {terms[-1]}._forces_map")
+        # The normal-force constraint's parts: the tick path (`_rows_map` on the nodes'
+        # kernel rows) or the path through one linearization object per node.
+        for part in ("_nominal", "_rows_map", "linearize", "_forces_map"):
+            if hasattr(con, part):
+                _timed(timings, con, part, f"  {terms[-1]}.{part}")
     _timed(timings, planner.builder, "build", "build")
     result = _time_loop(ctrl, machine, steps)
     med = {k: 1e6 * float(np.median(v[WARMUP:] if len(v) > WARMUP else v))
