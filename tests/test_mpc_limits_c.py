@@ -82,3 +82,32 @@ def test_compiled_horizon_bounds_are_numpys_to_the_bit(mpc_context, limit):
         assert compiled._c[1] is not None and reference._c is None
         assert got.G is want.G or np.array_equal(got.G, want.G)
         assert got.h.tobytes() == want.h.tobytes()
+
+
+def test_kept_rows_on_real_ticks_are_numpys_to_the_bit(machine):
+    """Tick after tick the compiled rows reuse their G when it is free, and stay numpy's.
+
+    A G still held (here by ``held``) is not written again: the next tick gets a new one.
+    """
+    ctrl, plant = moving_mpc(machine, ticks=2, dt=DT)
+    efforts = ActuatorEfforts(machine)
+    compiled = HorizonEffortLimit(efforts)
+    reference = HorizonEffortLimit(efforts, compiled=False)
+    held, kept = None, None
+    for tick in range(6):
+        ctx = ctrl.context(plant.state)
+        got, want = compiled.compute(ctx), reference.compute(ctx)
+        assert got.G.tobytes() == want.G.tobytes()
+        assert got.h.tobytes() == want.h.tobytes()
+        assert compiled.last_efforts.tobytes() == reference.last_efforts.tobytes()
+        if tick == 2:
+            held, held_bytes = got.G, got.G.tobytes()
+        elif tick > 2:
+            assert got.G is not held  # not written while held
+            assert held.tobytes() == held_bytes
+        if tick == 4:
+            kept = id(got.G)
+        if tick == 5:
+            assert id(got.G) == kept  # the free G again
+        del got, want
+        plant.apply(ctrl.step(plant.state))
