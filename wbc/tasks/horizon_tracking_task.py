@@ -42,6 +42,7 @@ class HorizonTrackingTask(ConstantJacobianTask):
         self._columns = (slice(int(a[0]), int(a[-1]) + 1)
                          if a.size and np.all(np.diff(a) == 1) else a)
         self._weight_cache: tuple | None = None  # (key, the weight arrays, `compute_weight`)
+        self._buffers: tuple | None = None  # `_linear_term`'s differences and error
         super().__init__(1.0)
 
     def _rows(self, ctx) -> np.ndarray:
@@ -82,6 +83,25 @@ class HorizonTrackingTask(ConstantJacobianTask):
         e[0] = (ctx.free_positions - ref.position[1:])[:, i]
         e[1] = (ctx.free_velocities - ref.velocity[1:])[:, i]
         return e.reshape(-1)
+
+    def _linear_term(self, ctx) -> np.ndarray:
+        """``J^T W e`` with `compute_error`'s numbers written into kept buffers.
+
+        The same differences (whole (N, 9) arrays, then the task's columns) into arrays
+        made once per N: no temporaries each tick, and the same product of the same
+        operands (a contiguous e).
+        """
+        fp = ctx.free_positions
+        ref = ctx.reference
+        kept = self._buffers
+        if kept is None or kept[0].shape[1:] != fp.shape:
+            kept = self._buffers = (np.empty((2, *fp.shape)),
+                                    np.empty((2, fp.shape[0], self.axes.size)))
+        d, e = kept
+        np.subtract(fp, ref.position[1:], out=d[0])
+        np.subtract(ctx.free_velocities, ref.velocity[1:], out=d[1])
+        e[...] = d[:, :, self._columns]
+        return self._jw @ e.reshape(-1)
 
     def compute_jacobian(self, ctx) -> np.ndarray:
         """Rows of Pq and Pv of the task's axes."""
