@@ -84,13 +84,16 @@ def test_compiled_horizon_bounds_are_numpys_to_the_bit(mpc_context, limit):
         assert got.h.tobytes() == want.h.tobytes()
 
 
-def test_kept_rows_on_real_ticks_are_numpys_to_the_bit(machine):
+@pytest.mark.parametrize("payload_mass", [None, 0.0, 613.0])
+def test_kept_rows_on_real_ticks_are_numpys_to_the_bit(machine, payload_mass):
     """Tick after tick the compiled rows reuse their G when it is free, and stay numpy's.
 
     A G still held (here by ``held``) is not written again: the next tick gets a new one.
+    The payload masses: the description's, none, and one past the anchors (the rows
+    blended from the two masses' maps as `ActuatorEfforts.affine` blends them).
     """
     ctrl, plant = moving_mpc(machine, ticks=2, dt=DT)
-    efforts = ActuatorEfforts(machine)
+    efforts = ActuatorEfforts(machine, payload_mass)
     compiled = HorizonEffortLimit(efforts)
     reference = HorizonEffortLimit(efforts, compiled=False)
     held, kept = None, None

@@ -251,6 +251,22 @@ class CompiledEffortRows:
         np.matmul(self.E, brake[:, :, None], out=self._Eu_column)
         return self._rows()
 
+    def rows_of_pair(self, pair: tuple, axes, brake) -> tuple[np.ndarray, np.ndarray]:
+        """`rows_of_one` of the map ``E_1 + w (E_2 - E_1)``, ``e_1 + w (e_2 - e_1)``.
+
+        ``pair``: `estimators.efforts.ActuatorEfforts.affine_pair`'s ``((E_1, e_1), (E_2,
+        e_2), w)``; only the rows ``axes`` blended, with `affine`'s operations (a product's
+        operands commute), into the kept buffers.
+        """
+        (E1, f1), (E2, f2), w = pair
+        E, e0 = self.E[0], self.e0[0]
+        for out, a, b in ((E, E1[axes], E2[axes]), (e0, f1[axes], f2[axes])):
+            np.subtract(b, a, out=out)
+            np.multiply(out, w, out=out)
+            np.add(a, out, out=out)
+        np.matmul(self.E, brake[:, :, None], out=self._Eu_column)
+        return self._rows()
+
     def _rows(self) -> tuple[np.ndarray, np.ndarray]:
         """Call on the filled buffers, into the kept G (if free) and a fresh h."""
         # References to a free kept G: the attribute and getrefcount's argument.
