@@ -44,3 +44,22 @@ def test_linear_terms_are_the_formulas_bits(machine):
             np.testing.assert_array_equal(c, (jac.T * w) @ e)
             seen += bool(np.any(c))
     assert seen > 8  # nonzero terms: a moving crane
+
+
+def test_tracking_differences_are_kept_per_context(machine):
+    """One context's differences serve every tracking task; another context's are its own."""
+    import dataclasses
+
+    from wbc.tasks.horizon_tracking_task import _differences
+
+    ctx = next(_contexts(machine, 1))
+    d = _differences(ctx)
+    assert _differences(ctx) is d and not d.flags.writeable
+    moved = dataclasses.replace(ctx, free_positions=ctx.free_positions + 1.0)
+    task = HorizonTrackingTask([0, 1], 1.0, 1.0)
+    for c in (moved, ctx):  # each context's own numbers, in turn
+        assert task.compute_qp_objective(c)[1].tobytes() == \
+            (task._jw @ task.compute_error(c)).tobytes()
+    assert _differences(moved) is not d
+    want = moved.free_positions - moved.reference.position[1:]
+    assert _differences(moved)[0].tobytes() == want.tobytes()
