@@ -84,18 +84,21 @@ def test_compiled_horizon_bounds_are_numpys_to_the_bit(mpc_context, limit):
         assert got.h.tobytes() == want.h.tobytes()
 
 
-@pytest.mark.parametrize("payload_mass", [None, 0.0, 613.0])
-def test_kept_rows_on_real_ticks_are_numpys_to_the_bit(machine, payload_mass):
+@pytest.mark.parametrize("payload_mass, axes", [(None, None), (0.0, None), (613.0, None),
+                                                 (613.0, (2, 4, 5, 8))])
+def test_kept_rows_on_real_ticks_are_numpys_to_the_bit(machine, payload_mass, axes):
     """Tick after tick the compiled rows reuse their G when it is free, and stay numpy's.
 
     A G still held (here by ``held``) is not written again: the next tick gets a new one.
     The payload masses: the description's, none, and one past the anchors (the rows
-    blended from the two masses' maps as `ActuatorEfforts.affine` blends them).
+    blended from the two masses' maps as `ActuatorEfforts.affine` blends them); the
+    default axes (a slice) and others (an index).
     """
     ctrl, plant = moving_mpc(machine, ticks=2, dt=DT)
     efforts = ActuatorEfforts(machine, payload_mass)
-    compiled = HorizonEffortLimit(efforts)
-    reference = HorizonEffortLimit(efforts, compiled=False)
+    kwargs = {} if axes is None else {"axes": axes}
+    compiled = HorizonEffortLimit(efforts, **kwargs)
+    reference = HorizonEffortLimit(efforts, compiled=False, **kwargs)
     held, kept = None, None
     for tick in range(6):
         ctx = ctrl.context(plant.state)
