@@ -60,7 +60,8 @@ class QPBuilder:
     problem's ``P`` is then shared between ticks: read it, don't write it. So are the rows
     of ``G`` that hold constant blocks (`QP.constant_rows`): ``G`` is the last tick's array
     again when nothing else holds that any more, with only the other rows written
-    (`_stacked_rows`).
+    (`_stacked_rows`). The bounds are the last tick's numbers again (fresh copies) while
+    every box is the last tick's read-only one (`_bounds`).
 
     Args:
         tasks: Cost terms.
