@@ -204,8 +204,8 @@ class CompiledEffortRows:
 
     `set_bounds` keeps the constraint's bounds (`source`: the upper bounds' array they were
     taken from, `source_lower` the lower); `rows` fills the other buffers, calls, and
-    returns ``(G, h)``; `rows_of_one` takes one node's map and the brake inputs (K = 1),
-    with the products written into the kept ``Eu``.
+    returns ``(G, h)``; `rows_of_pair` takes one node's map as the payload pair and the
+    brake inputs (K = 1), with the blend and the products written into the kept buffers.
 
     ``G`` is kept between calls and is the last call's array again when nothing else holds
     it any more (its reference count says so: the builder copies it, then drops it). The C
@@ -217,6 +217,7 @@ class CompiledEffortRows:
         self.E, self.e0 = np.zeros((K, nb, na)), np.zeros((K, nb))
         self.Eu = np.zeros((N, nb))
         self._Eu_column = self.Eu.reshape(N, nb, 1)  # a matmul's (N, nb, 1) output, a view
+        self._first = (self.E[0], self.e0[0])  # the first node's, views (`rows_of_pair`)
         self.bounds = np.zeros((3, nb))  # upper, lower, scale: `set_bounds`
         self.source = self.source_lower = None
         self.shape = ((2 * N * nb, n), (N, 2, nb))
@@ -238,28 +239,19 @@ class CompiledEffortRows:
         self.Eu[:] = Eu
         return self._rows()
 
-    def rows_of_one(self, E, e0, axes, brake) -> tuple[np.ndarray, np.ndarray]:
-        """`rows` of the one node's ``E[axes]`` (9, 9 -> nb, na) and ``e0[axes]`` (K = 1).
+    def rows_of_pair(self, pair: tuple, axes, brake) -> tuple[np.ndarray, np.ndarray]:
+        """`rows` of one node's map ``E = E_1 + w (E_2 - E_1)``, ``e_0 = e_1 + w (e_2 - e_1)``.
 
-        ``Eu`` is ``E[axes][None] @ brake[:, :, None]`` written into the kept buffer: the
-        very matmul (BLAS's ``dgemv`` per step on the same operands) that
+        ``pair``: `estimators.efforts.ActuatorEfforts.affine_pair`'s ``((E_1, e_1), (E_2,
+        e_2), w)`` (9 x 9, 9); only the rows ``axes`` blended, with `affine`'s operations (a
+        product's operands commute), into the kept ``E``, ``e0`` (K = 1). ``Eu`` is
+        ``E[None] @ brake[:, :, None]`` written into the kept buffer: the very matmul
+        (BLAS's ``dgemv`` per step on the same operands) that
         `wbc.constraints.HorizonEffortLimit`'s numpy path makes, without its temporaries.
         ``brake``: (N, na).
         """
-        self.E[0] = E[axes]
-        self.e0[0] = e0[axes]
-        np.matmul(self.E, brake[:, :, None], out=self._Eu_column)
-        return self._rows()
-
-    def rows_of_pair(self, pair: tuple, axes, brake) -> tuple[np.ndarray, np.ndarray]:
-        """`rows_of_one` of the map ``E_1 + w (E_2 - E_1)``, ``e_1 + w (e_2 - e_1)``.
-
-        ``pair``: `estimators.efforts.ActuatorEfforts.affine_pair`'s ``((E_1, e_1), (E_2,
-        e_2), w)``; only the rows ``axes`` blended, with `affine`'s operations (a product's
-        operands commute), into the kept buffers.
-        """
         (E1, f1), (E2, f2), w = pair
-        E, e0 = self.E[0], self.e0[0]
+        E, e0 = self._first
         for out, a, b in ((E, E1[axes], E2[axes]), (e0, f1[axes], f2[axes])):
             np.subtract(b, a, out=out)
             np.multiply(out, w, out=out)
