@@ -42,9 +42,10 @@ class HorizonSmoothnessTask(ConstantJacobianTask):
         """
         lay = ctx.layout
         c = np.zeros(lay.n)
-        step = c[:lay.n_axes]  # step 0's inputs
+        first = lay.step(0)
+        step = c[first]
         np.negative(ctx.previous_acceleration, out=step)
-        np.multiply(step, self.compute_weight(ctx)[:lay.n_axes], out=step)
+        np.multiply(step, self.compute_weight(ctx)[first], out=step)
         return c
 
     def compute_jacobian(self, ctx) -> np.ndarray:
