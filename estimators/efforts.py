@@ -204,11 +204,26 @@ class ActuatorEfforts:
         motion are kept for every `ActuatorEfforts` of the same machine (`_shared_last`):
         the observer and the MPC's effort limit ask about the same motion each tick.
         """
+        return self.blend(self.affine_pair(state))
+
+    @staticmethod
+    def blend(pair: tuple) -> tuple[np.ndarray, np.ndarray]:
+        """``(E_1 + w (E_2 - E_1), e_1 + w (e_2 - e_1))`` of an `affine_pair`: `affine`."""
+        (e1, f1), (e2, f2), w = pair
+        return e1 + w * (e2 - e1), f1 + w * (f2 - f1)
+
+    def affine_pair(self, state: MachineState) -> tuple:
+        """``((E_1, e_1), (E_2, e_2), w)``: `affine` is ``E_1 + w (E_2 - E_1)``, same for e.
+
+        The maps at the two payload masses (`_pair_results`: shared, callers must not write
+        into them) and the current mass's weight between them: a caller that needs only
+        some rows blends those (`wbc.constraints.HorizonEffortLimit`), with `affine`'s
+        operations, for its bits.
+        """
         if not isinstance(state, MachineState):
             raise EstimatorError(f"expected a MachineState, got {type(state).__name__}")
-        (e1, f1), (e2, f2), (m1, m2) = self._pair_results(state)
-        w = (self._mass - m1) / (m2 - m1)
-        return e1 + w * (e2 - e1), f1 + w * (f2 - f1)
+        first, second, (m1, m2) = self._pair_results(state)
+        return first, second, (self._mass - m1) / (m2 - m1)
 
     def _pair_results(self, state: MachineState) -> tuple:
         """``((E_1, e_1), (E_2, e_2), (m_1, m_2))``: the efforts' maps at two payload masses.

@@ -82,3 +82,38 @@ def test_compiled_horizon_bounds_are_numpys_to_the_bit(mpc_context, limit):
         assert compiled._c[1] is not None and reference._c is None
         assert got.G is want.G or np.array_equal(got.G, want.G)
         assert got.h.tobytes() == want.h.tobytes()
+
+
+@pytest.mark.parametrize("payload_mass, axes", [(None, None), (0.0, None), (613.0, None),
+                                                 (613.0, (2, 4, 5, 8))])
+def test_kept_rows_on_real_ticks_are_numpys_to_the_bit(machine, payload_mass, axes):
+    """Tick after tick the compiled rows reuse their G when it is free, and stay numpy's.
+
+    A G still held (here by ``held``) is not written again: the next tick gets a new one.
+    The payload masses: the description's, none, and one past the anchors (the rows
+    blended from the two masses' maps as `ActuatorEfforts.affine` blends them); the
+    default axes (a slice) and others (an index).
+    """
+    ctrl, plant = moving_mpc(machine, ticks=2, dt=DT)
+    efforts = ActuatorEfforts(machine, payload_mass)
+    kwargs = {} if axes is None else {"axes": axes}
+    compiled = HorizonEffortLimit(efforts, **kwargs)
+    reference = HorizonEffortLimit(efforts, compiled=False, **kwargs)
+    held, kept = None, None
+    for tick in range(6):
+        ctx = ctrl.context(plant.state)
+        got, want = compiled.compute(ctx), reference.compute(ctx)
+        assert got.G.tobytes() == want.G.tobytes()
+        assert got.h.tobytes() == want.h.tobytes()
+        assert compiled.last_efforts.tobytes() == reference.last_efforts.tobytes()
+        if tick == 2:
+            held, held_bytes = got.G, got.G.tobytes()
+        elif tick > 2:
+            assert got.G is not held  # not written while held
+            assert held.tobytes() == held_bytes
+        if tick == 4:
+            kept = id(got.G)
+        if tick == 5:
+            assert id(got.G) == kept  # the free G again
+        del got, want
+        plant.apply(ctrl.step(plant.state))

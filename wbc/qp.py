@@ -60,7 +60,8 @@ class QPBuilder:
     problem's ``P`` is then shared between ticks: read it, don't write it. So are the rows
     of ``G`` that hold constant blocks (`QP.constant_rows`): ``G`` is the last tick's array
     again when nothing else holds that any more, with only the other rows written
-    (`_stacked_rows`).
+    (`_stacked_rows`). The bounds are the last tick's numbers again (fresh copies) while
+    every box is the last tick's read-only one (`_bounds`).
 
     Args:
         tasks: Cost terms.
@@ -77,8 +78,10 @@ class QPBuilder:
         self.regularization = regularization
         self._hessians: list | None = None  # the H arrays the cached P sums
         self._P: np.ndarray | None = None
-        self._layout = None
-        self._bounds: tuple[np.ndarray, np.ndarray] | None = None
+        self._layout = None  # the layout of `_defaults`
+        self._defaults: tuple[np.ndarray, np.ndarray] | None = None
+        self._bounds_kept: tuple | None = None  # (layout, boxes, lb, ub): `_bounds`
+        self._zero: np.ndarray | None = None  # `_zeros`
         self._rows: tuple | None = None  # (the last G, its constant blocks' places)
 
     def _stacked_rows(self, Gs: list, constant: tuple, diagonal: tuple, m: int) -> np.ndarray:
@@ -107,9 +110,10 @@ class QPBuilder:
             for block in Gs:
                 if block.flags.writeable:  # not a constant block
                     d = diagonal.get(first)
-                    if d is not None and kept.get(first) == d and block.flags.c_contiguous:
+                    if (d is not None and _same(kept.get(first), d)
+                            and block.flags.c_contiguous):
                         view = views.get(first)
-                        if view is None or view[0] != d:  # the blocks' view of G, kept
+                        if view is None or not _same(view[0], d):  # their view of G, kept
                             view = views[first] = (d, _blocks(G, first, d))
                         view[1][...] = _blocks(block, 0, d)
                     else:
@@ -130,10 +134,34 @@ class QPBuilder:
         self._hessians, self._P = (hessians, P) if constant else (None, None)
         return P
 
-    def _default_bounds(self, layout) -> tuple[np.ndarray, np.ndarray]:
+    def _bounds(self, layout, boxes: list) -> tuple[np.ndarray, np.ndarray]:
+        """``(lb, ub)``: the layout's default bounds narrowed by ``boxes`` in order, fresh.
+
+        Reused (copied) while the layout and every box are the last tick's objects, with
+        read-only arrays (`AccelerationLimit`'s and `SpeedScaleLimit`'s kept boxes): the
+        same maxima and minima of the same numbers, without their ufuncs and the check.
+
+        Raises:
+            WbcError: The bounds are empty (lower > upper).
+        """
+        kept = self._bounds_kept
+        if (kept is not None and kept[0] is layout and len(kept[1]) == len(boxes)
+                and all(map(operator.is_, boxes, kept[1]))):
+            return kept[2].copy(), kept[3].copy()
         if layout is not self._layout:
-            self._bounds, self._layout = layout.default_bounds(), layout
-        return self._bounds[0].copy(), self._bounds[1].copy()
+            self._defaults, self._layout = layout.default_bounds(), layout
+        lb, ub = self._defaults[0].copy(), self._defaults[1].copy()
+        constant = True
+        for box in boxes:
+            np.maximum(lb, box.lower, out=lb)
+            np.minimum(ub, box.upper, out=ub)
+            constant = constant and not (box.lower.flags.writeable
+                                         or box.upper.flags.writeable)
+        if _any(lb > ub):
+            i = int(np.argmax(lb > ub))
+            raise WbcError(f"empty bounds on x[{i}]: [{lb[i]}, {ub[i]}]")
+        self._bounds_kept = (layout, boxes, lb.copy(), ub.copy()) if constant else None
+        return lb, ub
 
     def build(self, ctx) -> QP:
         r"""The QP at ``ctx`` (a context with a ``layout``: `QPContext` or `HorizonContext`).
@@ -144,7 +172,7 @@ class QPBuilder:
         """
         n = ctx.layout.n
         hessians = []
-        q = np.zeros(n)
+        q = None
         for task in self.tasks:
             if not task.is_active(ctx):
                 continue
@@ -153,45 +181,59 @@ class QPBuilder:
                 raise WbcError(f"{type(task).__name__} returned H {H.shape}, c {c.shape}; "
                                f"expected ({n}, {n}), ({n},)")
             hessians.append(H)
-            q += c
+            if q is None:  # +0 + c, as zeros(n) += c (a -0 becomes +0), into a new array
+                q = np.add(self._zeros(n), c)
+            else:
+                q += c
+        if q is None:
+            q = np.zeros(n)
         P = self._hessian(n, hessians)
-        lb, ub = self._default_bounds(ctx.layout)
-        Gs, hs, constant, diagonal = [], [], [], []
+        Gs, hs, constant, diagonal, boxes = [], [], [], [], []
         rows = 0
         for con in self.constraints:
             r = con.compute(ctx)
             if r is None:
                 continue
             if isinstance(r, Box):
-                np.maximum(lb, r.lower, out=lb)
-                np.minimum(ub, r.upper, out=ub)
+                boxes.append(r)
             elif isinstance(r, Inequality):
-                if r.G.ndim != 2 or r.G.shape[1] != n or r.h.shape != (r.G.shape[0],):
-                    raise WbcError(f"{type(con).__name__} returned G {r.G.shape}, h "
+                G = r.G
+                if G.ndim != 2 or G.shape[1] != n or r.h.shape != (G.shape[0],):
+                    raise WbcError(f"{type(con).__name__} returned G {G.shape}, h "
                                    f"{r.h.shape}; expected (m, {n}), (m,)")
-                if not r.G.flags.writeable:
-                    constant.append((rows, r.G))
+                if not G.flags.writeable:
+                    constant.append((rows, G))
                 elif r.diagonal is not None:
                     d = r.diagonal
-                    if (d.rows * d.n_blocks != r.G.shape[0] or d.rows < 1 or d.first < 0
+                    if (d.rows * d.n_blocks != G.shape[0] or d.rows < 1 or d.first < 0
                             or d.width < 1 or d.first + d.n_blocks * d.width > n):
                         raise WbcError(f"{type(con).__name__} returned {d} for G "
-                                       f"{r.G.shape}: need rows * n_blocks = "
-                                       f"{r.G.shape[0]} and the blocks within {n} columns")
+                                       f"{G.shape}: need rows * n_blocks = "
+                                       f"{G.shape[0]} and the blocks within {n} columns")
                     diagonal.append((rows, d))
-                rows += r.G.shape[0]
-                Gs.append(r.G)
+                rows += G.shape[0]
+                Gs.append(G)
                 hs.append(r.h)
             else:
                 raise WbcError(f"{type(con).__name__}.compute returned {type(r).__name__}, "
                                f"expected Inequality, Box or None")
-        if _any(lb > ub):
-            i = int(np.argmax(lb > ub))
-            raise WbcError(f"empty bounds on x[{i}]: [{lb[i]}, {ub[i]}]")
+        lb, ub = self._bounds(ctx.layout, boxes)
         constant = tuple(constant)
         G = self._stacked_rows(Gs, constant, dict(diagonal), rows) if Gs else None
         h = np.concatenate(hs) if hs else None
         return QP._of_checked(P, q, G, h, lb, ub, constant, tuple(diagonal))
+
+    def _zeros(self, n: int) -> np.ndarray:
+        """Read-only zeros (n,), kept."""
+        if self._zero is None or self._zero.shape != (n,):
+            self._zero = np.zeros(n)
+            self._zero.setflags(write=False)
+        return self._zero
+
+
+def _same(a, b) -> bool:
+    """``a == b``, the same object first (a constraint's kept `DiagonalBlocks`)."""
+    return a is b or a == b
 
 
 def _blocks(G: np.ndarray, first: int, d) -> np.ndarray:

@@ -43,7 +43,8 @@ class HorizonEffortLimit(Constraint):
             or no C compiler: numpy.
 
     Attributes:
-        last_efforts: Efforts at step 0 of the last solution's nominal input, (9,), or None.
+        last_efforts: Efforts at step 0 of the last solution's nominal input, (9,), or None
+            (read-only).
     """
 
     def __init__(self, efforts: ActuatorEfforts, margin: float = 0.05,
@@ -62,7 +63,8 @@ class HorizonEffortLimit(Constraint):
         self.axes = np.asarray(axes, int)
         self._scale = np.maximum(hi, -lo)[self.axes]
         self._structure_cache: tuple | None = None
-        self.last_efforts: np.ndarray | None = None
+        # `last_efforts`' ((E_0, e_0) or the `affine_pair`, u_0), or None
+        self._last: tuple | None = None
 
     def _structure(self, ctx) -> tuple:
         """What the layout and step lengths fix, built once for them.
@@ -103,13 +105,23 @@ class HorizonEffortLimit(Constraint):
                                      (ctx.free_positions, ctx.free_velocities))
             qn = np.vstack([ctx.state.q[:N_AXES], qn])
             vn = np.vstack([ctx.state.qd[:N_AXES], vn])
+        if rows is not None and (rows.source is not self.upper
+                                 or rows.source_lower is not self.lower):
+            rows.set_bounds(self.upper, self.lower, self._scale, ax)
+        if rows is not None and steps.size == 1:
+            # The numpy path's E, e0 and Eu on kept buffers, of the blended rows alone.
+            pair = self.efforts.affine_pair(ctx.state)
+            G, h = rows.rows_of_pair(pair, ax, ctx.brake_inputs[:N])
+            self._last = (pair, ctx.nominal_inputs[0]) if N else None
+            return Inequality(G, h, diagonal)
         maps = []
         for j in steps:
             st = (ctx.state if j == 0 else
                   nominal_state(ctx.state, pred.start_times[j], qn[j], vn[j]))
             maps.append(self.efforts.affine(st))
-        # Every step at once: E_k (N, bounded axes, axes) and e_0,k of the node each step uses
-        # (one node: (1, bounded axes, axes) and its e_0, which broadcast over the steps).
+        # Every step at once: E_k (N, bounded axes, axes) and e_0,k of the node each step
+        # uses (one node: (1, bounded axes, axes) and its e_0, which broadcast over the
+        # steps).
         if len(maps) == 1:
             E, e0 = maps[0][0][ax][None], maps[0][1][ax]
         else:
@@ -117,14 +129,24 @@ class HorizonEffortLimit(Constraint):
             e0 = np.stack([m[1] for m in maps])[which][:, ax]
         Eu = (E @ ctx.brake_inputs[:N, :, None])[:, :, 0]  # BLAS's, in either path
         if rows is not None:
-            if rows.source is not self.upper or rows.source_lower is not self.lower:
-                rows.set_bounds(self.upper, self.lower, self._scale, ax)
             G, h = rows.rows(E, e0, Eu)
         else:
             G, h = self._rows(E, e0, Eu, g_shape, entries, ax)
-        E0, e00 = maps[0]
-        self.last_efforts = E0 @ ctx.nominal_inputs[0] + e00 if N else None
+        self._last = (maps[0], ctx.nominal_inputs[0]) if N else None
         return Inequality(G, h, diagonal)
+
+    @property
+    def last_efforts(self) -> np.ndarray | None:
+        """Efforts at step 0 of the last solution's nominal input, (9,), or None.
+
+        ``E_0 u_0 + e_0`` of the last `compute`, made when asked (nothing in the control
+        tick reads it).
+        """
+        if self._last is None:
+            return None
+        first, u0 = self._last
+        E0, e00 = first if len(first) == 2 else ActuatorEfforts.blend(first)
+        return E0 @ u0 + e00
 
     def _rows(self, E, e0, Eu, g_shape, entries, ax) -> tuple[np.ndarray, np.ndarray]:
         """``(G, h)`` in numpy: what `wbc.constraints.limits_c`'s ``effort_rows`` computes.

@@ -16,6 +16,7 @@ makes (BLAS's sums stay BLAS's), and `HorizonLimit`'s right-hand sides.
 from __future__ import annotations
 
 import ctypes
+import sys
 
 import numpy as np
 
@@ -203,15 +204,24 @@ class CompiledEffortRows:
 
     `set_bounds` keeps the constraint's bounds (`source`: the upper bounds' array they were
     taken from, `source_lower` the lower); `rows` fills the other buffers, calls, and
-    returns a fresh ``(G, h)``.
+    returns ``(G, h)``; `rows_of_pair` takes one node's map as the payload pair and the
+    brake inputs (K = 1), with the blend and the products written into the kept buffers.
+
+    ``G`` is kept between calls and is the last call's array again when nothing else holds
+    it any more (its reference count says so: the builder copies it, then drops it). The C
+    writes only the blocks, so its other entries stay the zeros it was made with: don't
+    write into a returned ``G`` (as `wbc.qp.QPBuilder` keeps its own). ``h`` is fresh.
     """
 
     def __init__(self, fun, K: int, N: int, nb: int, na: int, n: int, col0: int):
         self.E, self.e0 = np.zeros((K, nb, na)), np.zeros((K, nb))
         self.Eu = np.zeros((N, nb))
+        self._Eu_column = self.Eu.reshape(N, nb, 1)  # a matmul's (N, nb, 1) output, a view
+        self._first = (self.E[0], self.e0[0])  # the first node's, views (`rows_of_pair`)
         self.bounds = np.zeros((3, nb))  # upper, lower, scale: `set_bounds`
         self.source = self.source_lower = None
         self.shape = ((2 * N * nb, n), (N, 2, nb))
+        self._G: np.ndarray | None = None  # the last G (see the class docstring)
         self._in = np.array([a.ctypes.data for a in (self.E, self.e0, self.Eu, *self.bounds)],
                             np.uintp)
         self._dims = np.array([K, N, nb, na, n, col0], np.int_)
@@ -227,7 +237,34 @@ class CompiledEffortRows:
         self.E[:] = E
         self.e0[:] = e0
         self.Eu[:] = Eu
-        G, h = np.zeros(self.shape[0]), np.empty(self.shape[1])
+        return self._rows()
+
+    def rows_of_pair(self, pair: tuple, axes, brake) -> tuple[np.ndarray, np.ndarray]:
+        """`rows` of one node's map ``E = E_1 + w (E_2 - E_1)``, ``e_0 = e_1 + w (e_2 - e_1)``.
+
+        ``pair``: `estimators.efforts.ActuatorEfforts.affine_pair`'s ``((E_1, e_1), (E_2,
+        e_2), w)`` (9 x 9, 9); only the rows ``axes`` blended, with `affine`'s operations (a
+        product's operands commute), into the kept ``E``, ``e0`` (K = 1). ``Eu`` is
+        ``E[None] @ brake[:, :, None]`` written into the kept buffer: the very matmul
+        (BLAS's ``dgemv`` per step on the same operands) that
+        `wbc.constraints.HorizonEffortLimit`'s numpy path makes, without its temporaries.
+        ``brake``: (N, na).
+        """
+        (E1, f1), (E2, f2), w = pair
+        E, e0 = self._first
+        for out, a, b in ((E, E1[axes], E2[axes]), (e0, f1[axes], f2[axes])):
+            np.subtract(b, a, out=out)
+            np.multiply(out, w, out=out)
+            np.add(a, out, out=out)
+        np.matmul(self.E, brake[:, :, None], out=self._Eu_column)
+        return self._rows()
+
+    def _rows(self) -> tuple[np.ndarray, np.ndarray]:
+        """Call on the filled buffers, into the kept G (if free) and a fresh h."""
+        # References to a free kept G: the attribute and getrefcount's argument.
+        if self._G is None or sys.getrefcount(self._G) != 2:
+            self._G = np.zeros(self.shape[0])
+        G, h = self._G, np.empty(self.shape[1])
         if self.call(address(G), address(h)) != 0:
             raise ValueError(f"effort rows: inconsistent sizes {self.shape}")
         return G, h.reshape(-1)

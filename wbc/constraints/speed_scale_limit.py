@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 from wbc.constraints.constraint import Box, Constraint, unbounded
 from wbc.errors import ConfigurationError
 
@@ -27,6 +29,7 @@ class SpeedScaleLimit(Constraint):
         self.minimum = float(minimum)
         self.rate = float(rate)
         self.cap = 1.0
+        self._box: tuple | None = None  # (n, scale index, lo, hi, the read-only Box)
 
     def bounds(self, previous: float, dt: float) -> tuple[float, float]:
         """(lower, upper) for a previous scale and a period [s]."""
@@ -36,9 +39,29 @@ class SpeedScaleLimit(Constraint):
         return lo, hi
 
     def compute(self, ctx) -> Box | None:
-        """Box on s; None when the layout has no speed scale."""
-        if ctx.layout.scale is None:
+        """Box on s; None when the layout has no speed scale.
+
+        Read-only, and the last tick's Box again while ``n``, the scale's index and its
+        bounds are the same (the scale mostly sits at 1: `wbc.qp.QPBuilder` then reuses its
+        bounds).
+        """
+        lay = ctx.layout
+        i = lay.scale
+        if i is None:
             return None
-        lb, ub = unbounded(ctx.layout.n)
-        lb[ctx.layout.scale], ub[ctx.layout.scale] = self.bounds(ctx.speed_scale, ctx.dt)
-        return Box(lb, ub)
+        n = lay.n
+        lo, hi = self.bounds(ctx.speed_scale, ctx.dt)
+        kept = self._box
+        if (kept is None or kept[0] != n or kept[1] != i or not _same(kept[2], lo)
+                or not _same(kept[3], hi)):
+            lb, ub = unbounded(n)
+            lb[i], ub[i] = lo, hi
+            lb.setflags(write=False)
+            ub.setflags(write=False)
+            self._box = kept = (n, i, lo, hi, Box(lb, ub))
+        return kept[4]
+
+
+def _same(a: float, b: float) -> bool:
+    """``a`` and ``b`` are the same double: equal, and a zero of the same sign."""
+    return a == b and (a != 0.0 or math.copysign(1.0, a) == math.copysign(1.0, b))

@@ -37,13 +37,15 @@ class HorizonSmoothnessTask(ConstantJacobianTask):
 
         Only e's first step (``-u_prev``) is nonzero, and there J's first differences have
         one entry per column (1 on step 0's own inputs): each entry of the product has
-        one nonzero term, ``w_i e_i`` (see `HorizonInputTask._linear_term`).
+        one nonzero term, ``w_i e_i`` (see `HorizonInputTask._linear_term`), here
+        ``-u_prev`` written in place and then scaled (a product's operands commute).
         """
         lay = ctx.layout
-        e = self.compute_error(ctx)
         c = np.zeros(lay.n)
-        step = lay.step(0)
-        np.multiply(self.compute_weight(ctx)[step], e[step], out=c[step])
+        first = lay.step(0)
+        step = c[first]
+        np.negative(ctx.previous_acceleration, out=step)
+        np.multiply(step, self.compute_weight(ctx)[first], out=step)
         return c
 
     def compute_jacobian(self, ctx) -> np.ndarray:

@@ -42,6 +42,7 @@ class HorizonTrackingTask(ConstantJacobianTask):
         self._columns = (slice(int(a[0]), int(a[-1]) + 1)
                          if a.size and np.all(np.diff(a) == 1) else a)
         self._weight_cache: tuple | None = None  # (key, the weight arrays, `compute_weight`)
+        self._error: np.ndarray | None = None  # `_linear_term`'s e, (2, N, axes)
         super().__init__(1.0)
 
     def _rows(self, ctx) -> np.ndarray:
@@ -83,7 +84,50 @@ class HorizonTrackingTask(ConstantJacobianTask):
         e[1] = (ctx.free_velocities - ref.velocity[1:])[:, i]
         return e.reshape(-1)
 
+    def _linear_term(self, ctx) -> np.ndarray:
+        """``J^T W e`` with `compute_error`'s numbers, from the context's kept differences.
+
+        The same whole (N, 9) differences (`_differences`: made once per context, the
+        tasks of other axes read them too), then the task's columns into an array made
+        once per N: the same product of the same operands (a contiguous e).
+        """
+        d = _differences(ctx)
+        e = self._error
+        if e is None or e.shape[1] != d.shape[1]:
+            e = self._error = np.empty((2, d.shape[1], self.axes.size))
+        e[...] = d[:, :, self._columns]
+        return self._jw @ e.reshape(-1)
+
     def compute_jacobian(self, ctx) -> np.ndarray:
         """Rows of Pq and Pv of the task's axes."""
         rows = self._rows(ctx)
         return np.vstack([ctx.prediction.Pq[rows], ctx.prediction.Pv[rows]])
+
+
+class _LastDifferences:
+    """The zero-input prediction minus the reference, kept for the last context.
+
+    ``(2, N, 9)``: positions, then velocities, at the nodes 1..N. Every tracking task of a
+    tick reads the same context: the second one takes the first one's differences. A new
+    array per context (never written after), published with the context in one tuple:
+    a thread that asks about another context makes its own.
+    """
+
+    def __init__(self):
+        self._kept: tuple = (None, None)  # (the context, its differences)
+
+    def __call__(self, ctx) -> np.ndarray:
+        """The differences of ``ctx`` (read-only)."""
+        kept = self._kept
+        if kept[0] is ctx:
+            return kept[1]
+        fp, ref = ctx.free_positions, ctx.reference
+        d = np.empty((2, *fp.shape))
+        np.subtract(fp, ref.position[1:], out=d[0])
+        np.subtract(ctx.free_velocities, ref.velocity[1:], out=d[1])
+        d.setflags(write=False)
+        self._kept = (ctx, d)
+        return d
+
+
+_differences = _LastDifferences()
