@@ -3,6 +3,7 @@ numpy's bits, on the closed loop's ticks and on odd ones."""
 
 import copy
 import dataclasses
+import types
 
 import numpy as np
 import pytest
@@ -11,6 +12,7 @@ from scenarios.closed_loop import DEFAULT_SCENARIO, run_closed_loop
 from testkit.plant import make_state
 from wbc.axes import N_AXES
 from wbc.controllers.servo_state import ServoState
+from wbc.controllers.servo_state_c import ServoPass
 from wbc.layout import VariableLayout
 from wbc.mpc.prediction import CondensedPrediction
 
@@ -114,14 +116,23 @@ def test_another_prediction_takes_numpy(machine):
         state = dataclasses.replace(state, time=state.time + DT)
 
 
-def test_a_deep_copy_runs_on_buffers_of_its_own(machine):
+def test_a_deep_copy_runs_on_buffers_of_its_own(machine, monkeypatch):
+    """The copy's C pass on its own buffers (at its copy of the times), the original's
+    unchanged by it: both numpy's bits."""
     fast, slow = _pair()
     state = make_state(machine)
     _step(fast, slow, state, np.full(N_AXES, 0.05))
     twin = copy.deepcopy(fast)
     assert twin._c is not fast._c and twin.setpoint is twin._c.setpoint
     assert twin.rates is twin._c.rates and twin.deflection is twin._c.deflection
+    # a prediction with the copy's times array (a controller's prediction is not copied)
+    twin_prediction = types.SimpleNamespace(times=twin._times,
+                                            free_response=PREDICTION.free_response)
+    calls = []
+    monkeypatch.setattr(ServoPass, "observe",
+                        lambda self, *a, _f=ServoPass.observe: calls.append(self) or _f(self, *a))
     later = dataclasses.replace(state, time=state.time + DT)
     want = slow.observe_free(later, PREDICTION)
-    assert _bits(*twin.observe_free(later, PREDICTION)) == _bits(*want)
+    assert _bits(*twin.observe_free(later, twin_prediction)) == _bits(*want)
     assert _bits(*fast.observe_free(later, PREDICTION)) == _bits(*want)
+    assert calls == [twin._c, fast._c]
