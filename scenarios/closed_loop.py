@@ -312,7 +312,7 @@ def run_closed_loop(scenario: ClosedLoopScenario | str, out_dir: Path | None = N
                 w = scenario.wheel_speed(t - readiness.time, machine.wheel_radius) if ready \
                     else 0.0
                 wheels = cmd.wheel_speeds(w, w)
-                sim.apply(ActuatorCommand(cmd.cylinder_rates, cmd.wrist_rates, wheels))
+                sim.apply(ActuatorCommand.of_servo_rates(cmd.rates, wheels))
                 rows["command"][k, :9], rows["command"][k, 9:] = cmd.rates, wheels
                 rows["tcp_error"][k], rows["goal_index"][k] = tcp_err, goals.index
                 rows["last_goal_given"][k] = goals.last_given

@@ -24,6 +24,7 @@ def _vector(name: str, value, n: int, finite: bool = True) -> np.ndarray:
     return a
 
 
+_all = np.logical_and.reduce  # `ndarray.all` of a 1-D array without its Python dispatch
 _FIELDS = (("cylinder_rates", 6), ("wrist_rates", 3), ("wheel_speeds", 2))
 
 
@@ -82,6 +83,25 @@ class ActuatorCommand:
         servo = every[:9]
         servo.setflags(write=False)
         object.__setattr__(self, "_servo_rates", servo)
+
+    @classmethod
+    def of_servo_rates(cls, servo_rates: np.ndarray, wheel_speeds: np.ndarray
+                       ) -> ActuatorCommand:
+        """``ActuatorCommand(servo_rates[:6], servo_rates[6:9], wheel_speeds)``, one copy.
+
+        The closed loop's command every tick: the controller's nine rates (9,) and the two
+        wheel speeds (2,), float arrays, copied into one read-only array whose views are
+        the fields (the same values as the constructor's three copies, ~5 us less). Anything
+        else, or a non-finite entry, goes through the constructor (its checks and errors).
+        """
+        every = np.concatenate((servo_rates, wheel_speeds))
+        if every.shape != (11,) or every.dtype != np.float64 or not _all(np.isfinite(every)):
+            return cls(servo_rates[:6], servo_rates[6:9], wheel_speeds)
+        every.setflags(write=False)  # its views below are read-only too
+        command = object.__new__(cls)
+        command.__dict__.update(cylinder_rates=every[:6], wrist_rates=every[6:9],
+                                wheel_speeds=every[9:], _servo_rates=every[:9])
+        return command
 
     @classmethod
     def zero(cls) -> ActuatorCommand:

@@ -391,40 +391,44 @@ class SensorSimulator:
             scale.ctypes.data, scaled.ctypes.data, bias.ctypes.data, walk.ctypes.data,
             noise.ctypes.data, res.ctypes.data, slots.index(self._press), areas.ctypes.data,
             BACK_PRESSURE)
-        return (count, count_tail, fill, rng, k, ordered, [slots.index(s) for s in ordered],
+        return (count, count_tail, fill, rng, k, [slots.index(s) for s in ordered],
                 [s.n for s in ordered])
 
-    def _deliver_compiled(self, tick: float) -> dict:
-        """Each stream's `Samples` by ``tick`` (`DELIVER_C`), by stream."""
-        count, count_tail, fill, rng, k, ordered, order, widths = self._delivery
+    def _deliver_compiled(self, tick: float) -> list[tuple[np.ndarray, np.ndarray]]:
+        """Each stream's readings by ``tick`` (`DELIVER_C`): (times (k,), values (k, n)).
+
+        In the order `_bind_delivery` draws them (the linear and the angular positions
+        first, then acceleration, angular rate, pressure, wheel speed, drive torque, link
+        accelerometers): views of two new arrays, for the caller to wrap (`readings`).
+        """
+        count, count_tail, fill, rng, k, order, widths = self._delivery
         z = rng.standard_normal(count(tick, *count_tail))
         ks = k.tolist()
         sizes = [ks[i] for i in order]
         out_t = np.empty(sum(sizes))
         out_y = np.empty(sum(map(operator.mul, sizes, widths)))
         fill(address(z), address(out_t), address(out_y))
-        samples, first, first_y = {}, 0, 0
-        for s, kk in zip(ordered, sizes):
-            samples[s] = Samples.trusted(out_t[first:first + kk],
-                                         out_y[first_y:first_y + kk * s.n].reshape(kk, s.n))
+        got, first, first_y = [], 0, 0
+        for kk, n in zip(sizes, widths):
+            got.append((out_t[first:first + kk], out_y[first_y:first_y + kk * n].reshape(kk, n)))
             first += kk
-            first_y += kk * s.n
-        return samples
+            first_y += kk * n
+        return got
 
     def readings(self, tick: float) -> SensorReadings:
         """What the sensors delivered by ``tick`` [s] since the previous call."""
         if self._delivery is not None:
-            got = self._deliver_compiled(tick)
-            lin, ang = got[self._pos_lin], got[self._pos_ang]
-            n = min(len(lin), len(ang))
-            positions = Samples.trusted(lin.time[:n], np.concatenate(
-                (lin.value[:n], ang.value[:n]), axis=1))
+            # the positions' two streams are wrapped once, joined (the Python path's numbers)
+            (lin_t, lin_y), (ang_t, ang_y), *got = self._deliver_compiled(tick)
+            n = min(lin_t.shape[0], ang_t.shape[0])
+            positions = Samples.trusted(lin_t[:n], np.concatenate((lin_y[:n], ang_y[:n]),
+                                                                  axis=1))
+            acc, gyro, press, wheels, drive, *link = (Samples.trusted(t, y) for t, y in got)
             return SensorReadings(
-                time=float(tick), specific_force=got[self._acc],
-                angular_rate=got[self._gyro], positions=positions,
-                pressures=got[self._press], wheel_speeds=got[self._wheels],
-                drive_torques=got[self._drive], servo_setpoint=self.sim.servo_setpoint,
-                link_specific_force=None if self._link is None else got[self._link])
+                time=float(tick), specific_force=acc, angular_rate=gyro, positions=positions,
+                pressures=press, wheel_speeds=wheels, drive_torques=drive,
+                servo_setpoint=self.sim.servo_setpoint,
+                link_specific_force=link[0] if link else None)
         lin = self._pos_lin.deliver(tick)
         ang = self._pos_ang.deliver(tick)
         n = min(len(lin), len(ang))

@@ -379,3 +379,21 @@ def test_command_holds_its_values():
     np.testing.assert_array_equal(command.servo_rates, np.r_[np.arange(6) * 0.01, 0.1, 0.2, 0.3])
     with pytest.raises(ValueError):
         command.cylinder_rates[0] = 1.0
+
+
+def test_command_of_servo_rates_is_the_constructors():
+    """The closed loop's one-copy command: the constructor's fields, read-only, a copy."""
+    rates, wheels = np.linspace(-0.3, 0.5, 9), np.array([1.5, -0.5])
+    fast = ActuatorCommand.of_servo_rates(rates, wheels)
+    slow = ActuatorCommand(rates[:6], rates[6:9], wheels)
+    for name in ("cylinder_rates", "wrist_rates", "wheel_speeds", "servo_rates"):
+        a, b = getattr(fast, name), getattr(slow, name)
+        assert a.shape == b.shape and a.tobytes() == b.tobytes()
+        with pytest.raises(ValueError):
+            a[0] = 1.0
+    rates[0] = 9.0  # the caller's buffer is not the command's
+    assert fast.cylinder_rates[0] == -0.3
+    with pytest.raises(CommandError, match="cylinder_rates"):
+        ActuatorCommand.of_servo_rates(np.r_[np.nan, np.zeros(8)], wheels)
+    with pytest.raises(CommandError, match="wheel_speeds"):
+        ActuatorCommand.of_servo_rates(np.zeros(9), np.zeros(3))

@@ -219,3 +219,25 @@ def test_raw_sample_clipped_and_scaled_is_sample_into(limits, planned):
             assert ref.kept(t) is kept and ref.kept(t + 3.0) is None  # another time
         else:
             assert ref.kept(t) is ref._hold
+
+
+@pytest.mark.parametrize("compiled", [True, False])
+def test_node_samples_keep_the_first_nodes_position(limits, compiled):
+    """`sample_columns_into` keeps its first time's position: `position` there is kept (no
+    new sample) and `sample`'s bits, before and after the start, past the end, at rates
+    below one; a held reference keeps nothing and gives its hold."""
+    ref, start, goal = _crane_reference(limits, 1, 0.2)
+    ref.compiled = compiled
+    ref.plan(1.0, start, np.zeros(7), np.zeros(7), goal)
+    offsets = np.array([0.0, 0.01, 0.11, 0.31, 1.21])
+    nodes = [np.full((5, 9), np.nan) for _ in range(3)]
+    for tau, rate in ((0.5, 1.0), (1.0, 1.0), (1.42, 0.37), (1.42, 0.0), (9.0, 1.0)):
+        ref.sample_columns_into(tau + rate * offsets, rate, *nodes)
+        kept = ref.kept(tau)
+        assert kept is not None
+        np.testing.assert_array_equal(kept, ref.sample(tau)[0])
+        np.testing.assert_array_equal(ref.position(tau), nodes[0][0, ref.index])
+    ref.hold(goal)
+    ref.sample_columns_into(9.0 + offsets, 1.0, *nodes)
+    assert ref.kept(9.0) is ref._hold
+    np.testing.assert_array_equal(ref.position(9.0), ref.sample(9.0)[0])

@@ -139,7 +139,8 @@ class MpcController(Controller):
         self.force_margin = np.zeros(4)
         ranges = machine.coordinates  # the setpoints may use the full ranges (no margin)
         self.servo = (ServoState(cfg.dt, mc.deflection_time_constant, ranges.lower[:N_AXES],
-                                 ranges.upper[:N_AXES]) if mc.setpoint_state else None)
+                                 ranges.upper[:N_AXES], times=self.planner.prediction.times)
+                      if mc.setpoint_state else None)
 
     @property
     def layout(self) -> VariableLayout:
@@ -252,8 +253,9 @@ class MpcController(Controller):
     def context(self, state: MachineState) -> HorizonContext:
         """The horizon context of ``state`` (measures the load split, see the class)."""
         ref = self.reference_at(self.planner.node_times)
-        if self.servo is not None:
-            q, qd = self.servo.observe(state)
+        free = None
+        if self.servo is not None:  # with the free response of (q, qd), in one pass
+            q, qd, *free = self.servo.observe_free(state, self.planner.prediction)
         else:
             q, qd = state.q[:N_AXES].copy(), state.qd[:N_AXES].copy()
         fb = None
@@ -276,7 +278,7 @@ class MpcController(Controller):
                 if self.side_swing is not None and self.side_reserve is not None:
                     self._side_reserve(fb, speed)
         return self.planner.context(state, ref, self._last_qdd, self._speed_scale, q=q,
-                                    qd=qd, feedback=fb, warp=self.warp,
+                                    qd=qd, free=free, feedback=fb, warp=self.warp,
                                     leveling_offset=offset, warp_drift=drift)
 
     def _govern(self, fb: ForceFeedback, speed: float) -> None:

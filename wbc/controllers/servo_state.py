@@ -29,6 +29,7 @@ from models.coordinates import SUSPENSION  # SUSPENSION_AXES as a slice
 from models.numeric import clip
 from models.state import MachineState
 from wbc.axes import N_AXES
+from wbc.controllers.servo_state_c import ServoPass
 
 __all__ = ["ServoState"]
 
@@ -40,25 +41,51 @@ _any = np.logical_or.reduce  # `ndarray.any` of a 1-D array without its Python d
 class ServoState:
     """Setpoints, commanded rates and filtered deflection of the nine axes.
 
+    The three arrays are kept for the state's life and written in place (`observe`,
+    `commanded`, `reset`); with ``times`` and a C compiler they are the buffers of the
+    compiled `observe_free` (`wbc.controllers.servo_state_c`, the same bits).
+
     Args:
         dt: Control period [s].
         deflection_time_constant: T of the deflection filter [s].
         lower, upper: Setpoint range (the stroke and joint ranges), shapes (9,).
+        times: The times [s] (m,) of `observe_free`'s free response
+            (`CondensedPrediction.times`); None: numpy's `observe_free` only.
+        compiled: Use the compiled pass where it can; False: numpy always.
     """
 
-    def __init__(self, dt: float, deflection_time_constant: float, lower, upper):
+    def __init__(self, dt: float, deflection_time_constant: float, lower, upper,
+                 times=None, compiled: bool = True):
         self.dt = float(dt)
         self.time_constant = float(deflection_time_constant)
         self.lower = np.asarray(lower, float)
         self.upper = np.asarray(upper, float)
+        # Loaded here, not in a tick; the state lives in its buffers then (before the
+        # arrays: a deep copy maps them to the copied pass's buffers).
+        self._c = (ServoPass.make(N_AXES, SUSPENSION, times)
+                   if compiled and times is not None else None)
+        self._times = times  # the array `observe_free`'s prediction has (its times, kept)
+        if self._c is None:
+            self._setpoint, self.deflection, self.rates = (np.zeros(N_AXES), np.zeros(N_AXES),
+                                                           np.zeros(N_AXES))
+        else:
+            self._setpoint, self.deflection, self.rates = (self._c.setpoint, self._c.deflection,
+                                                           self._c.rates)
         self.reset()
 
     def reset(self) -> None:
         """Forget everything (the next `observe` initializes from the state)."""
-        self.setpoint: np.ndarray | None = None
-        self.rates = np.zeros(N_AXES)
-        self.deflection = np.zeros(N_AXES)
+        self.setpoint: np.ndarray | None = None  # `_setpoint` once observed
+        self.rates[:] = 0.0
+        self.deflection[:] = 0.0
         self._last_time: float | None = None
+
+    def _gain(self, state: MachineState) -> float:
+        """The deflection filter's gain over the time since the last observe."""
+        elapsed = (self.dt if self._last_time is None
+                   else max(state.time - self._last_time, 0.0))
+        self._last_time = state.time
+        return elapsed / (self.time_constant + elapsed) if self.time_constant > 0 else 1.0
 
     def observe(self, state: MachineState) -> tuple[np.ndarray, np.ndarray]:
         """(q, qd) of the axes to predict from, shapes (9,) (see the module docstring)."""
@@ -67,25 +94,42 @@ class ServoState:
         if measured is not None:
             measured = np.asarray(measured, float)[:N_AXES]
         if self.setpoint is None:  # the servos move as measured, nothing else is known
-            self.setpoint = (measured.copy() if measured is not None else q_meas.copy())
-            self.deflection = q_meas - self.setpoint
-            self.rates = state.qd[:N_AXES].copy()
+            self.setpoint = self._setpoint
+            self.setpoint[:] = measured if measured is not None else q_meas
+            np.subtract(q_meas, self.setpoint, out=self.deflection)
+            self.rates[:] = state.qd[:N_AXES]
         elif measured is not None:
             allowance = _RESYNC + _DELAY_ALLOWANCE * self.dt * np.abs(self.rates)
             off = np.abs(measured - self.setpoint) > allowance
             if _any(off):  # seldom: the masked copy only then
                 self.setpoint[off] = measured[off]
-        elapsed = (self.dt if self._last_time is None
-                   else max(state.time - self._last_time, 0.0))
-        self._last_time = state.time
-        a = elapsed / (self.time_constant + elapsed) if self.time_constant > 0 else 1.0
+        a = self._gain(state)
         self.deflection += a * (q_meas - self.setpoint - self.deflection)
         self.deflection[SUSPENSION] = 0.0
         return self.setpoint + self.deflection, self.rates.copy()
 
+    def observe_free(self, state: MachineState, prediction) -> tuple[np.ndarray, ...]:
+        """`observe` and ``prediction.free_response`` of its (q, qd): (q, qd, qf, vf).
+
+        In one compiled call (`wbc.controllers.servo_state_c`, the same bits) after the
+        first observe when ``prediction.times`` is the constructor's ``times`` array (a
+        prediction's times are not changed in place); else numpy's `observe` and
+        `CondensedPrediction.free_response`.
+        """
+        c = self._c
+        if (c is None or self.setpoint is not c.setpoint or self.deflection is not c.deflection
+                or self.rates is not c.rates or prediction.times is not self._times):
+            q, qd = self.observe(state)
+            return (q, qd, *prediction.free_response(q, qd))
+        measured = state.servo_setpoint
+        if measured is not None:
+            measured = np.asarray(measured, float)[:N_AXES]
+        return c.observe(state.q[:N_AXES], measured, _RESYNC, _DELAY_ALLOWANCE * self.dt,
+                         self._gain(state))
+
     def commanded(self, rates: np.ndarray) -> None:
         """Advance the setpoints by the rates just commanded, over one period."""
-        self.rates = np.asarray(rates, float).copy()
+        self.rates[:] = rates
         if self.setpoint is not None:
-            self.setpoint = clip(self.setpoint + self.dt * self.rates, self.lower,
-                                 self.upper)
+            clip(self.setpoint + self.dt * self.rates, self.lower, self.upper,
+                 out=self.setpoint)

@@ -135,7 +135,7 @@ class MpcPlanner:
     def context(self, state: MachineState, reference: ReferenceSample,
                 previous_acceleration: np.ndarray, speed_scale: float, *,
                 q: np.ndarray | None = None, qd: np.ndarray | None = None,
-                **extra) -> HorizonContext:
+                free: tuple | None = None, **extra) -> HorizonContext:
         """The horizon context at ``state`` (reference sampled at `node_times`).
 
         Args:
@@ -146,11 +146,13 @@ class MpcPlanner:
             q: Initial axis positions of the prediction, (9,); the measured ones if None
                 (the MPC passes its servo state, `wbc.controllers.servo_state`).
             qd: Initial axis velocities, (9,); the measured ones if None.
+            free: ``prediction.free_response(q, qd)`` if the caller has it
+                (`ServoState.observe_free`), else made here.
             extra: Further `HorizonContext` fields (feedback, warp, leveling_offset).
         """
         q = state.q[:N_AXES].copy() if q is None else np.array(q, float)
         qd = state.qd[:N_AXES].copy() if qd is None else np.array(qd, float)
-        qf, vf = self.prediction.free_response(q, qd)
+        qf, vf = self.prediction.free_response(q, qd) if free is None else free
         ub, qb, vb = self.prediction.brake_trajectory(q, qd, self.limits.acceleration,
                                                       (qf, vf))
         return HorizonContext.assemble(state, q, qd, self.dt, self.layout, self.limits,

@@ -187,7 +187,9 @@ class RuckigReference:
         position is dropped by `plan` and `hold`, the only changes of the trajectory.
         """
         if not self._planned:
-            return self.sample(t)[0]
+            if self._hold is None:
+                self.sample(t)  # raises: neither planned nor held
+            return self._hold.copy()  # `sample`'s position, without its zero rates
         kept = self.kept(t)
         if kept is not None:
             return kept.copy()
@@ -269,7 +271,9 @@ class RuckigReference:
 
         The controller's node arrays of all nine axes, each reference writing its own
         columns: the same numbers as `sample_many_into` of the columns' views, in C without
-        the views where it can (`wbc.references.sample_c`).
+        the views where it can (`wbc.references.sample_c`). The position at the first time
+        is kept (`position`): the MPC's first node is now, where the controller's governor
+        asks at the next tick.
         """
         i = self.index
         if not (self.compiled and self._planned and self._compiled_loaded
@@ -278,6 +282,9 @@ class RuckigReference:
                                                   position, velocity, acceleration)):
             self.sample_many_into(times, rate, position[:, i], velocity[:, i],
                                   acceleration[:, i])
+        if self._planned and len(times):
+            # `kept`'s trajectory time of times[0]; the row is the clipped sample there
+            self.keep_position(max(float(times[0]) - self.start_time, 0.0), position[0, i])
 
     def sample_many_into(self, times, rate: float, position: np.ndarray,
                          velocity: np.ndarray, acceleration: np.ndarray) -> None:
