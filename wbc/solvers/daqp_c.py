@@ -53,7 +53,8 @@ import numpy as np
 
 from models.cbuild import address, load_shared
 
-__all__ = ["DAQP_VERSION", "LDP_C", "LeastDistanceWorkspace", "ldp_library"]
+__all__ = ["DAQP_VERSION", "LDP_C", "SIGNATURES", "LeastDistanceWorkspace", "bind_daqp",
+           "ldp_library"]
 
 _log = logging.getLogger(__name__)
 
@@ -63,6 +64,13 @@ DAQP_VERSION = "0.11.0"  # the structures `LDP_C` declares and the set-up it rep
 _DAQP_FUNCTIONS = ("setup_daqp_main", "daqp_update_ldp", "daqp_solve", "daqp_dual_init_active",
                    "daqp_eq_wanted", "free_daqp_workspace", "free_daqp_ldp",
                    "daqp_default_settings", "reset_daqp_workspace")
+
+_p, _lg = ctypes.c_void_p, ctypes.c_long
+SIGNATURES = {  # `LDP_C`'s functions: (argtypes, restype)
+    "ldp_bind": ([_p], None),
+    "ldp_new": ([ctypes.c_double, ctypes.c_int], _p),
+    "ldp_free": ([_p], None),
+    "ldp_solve": ([_p, _lg, _lg, _lg, _p, _p, _p, _p, _p, _p, _p], ctypes.c_int)}
 
 LDP_C = r"""
 #include <math.h>
@@ -379,30 +387,33 @@ def ldp_library():
     if version != DAQP_VERSION:
         _log.warning("daqp %s, not %s: DAQP through daqp.solve", version, DAQP_VERSION)
         return None
-    p, lg = ctypes.c_void_p, ctypes.c_long
-    lib = load_shared(LDP_C, "daqp_ldp", {
-        "ldp_bind": ([p], None),
-        "ldp_new": ([ctypes.c_double, ctypes.c_int], p),
-        "ldp_free": ([p], None),
-        "ldp_solve": ([p, lg, lg, lg, p, p, p, p, p, p, p], ctypes.c_int)}, "daqp.solve",
-        opt="-O3")
+    lib = load_shared(LDP_C, "daqp_ldp", SIGNATURES, "daqp.solve", opt="-O3")
     if lib is None:
         return None
     try:
-        module = ctypes.CDLL(daqp.__file__)
-        table = (ctypes.c_void_p * len(_DAQP_FUNCTIONS))(
-            *(ctypes.cast(getattr(module, name), ctypes.c_void_p).value
-              for name in _DAQP_FUNCTIONS))
+        bind_daqp(lib)
     except (OSError, AttributeError) as exc:
         _log.warning("daqp's C functions not found (%s): DAQP through daqp.solve", exc)
         return None
-    lib.ldp_bind(table)
-    lib.daqp_table = table  # the pointers live as long as the library
     if not _self_check(lib):
         _log.warning("the kept DAQP workspace disagrees with daqp.solve: DAQP through "
                      "daqp.solve")
         return None
     return lib
+
+
+def bind_daqp(lib) -> None:
+    """Hand a library of `LDP_C` the addresses of the ``daqp`` module's C functions.
+
+    Raises:
+        OSError, AttributeError: The module cannot be opened, or lacks a function.
+    """
+    module = ctypes.CDLL(daqp.__file__)  # the extension Python loaded already
+    table = (ctypes.c_void_p * len(_DAQP_FUNCTIONS))(
+        *(ctypes.cast(getattr(module, name), ctypes.c_void_p).value
+          for name in _DAQP_FUNCTIONS))
+    lib.ldp_bind(table)
+    lib.daqp_table = table  # the pointers live as long as the library
 
 
 class LeastDistanceWorkspace:
