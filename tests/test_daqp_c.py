@@ -180,6 +180,18 @@ def test_sizes_warm_starts_and_fallbacks_keep_the_bits(build, builds):
                      _reference(a, upper, lower, first, None, iter_limit=2), "cap")
 
 
+def test_the_arrays_grow_by_a_quarter_past_the_most_rows(builds):
+    """A set-up keeps room for a quarter more rows than it had: more rows set up afresh."""
+    rng = np.random.default_rng(4)
+    work = LeastDistanceWorkspace(1e-7, 1000, builds["host"])
+    for m, kept in ((80, False), (100, True), (101, False), (126, True), (127, False),
+                    (60, True)):
+        a, upper, lower, first = _problem(rng, 20, m)
+        _assert_same(work.solve(a, upper, lower, first, None),
+                     _reference(a, upper, lower, first, None), m)
+        assert work.kept == kept, m
+
+
 def test_the_unconstrained_optimum_and_a_cold_start_after_it(builds):
     """Bounds around the origin: DAQP's unconstrained check ends the set-up early (no rows
     formed); the next problem binds, on the kept workspace."""

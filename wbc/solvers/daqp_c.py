@@ -136,8 +136,6 @@ typedef struct {
 #define UPDATE_sense 16
 #define UPDATE_unconstrained 64
 #define UPDATE_eliminate 128
-#define STATE_ILL_CONDITIONED 2048
-#define STATE_CHOLESKY_PENDING 4096
 #define EQUALITY 5 /* DAQP_ACTIVE | DAQP_IMMUTABLE */
 
 static struct {
@@ -159,7 +157,6 @@ typedef struct {
   DAQPWorkspace work;
   int live;     /* work holds a set-up workspace the next solve may keep */
   int n, cap;   /* its variables, the rows its arrays hold */
-  int state;    /* its state bits daqp_update_R leaves (from the Hessian alone) */
   double* eye;  /* the identity, n x n */
   int* sense;   /* the problem's senses, cap long */
 } Ldp;
@@ -321,7 +318,7 @@ int ldp_solve(void* p, long n, long m, long first_eq, const double* A, const dou
            normalize(A, w->RinvD, n, m, c->settings.zero_tol, w->M, w->scaling) == 0;
   }
   if (kept) {
-    w->state = c->state;
+    w->state = 0; /* daqp_update_R's flags for the identity: none (a set-up's start) */
     w->u = w->x;
     memset(w->u, 0, n * sizeof(double));
     w->soft_slack = 0;
@@ -347,7 +344,6 @@ int ldp_solve(void* p, long n, long m, long first_eq, const double* A, const dou
     }
     c->live = 1;
     c->cap = (int)m;
-    c->state = w->state & (STATE_ILL_CONDITIONED | STATE_CHOLESKY_PENDING); /* daqp_update_R's */
   }
   daqp.daqp_solve(&res, w);
   out[0] = res.exitflag, out[1] = res.iter, out[2] = kept;
