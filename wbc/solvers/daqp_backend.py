@@ -312,14 +312,15 @@ class DaqpBackend:
 
     def _daqp(self, hessian: np.ndarray, cost: np.ndarray | None, a: np.ndarray,
               upper: np.ndarray, lower: np.ndarray, first_equality: int,
-              dual: np.ndarray | None) -> tuple[np.ndarray, np.ndarray, int, int]:
+              dual: np.ndarray | None, least_distance: bool
+              ) -> tuple[np.ndarray, np.ndarray, int, int]:
         """DAQP's ``(x, multipliers, exit flag, iterations)``, warm started from ``dual``.
 
         Rows from ``first_equality`` on are equalities; ``dual`` None: cold. The
-        least-distance form (no ``cost``, the identity for ``hessian``, every bound a row of
+        least-distance form (the identity for ``hessian``, no ``cost``, every bound a row of
         ``a``) on the kept workspace if there is one, else ``daqp.solve``.
         """
-        if cost is None and self._workspace is not None:
+        if least_distance and self._workspace is not None:
             return self._workspace.solve(a, upper, lower, first_equality, dual)
         x, _, flag, info = daqp.solve(hessian, cost, a, upper, lower,
                                       _senses(upper.size, first_equality), dual_start=dual,
@@ -392,14 +393,14 @@ class DaqpBackend:
                     else self._lam[:n].copy())
         t_call = time.perf_counter()
         x, lam_kept, flag, iterations = self._daqp(hessian, cost, a_all, upper, lower,
-                                                   n + m_k, dual)
+                                                   n + m_k, dual, factor is not None)
         call = time.perf_counter() - t_call
         ok = flag > 0 and _all(np.isfinite(x))
         if warm and not ok:
             warm = False
             t_call = time.perf_counter()
             x, lam_kept, flag, retry = self._daqp(hessian, cost, a_all, upper, lower,
-                                                  n + m_k, None)
+                                                  n + m_k, None, factor is not None)
             call += time.perf_counter() - t_call
             iterations += retry
             ok = flag > 0 and _all(np.isfinite(x))
