@@ -222,3 +222,18 @@ def test_the_backend_s_compiled_flag_switches_the_workspace():
     backend.compiled = True
     assert backend.kept_workspace
     assert not DaqpBackend(least_distance=False).kept_workspace
+
+
+def test_a_copied_backend_solves_on_a_workspace_of_its_own():
+    """``copy.deepcopy`` of a backend: another C workspace (not the same one freed twice),
+    and both go on to the same bits."""
+    import copy
+
+    corpus = load_corpus()
+    backend = DaqpBackend()
+    for p in corpus.problems[:5]:
+        backend.solve(p)
+    twin = copy.deepcopy(backend)
+    assert twin._workspace._ctx != backend._workspace._ctx
+    for i, p in enumerate(corpus.problems[5:40]):
+        assert backend.solve(p).x.tobytes() == twin.solve(p).x.tobytes(), i

@@ -439,7 +439,14 @@ class LeastDistanceWorkspace:
         self._solve = functools.partial(lib.ldp_solve, self._ctx)
         self._out = np.zeros(3, dtype=np.intc)
         self._out_address = self._out.ctypes.data
+        self._lib, self._settings = lib, (float(primal_tol), int(iter_limit))
         self.kept = False  # the last solve's path: the kept workspace, else a fresh set-up
+
+    def __deepcopy__(self, memo) -> LeastDistanceWorkspace:
+        """A workspace of its own, empty: its first solve sets DAQP up (the same bits)."""
+        new = LeastDistanceWorkspace(*self._settings, self._lib)
+        memo[id(self)] = new
+        return new
 
     def solve(self, a: np.ndarray, upper: np.ndarray, lower: np.ndarray,
               first_equality: int, dual: np.ndarray | None
