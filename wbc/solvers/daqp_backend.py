@@ -392,14 +392,14 @@ class DaqpBackend:
             dual = (np.concatenate([self._lam[:n], self._lam[n + rows]]) if rows.size
                     else self._lam[:n].copy())
         t_call = time.perf_counter()
-        x, lam_kept, flag, iterations = self._daqp(hessian, cost, a_all, upper, lower,
+        x, lam_daqp, flag, iterations = self._daqp(hessian, cost, a_all, upper, lower,
                                                    n + m_k, dual, factor is not None)
         call = time.perf_counter() - t_call
         ok = flag > 0 and _all(np.isfinite(x))
         if warm and not ok:
             warm = False
             t_call = time.perf_counter()
-            x, lam_kept, flag, retry = self._daqp(hessian, cost, a_all, upper, lower,
+            x, lam_daqp, flag, retry = self._daqp(hessian, cost, a_all, upper, lower,
                                                   n + m_k, None, factor is not None)
             call += time.perf_counter() - t_call
             iterations += retry
@@ -412,8 +412,8 @@ class DaqpBackend:
             self._lam = None
             raise QPSolveError(f"daqp found no solution (exit flag {flag})", "not_found")
         lam = np.zeros(n_all)
-        lam[:n] = lam_kept[:n]
+        lam[:n] = lam_daqp[:n]
         if rows.size:  # no rows (the whole-body QP): nothing to scatter
-            lam[n + rows] = lam_kept[n:]
+            lam[n + rows] = lam_daqp[n:]
         self._lam, self._n = lam, n
         return QPSolution(np.asarray(x, float), "solved", iterations, elapsed, warm, call)
