@@ -18,11 +18,12 @@ import pytest
 from benchmarks.qp_corpus import load_corpus
 from models.cbuild import compile_shared
 from wbc.solvers import DaqpBackend, daqp_c
-from wbc.solvers.daqp_c import SIGNATURES, LeastDistanceWorkspace, bind_daqp, ldp_library
+from wbc.solvers.daqp_api import DAQP_VERSION, bind_daqp, daqp_version
+from wbc.solvers.daqp_c import SIGNATURES, LeastDistanceWorkspace, ldp_library
 
 # The library is tested as built, not through `ldp_library` (whose check against daqp.solve
 # would turn a wrong build into skipped tests).
-pytestmark = pytest.mark.skipif(daqp_c._daqp_version() != daqp_c.DAQP_VERSION,
+pytestmark = pytest.mark.skipif(daqp_version() != DAQP_VERSION,
                                 reason="another daqp than the one verified")
 
 
@@ -210,7 +211,7 @@ def test_the_self_check_and_the_version_pin(monkeypatch, builds):
     """The library loads for the verified daqp and checks out; another version gets none."""
     assert ldp_library() is not None
     assert daqp_c._self_check(builds["host"]) and daqp_c._self_check(builds["portable"])
-    monkeypatch.setattr(daqp_c, "_daqp_version", lambda: "0.10.0")
+    monkeypatch.setattr(daqp_c, "daqp_version", lambda: "0.10.0")
     assert daqp_c.ldp_library.__wrapped__() is None
 
 

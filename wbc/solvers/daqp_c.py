@@ -36,17 +36,16 @@ elimination, branch and bound, proximal iterations, a hierarchy, an AVI).
 The warm start is the wrapper's: the senses (0, and 5 for the equalities from
 ``first_equality`` on) marked active by ``daqp_dual_init_active`` from ``dual_start``.
 
-The C declares DAQP 0.11.0's structures (``types.h``, ``api.h``: MIT licence, D. Arnström)
-and calls the symbols of the loaded ``daqp`` extension module through pointers handed over
-by ctypes; `ldp_library` loads it only for the version it was verified on (`DAQP_VERSION`)
-and after a check against ``daqp.solve`` on small problems (the same bits or no library).
+The C is built on DAQP 0.11.0's structures and calls the functions of the loaded ``daqp``
+extension module through pointers handed over by ctypes (`wbc.solvers.daqp_api`);
+`ldp_library` loads it only for the version they were copied from (`DAQP_VERSION`) and after
+a check against ``daqp.solve`` on small problems (the same bits or no library).
 """
 
 from __future__ import annotations
 
 import ctypes
 import functools
-import importlib.metadata
 import logging
 import weakref
 
@@ -54,105 +53,25 @@ import daqp
 import numpy as np
 
 from models.cbuild import address, load_shared
+from wbc.solvers.daqp_api import DAQP_API_C, DAQP_VERSION, bind_daqp, daqp_version
 
-__all__ = ["DAQP_VERSION", "LDP_C", "SIGNATURES", "LeastDistanceWorkspace", "bind_daqp",
-           "ldp_library"]
+__all__ = ["LDP_C", "SIGNATURES", "LeastDistanceWorkspace", "ldp_library"]
 
 _log = logging.getLogger(__name__)
 
-DAQP_VERSION = "0.11.0"  # the structures `LDP_C` declares and the set-up it reproduces
-
-# DAQP's functions `LDP_C` calls, in the order of its table ``daqp``.
-_DAQP_FUNCTIONS = ("setup_daqp_main", "daqp_update_ldp", "daqp_solve", "daqp_dual_init_active",
-                   "daqp_eq_wanted", "free_daqp_workspace", "free_daqp_ldp",
-                   "daqp_default_settings", "reset_daqp_workspace")
-
 _p, _lg = ctypes.c_void_p, ctypes.c_long
 SIGNATURES = {  # `LDP_C`'s functions: (argtypes, restype)
-    "ldp_bind": ([_p], None),
+    "daqp_bind": ([_p], None),
     "ldp_new": ([ctypes.c_double, ctypes.c_int], _p),
     "ldp_free": ([_p], None),
     "ldp_solve": ([_p, _lg, _lg, _lg, _p, _p, _p, _p, _p, _p, _p], ctypes.c_int)}
 
-LDP_C = r"""
+LDP_C = DAQP_API_C + r"""
 #include <math.h>
 #include <stdlib.h>
-#include <string.h>
 #if defined(__AVX512F__)
 #include <immintrin.h>
 #endif
-
-/* DAQP 0.11.0's structures (include/types.h, include/api.h), c_float = double. */
-typedef struct {
-  int n, m, ms;
-  double *H, *f, *A, *bupper, *blower;
-  int* sense;
-  int* break_points;
-  int nh;
-  int problem_type;
-} DAQPProblem;
-
-typedef struct {
-  double primal_tol, dual_tol, zero_tol, pivot_tol, progress_tol;
-  int cycle_tol, iter_limit;
-  double fval_bound, eps_prox, eta_prox, rho_soft, rel_subopt, abs_subopt, sing_tol,
-      refactor_tol, time_limit, w_soft;
-  int eq_reduction, presolve;
-} DAQPSettings;
-
-typedef struct {
-  DAQPProblem* qp;
-  int n, m, ms;
-  double *M, *dupper, *dlower, *Rinv, *v;
-  int* sense;
-  double *scaling, *RinvD;
-  double *x, *xold, *lam, *lam_star, *u;
-  double fval;
-  double *L, *D, *xldl, *zldl;
-  int reuse_ind;
-  int* WS;
-  int n_active, iterations, sing_ind;
-  int* prox_mask;
-  int n_prox;
-  double soft_slack;
-  DAQPSettings* settings;
-  void* bnb;
-  int outer_iter;
-  void *hierarchy, *avi, *eq, *timer;
-  double* Mu;
-  double *rho_ls, *rho_us, *w_ls, *w_us;
-  int state;
-} DAQPWorkspace;
-
-typedef struct {
-  double *x, *lam;
-  double fval, soft_slack;
-  int exitflag, iter, nodes;
-  double solve_time, setup_time;
-} DAQPResult;
-
-/* constants.h */
-#define UPDATE_Rinv 1
-#define UPDATE_M 2
-#define UPDATE_d 8
-#define UPDATE_sense 16
-#define UPDATE_unconstrained 64
-#define UPDATE_eliminate 128
-#define EQUALITY 5 /* DAQP_ACTIVE | DAQP_IMMUTABLE */
-
-static struct {
-  int (*setup_daqp_main)(DAQPProblem*, DAQPWorkspace*, double*, int);
-  int (*daqp_update_ldp)(int, DAQPWorkspace*, DAQPProblem*);
-  void (*daqp_solve)(DAQPResult*, DAQPWorkspace*);
-  void (*daqp_dual_init_active)(DAQPProblem*, double*);
-  int (*daqp_eq_wanted)(const DAQPWorkspace*, const DAQPProblem*, int);
-  void (*free_daqp_workspace)(DAQPWorkspace*);
-  void (*free_daqp_ldp)(DAQPWorkspace*);
-  void (*daqp_default_settings)(DAQPSettings*);
-  void (*reset_daqp_workspace)(DAQPWorkspace*);
-} daqp;
-
-void ldp_bind(void** functions) { memcpy(&daqp, functions, sizeof daqp); }
 
 typedef struct {
   DAQPSettings settings;
@@ -366,13 +285,6 @@ int ldp_solve(void* p, long n, long m, long first_eq, const double* A, const dou
 """
 
 
-def _daqp_version() -> str | None:
-    try:
-        return importlib.metadata.version("daqp")
-    except importlib.metadata.PackageNotFoundError:
-        return None
-
-
 @functools.cache
 def ldp_library():
     """`LDP_C` compiled, loaded and bound to the ``daqp`` module's C functions, once per process.
@@ -381,7 +293,7 @@ def ldp_library():
     symbols, or when the check against ``daqp.solve`` (`_self_check`) finds other bits: the
     backend then calls ``daqp.solve``.
     """
-    version = _daqp_version()
+    version = daqp_version()
     if version != DAQP_VERSION:
         _log.warning("daqp %s, not %s: DAQP through daqp.solve", version, DAQP_VERSION)
         return None
@@ -398,20 +310,6 @@ def ldp_library():
                      "daqp.solve")
         return None
     return lib
-
-
-def bind_daqp(lib) -> None:
-    """Hand a library of `LDP_C` the addresses of the ``daqp`` module's C functions.
-
-    Raises:
-        OSError, AttributeError: The module cannot be opened, or lacks a function.
-    """
-    module = ctypes.CDLL(daqp.__file__)  # the extension Python loaded already
-    table = (ctypes.c_void_p * len(_DAQP_FUNCTIONS))(
-        *(ctypes.cast(getattr(module, name), ctypes.c_void_p).value
-          for name in _DAQP_FUNCTIONS))
-    lib.ldp_bind(table)
-    lib.daqp_table = table  # the pointers live as long as the library
 
 
 class LeastDistanceWorkspace:
