@@ -13,8 +13,10 @@ import pytest
 import qpsolvers
 
 from benchmarks.qp_corpus import load_corpus
+from wbc.constraints.constraint import Box
 from wbc.errors import ConfigurationError, QPSolveError
-from wbc.solvers import DaqpBackend
+from wbc.qp import QPBuilder
+from wbc.solvers import DaqpBackend, daqp_backend
 from wbc.solvers.daqp_backend import redundant_rows
 
 
@@ -120,6 +122,55 @@ def test_the_kept_factor_follows_the_hessians_values():
     assert backend._factor(changed) is None
     assert backend._factor(changed) is not None
     assert backend._factor(changed.reshape(18, 72)) is None  # the same bytes
+
+
+def test_a_read_only_hessian_of_its_own_is_known_by_identity(monkeypatch):
+    """The builder's kept P (read-only, owning its data) is trusted by identity, not
+    compared; a read-only view is not (its base may change)."""
+    backend = DaqpBackend()
+    H = np.diag(np.arange(1.0, 37.0))
+    H.setflags(write=False)
+    assert backend._factor(H) is None
+    factor = backend._factor(H)
+    assert factor is not None
+    compared = []
+    equal = daqp_backend._equal
+    monkeypatch.setattr(daqp_backend, "_equal", lambda *a: compared.append(1) or equal(*a))
+    assert backend._factor(H) is factor and not compared  # by identity
+    base = np.diag(np.arange(1.0, 37.0))
+    view = base[:]
+    view.setflags(write=False)
+    assert backend._factor(view) is factor and compared  # compared: equal values
+    base[3, 3] = 7.5  # the view's base written: its factor must not be kept
+    assert backend._factor(view) is None
+
+
+def test_the_builders_kept_hessian_is_read_only():
+    """`QPBuilder` shares P between ticks while the tasks' H are constant: read-only."""
+    class Const:
+        def __init__(self, H):
+            self.H = H
+
+        def is_active(self, ctx):
+            return True
+
+        def compute_qp_objective(self, ctx):
+            return self.H, np.zeros(3)
+
+    class Layout:
+        n = 3
+
+        def default_bounds(self):
+            return np.full(3, -np.inf), np.full(3, np.inf)
+
+    H = np.eye(3)
+    H.setflags(write=False)
+    ctx = type("Ctx", (), {"layout": Layout()})()
+    box = Box(np.zeros(3), np.ones(3))
+    builder = QPBuilder([Const(H)], [type("B", (), {"compute": lambda self, c: box})()])
+    P = builder.build(ctx).P
+    assert not P.flags.writeable and P.base is None
+    assert builder.build(ctx).P is P
 
 
 def test_warm_start_from_another_problem_is_still_right(corpus):

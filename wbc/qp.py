@@ -57,7 +57,8 @@ class QPBuilder:
     A controller keeps one: the Hessian is reused while the active tasks return the very same
     read-only ``H`` arrays as at the last tick (constant-Jacobian tasks cache theirs), the
     same sum in the same order, so the same bits, without its per-tick additions. The
-    problem's ``P`` is then shared between ticks: read it, don't write it. So are the rows
+    problem's ``P`` is then shared between ticks, and read-only (an array of its own: a
+    solver may keep what it derives from it while it gets the same object again). So are the rows
     of ``G`` that hold constant blocks (`QP.constant_rows`): ``G`` is the last tick's array
     again when nothing else holds that any more, with only the other rows written
     (`_stacked_rows`). The bounds are the last tick's numbers again (fresh copies) while
@@ -131,6 +132,8 @@ class QPBuilder:
         for H in hessians:
             P += H
         constant = all(not H.flags.writeable for H in hessians)
+        if constant:  # shared from tick to tick: read-only, so a solver may keep what it
+            P.setflags(write=False)  # derives from it while it is the same object
         self._hessians, self._P = (hessians, P) if constant else (None, None)
         return P
 

@@ -112,6 +112,25 @@ def redundant_rows(G: np.ndarray, h: np.ndarray, lb: np.ndarray | None,
     return _worst(G, _box_terms(lb, ub, G.shape[1], tolerance)) <= h
 
 
+def _frozen(H) -> bool:
+    """``H`` is a read-only array that owns its data: no one can write it in place.
+
+    (Only its owner could set it writable again: `wbc.qp.QPBuilder`'s kept ``P``, which it
+    never does.) A read-only view is not frozen: its base may be written.
+    """
+    return isinstance(H, np.ndarray) and not H.flags.writeable and H.base is None
+
+
+def _equal(H, kept: tuple) -> bool:
+    """``H`` equals the kept Hessian ``kept[0]`` (its bytes ``kept[1]``).
+
+    The same bits are equal (a copy and a compare, half the time of `np.array_equal`), else
+    the values decide (+-0; a NaN: not equal).
+    """
+    return (H.dtype == kept[0].dtype and H.shape == kept[0].shape
+            and H.tobytes() == kept[1] or np.array_equal(kept[0], H))
+
+
 def _senses(size: int, first_equality: int) -> np.ndarray:
     """DAQP's sense flags (it writes into them): rows from ``first_equality`` on equalities."""
     sense = np.zeros(size, dtype=np.intc)
@@ -142,7 +161,8 @@ class DaqpBackend:
         self.warm_start = bool(warm_start)
         self.screen = bool(screen)
         self.least_distance = bool(least_distance)
-        self._hessian: tuple | None = None  # (the H whose factor is kept, its bytes)
+        # (the H whose factor is kept, its bytes, the read-only array it came from or None)
+        self._hessian: tuple | None = None
         self._inv_factor: tuple | None = None  # (L^-T, identity) for that H
         self._factored = False  # the factor of that H tried
         self.form = "direct"  # the last solve's form: "direct" or "least-distance"
@@ -216,14 +236,15 @@ class DaqpBackend:
         own relative level, 1e-11 of the largest): DAQP then factorises, or regularises,
         it itself.
         """
-        kept = self._hessian  # the same bits are equal (a copy and a compare, half the
-        if kept is None or not (H.dtype == kept[0].dtype and H.shape == kept[0].shape  # time
-                                and H.tobytes() == kept[1]  # of array_equal), else values
-                                or np.array_equal(kept[0], H)):  # (+-0; a NaN: no factor)
+        kept = self._hessian
+        if kept is None or not (H is kept[2] and _frozen(H) or _equal(H, kept)):
+            given = H
             H = np.array(H, dtype=float)
-            self._hessian, self._inv_factor = (H, H.tobytes()), None
-            self._factored = False
+            self._hessian = (H, H.tobytes(), given if _frozen(given) else None)
+            self._inv_factor, self._factored = None, False
             return None
+        if kept[2] is not H and _frozen(H):  # the builder's kept P (`wbc.qp.QPBuilder`):
+            self._hessian = (*kept[:2], H)  # the next ticks know it by its identity
         if not self._factored:
             self._factored = True
             try:
@@ -368,7 +389,8 @@ class DaqpBackend:
             lower[n + m_k:] = b
         self.form = "direct" if factor is None else "least-distance"
         if factor is None:
-            hessian, cost = H, f
+            # (daqp.solve takes writable buffers only; the builder's kept P is read-only)
+            hessian, cost = (H if H.flags.writeable else np.array(H)), f
         else:  # the least-distance form: rows [L^-T; a_all L^-T], shifted by a_all x(u=0)
             inv_t, hessian = factor
             v = inv_t.T @ f
