@@ -39,6 +39,24 @@ def test_position_matches_pinocchio_frame(machine, kin):
             kin.position(bad)
 
 
+def test_position_is_the_full_configurations_bits(machine, kin):
+    """`position` fills the TCP's supporting joints only: the full tree's numbers, to the bit."""
+    from models.errors import StrokeOutOfRangeError
+
+    rng = np.random.default_rng(3)
+    full = TcpKinematics(machine)
+    for _ in range(50):
+        q = random_independent(machine, rng)
+        qp, _, _ = full._configuration(q)
+        pin.framesForwardKinematics(full.model, full.data, qp)
+        assert np.array_equal(kin.position(q), full.data.oMf[full.frame_id].translation)
+    for i in (0, 2):  # a bogie's stroke (not computed) and the slew's: both checked
+        q = random_independent(machine, rng)
+        q[i] = machine.coordinates.upper[i] + 0.1
+        with pytest.raises(StrokeOutOfRangeError):
+            kin.position(q)
+
+
 def test_jacobian_finite_differences(machine, kin):
     rng = np.random.default_rng(1)
     for _ in range(5):

@@ -45,6 +45,27 @@ class TcpKinematics:
         # `PinocchioMachine.configuration` for the identity attitude (quaternion 0, 0, 0, 1).
         self._q_level = np.zeros(self.model.nq)
         self._q_level[6] = 1.0
+        self._position_plan()
+
+    def _position_plan(self) -> None:
+        """What `position` computes: the tree coordinates of the TCP's supporting joints.
+
+        The TCP's placement is a product of the placements of the joints that support its
+        body (Pinocchio's ``model.supports``): the chassis (level, at the origin) and the
+        crane. The other joints (bogies, wheels, the cylinders' barrels and pistons) do not
+        enter it, so `position` leaves them at zero and computes no angle for them; it
+        still checks every chain's stroke, as `TreeCoordinates.joint_positions` does.
+        """
+        coords = self.pm.coordinates
+        parent = self.model.frames[self.frame_id].parentJoint
+        supports = {self.model.names[j] for j in self.model.supports[parent]}
+        q_index = self.pm.joint_q_index
+        self._direct = tuple((i, q_index[name]) for i, name in
+                             enumerate(coords.independent_names)
+                             if name in supports and coords.binding(i) is None)
+        self._chains = tuple((i, b.chain, q_index[b.driven_joint] if b.driven_joint in supports
+                              else None) for i, b in coords.chains())
+        self._qp = self._q_level.copy()  # kept: the supporting entries are rewritten each call
 
     @staticmethod
     def _checked(q) -> np.ndarray:
@@ -64,11 +85,23 @@ class TcpKinematics:
     def position(self, q) -> np.ndarray:
         """TCP position in fb [m], shape (3,), for independent coordinates q (13,).
 
-        Positions only: the tree's joint positions (`TreeCoordinates.joint_positions`, the
-        same numbers `_configuration` gives), without its velocities and Jacobian.
+        Positions only: of the tree's joint positions (`TreeCoordinates.joint_positions`,
+        the same numbers `_configuration` gives) those of the joints that support the TCP
+        (`_position_plan`), without velocities and Jacobian.
+
+        Raises:
+            WbcInputError: ``q`` of the wrong shape or non-finite.
+            StrokeOutOfRangeError: A chain's stroke outside its range.
         """
-        qp = self._q_level.copy()
-        qp[self.pm._tree_q_idx] = self.pm.coordinates.joint_positions(self._checked(q))
+        x = self._checked(q).tolist()
+        qp = self._qp
+        for i, j in self._direct:
+            qp[j] = x[i]
+        for i, chain, j in self._chains:
+            if j is None:
+                chain.check_stroke(x[i])
+            else:
+                qp[j] = chain.angles(x[i])[0]
         pin.framesForwardKinematics(self.model, self.data, qp)
         return self.data.oMf[self.frame_id].translation.copy()
 
