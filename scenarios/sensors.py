@@ -46,6 +46,7 @@ from models.sensing import (
     SensorSpec,
     cylinder_areas,
 )
+from models.state import N_SERVO_AXES, frozen_array
 from scenarios.errors import SimulatorError
 from scenarios.listeners_c import N_STREAMS, compiled_delivery, compiled_sensors, sensors_hooks
 from scenarios.simulator import Simulator
@@ -394,12 +395,13 @@ class SensorSimulator:
         return (count, count_tail, fill, rng, k, [slots.index(s) for s in ordered],
                 [s.n for s in ordered])
 
-    def _deliver_compiled(self, tick: float) -> list[tuple[np.ndarray, np.ndarray]]:
-        """Each stream's readings by ``tick`` (`DELIVER_C`): (times (k,), values (k, n)).
+    def _readings_compiled(self, tick: float) -> SensorReadings:
+        """`readings` by `DELIVER_C`: the Python path's numbers.
 
-        In the order `_bind_delivery` draws them (the linear and the angular positions
-        first, then acceleration, angular rate, pressure, wheel speed, drive torque, link
-        accelerometers): views of two new arrays, for the caller to wrap (`readings`).
+        The streams in the order `_bind_delivery` draws them (the linear and the angular
+        positions first, then acceleration, angular rate, pressure, wheel speed, drive
+        torque, link accelerometers), their times and values in two new arrays, made
+        read-only, that each stream's `Samples` views; the two positions' streams joined.
         """
         count, count_tail, fill, rng, k, order, widths = self._delivery
         z = rng.standard_normal(count(tick, *count_tail))
@@ -408,27 +410,27 @@ class SensorSimulator:
         out_t = np.empty(sum(sizes))
         out_y = np.empty(sum(map(operator.mul, sizes, widths)))
         fill(address(z), address(out_t), address(out_y))
+        out_t.flags.writeable = False
+        out_y.flags.writeable = False
+        wrap = Samples.of_read_only
         got, first, first_y = [], 0, 0
         for kk, n in zip(sizes, widths):
-            got.append((out_t[first:first + kk], out_y[first_y:first_y + kk * n].reshape(kk, n)))
-            first += kk
-            first_y += kk * n
-        return got
+            last, last_y = first + kk, first_y + kk * n
+            got.append((out_t[first:last], out_y[first_y:last_y].reshape(kk, n)))
+            first, first_y = last, last_y
+        (lin_t, lin_y), (ang_t, ang_y), acc, gyro, press, wheels, drive, *link = got
+        n = min(lin_t.shape[0], ang_t.shape[0])
+        positions = Samples.trusted(lin_t[:n], np.concatenate((lin_y[:n], ang_y[:n]), axis=1))
+        return SensorReadings.trusted(
+            tick, wrap(*acc), wrap(*gyro), positions, wrap(*press), wrap(*wheels),
+            wrap(*drive), frozen_array("servo_setpoint", self.sim.servo_setpoint,
+                                       (N_SERVO_AXES,)),
+            wrap(*link[0]) if link else None)
 
     def readings(self, tick: float) -> SensorReadings:
         """What the sensors delivered by ``tick`` [s] since the previous call."""
         if self._delivery is not None:
-            # the positions' two streams are wrapped once, joined (the Python path's numbers)
-            (lin_t, lin_y), (ang_t, ang_y), *got = self._deliver_compiled(tick)
-            n = min(lin_t.shape[0], ang_t.shape[0])
-            positions = Samples.trusted(lin_t[:n], np.concatenate((lin_y[:n], ang_y[:n]),
-                                                                  axis=1))
-            acc, gyro, press, wheels, drive, *link = (Samples.trusted(t, y) for t, y in got)
-            return SensorReadings(
-                time=float(tick), specific_force=acc, angular_rate=gyro, positions=positions,
-                pressures=press, wheel_speeds=wheels, drive_torques=drive,
-                servo_setpoint=self.sim.servo_setpoint,
-                link_specific_force=link[0] if link else None)
+            return self._readings_compiled(float(tick))
         lin = self._pos_lin.deliver(tick)
         ang = self._pos_ang.deliver(tick)
         n = min(len(lin), len(ang))

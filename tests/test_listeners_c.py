@@ -50,10 +50,13 @@ def test_compiled_sensors_deliver_the_python_readings_to_the_bit(rough):
         rough.set_command(cylinder_rates={"slew": 0.3, "lift": -0.05}, wheel_speeds=(1.5, 1.0))
         for steps in [5] * 30 + [700] + [5] * 10 + [3, 7, 1]:
             rough.step(steps)
-            a, b = _fields(fast.readings(rough.time)), _fields(slow.readings(rough.time))
+            r = fast.readings(rough.time)
+            dataclasses.replace(r)  # the trusted constructors' readings pass the checks
+            a, b = _fields(r), _fields(slow.readings(rough.time))
             assert a.keys() == b.keys()
             for key in a:
                 assert a[key].tobytes() == b[key].tobytes(), key
+                assert key == "time" or not a[key].flags.writeable, key
         assert len(fast.readings(rough.time).link_specific_force) == 0  # delivered once
     finally:
         fast.close()

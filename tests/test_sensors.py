@@ -239,3 +239,27 @@ def test_pressure_force_is_the_mechanism_force_plus_the_seal_friction(sim):
         finally:
             sensors.close()
         assert np.mean(excess) == pytest.approx(np.sign(rate) * friction, abs=0.1 * friction)
+
+
+def test_trusted_readings_check_the_time_and_equal_the_checked_ones():
+    """`SensorReadings.trusted` skips the per-field checks, not the tick's: a NaN tick is
+    refused as by the constructor; valid fields give the constructor's object."""
+    from models.errors import StateError
+    from models.sensing import Samples, SensorReadings
+
+    def samples(k):
+        return Samples.trusted(np.arange(2.0), np.ones((2, k)))
+
+    fields = dict(specific_force=samples(3), angular_rate=samples(3), positions=samples(9),
+                  pressures=samples(10), wheel_speeds=samples(2), drive_torques=samples(2),
+                  link_specific_force=None)
+    setpoint = np.zeros(9)
+    setpoint.flags.writeable = False
+    for bad in (float("nan"), float("inf")):
+        with pytest.raises(StateError, match="'time' must be a finite number"):
+            SensorReadings.trusted(bad, servo_setpoint=setpoint, **fields)
+    trusted = SensorReadings.trusted(1.0, servo_setpoint=setpoint, **fields)
+    checked = SensorReadings(time=1.0, servo_setpoint=setpoint, **fields)
+    for f in dataclasses.fields(SensorReadings):
+        a, b = getattr(trusted, f.name), getattr(checked, f.name)
+        assert a is b or np.array_equal(a, b), f.name

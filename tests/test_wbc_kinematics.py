@@ -17,6 +17,7 @@ from wbc import (
     WbcInputError,
     solve_tcp_ik,
 )
+from wbc.kinematics.tcp_c import compiled_tcp_tree
 
 
 @pytest.fixture(scope="module")
@@ -37,6 +38,61 @@ def test_position_matches_pinocchio_frame(machine, kin):
     for bad in (np.full(13, np.nan), np.zeros(12)):
         with pytest.raises(WbcInputError, match="q must be finite"):
             kin.position(bad)
+
+
+def _full_position(full, q):
+    """The TCP from the full tree's configuration (`_configuration`: every joint)."""
+    qp, _, _ = full._configuration(q)
+    pin.framesForwardKinematics(full.model, full.data, qp)
+    return full.data.oMf[full.frame_id].translation.copy()
+
+
+def test_position_is_the_full_configurations_bits(machine, kin):
+    """`position` fills the TCP's supporting joints only, in C and in Python: the full
+    tree's numbers, to the bit; the same typed errors."""
+    from models.errors import StrokeOutOfRangeError
+
+    rng = np.random.default_rng(3)
+    full, python = TcpKinematics(machine), TcpKinematics(machine, compiled=False)
+    assert python._tree_c is None
+    for _ in range(50):
+        q = random_independent(machine, rng)
+        ref = _full_position(full, q)
+        assert np.array_equal(kin.position(q), ref)
+        assert np.array_equal(python.position(q), ref)
+    for i in (0, 2, 4):  # a bogie's stroke (not computed), the slew's and the tilt's
+        for side in (machine.coordinates.lower[i] - 0.1, machine.coordinates.upper[i] + 0.1):
+            q = random_independent(machine, rng)
+            q[i] = side
+            for k in (kin, python):
+                with pytest.raises(StrokeOutOfRangeError):
+                    k.position(q)
+    q = random_independent(machine, rng)
+    q[10] = np.inf  # a wheel's angle: not used, still checked
+    for k in (kin, python):
+        with pytest.raises(WbcInputError, match="q must be finite"):
+            k.position(q)
+
+
+@pytest.mark.skipif(compiled_tcp_tree((), (), np.zeros(13), np.zeros(30)) is None,
+                    reason="no C compiler")
+def test_compiled_position_on_closed_loop_ticks_is_the_python_bits(machine, tmp_path):
+    """The truth's coordinates of a closed loop's ticks (the harness's TCP error), with the
+    strokes clipped as the harness does (`scenarios.truth_log`); and at the stroke ends."""
+    from scenarios.closed_loop import run_closed_loop
+
+    run_closed_loop("pick-in-motion", tmp_path, "tracking", duration=4.0)
+    qs = np.load(tmp_path / "log.npz")["q"]
+    coords = machine.coordinates
+    fast, python = TcpKinematics(machine), TcpKinematics(machine, compiled=False)
+    assert fast._tree_c is not None
+    ends = [np.where(np.arange(13) == i, bound, qs[0]) for i in coords.chain_indices
+            for bound in (coords.lower[i], coords.upper[i])]
+    for q in [*qs, *ends]:
+        q = q.copy()
+        q[list(coords.chain_indices)] = coords.clip(q)[list(coords.chain_indices)]
+        assert fast.position(q).tobytes() == python.position(q).tobytes()
+    assert len(qs) >= 390
 
 
 def test_jacobian_finite_differences(machine, kin):

@@ -17,10 +17,12 @@ from models.pinocchio_model import PinocchioMachine, build_pinocchio
 from models.state import MachineState
 from wbc.axes import N_AXES
 from wbc.errors import WbcInputError
+from wbc.kinematics.tcp_c import compiled_tcp_tree
 
 __all__ = ["TcpKinematics"]
 
 _LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
+_Q_SHAPE = (N_INDEPENDENT,)
 
 
 class TcpKinematics:
@@ -30,9 +32,12 @@ class TcpKinematics:
         machine: The machine description.
         pinocchio_machine: An existing `PinocchioMachine` of ``machine`` (its model is
             shared; this object keeps its own `pin.Data`).
+        compiled: `position` writes the TCP's configuration in C (`wbc.kinematics.tcp_c`,
+            the same bits) when a compiler is there; False: the Python path (the reference).
     """
 
-    def __init__(self, machine: Machine, pinocchio_machine: PinocchioMachine | None = None):
+    def __init__(self, machine: Machine, pinocchio_machine: PinocchioMachine | None = None,
+                 compiled: bool = True):
         self.pm = pinocchio_machine if pinocchio_machine is not None else build_pinocchio(
             machine)
         self.model = self.pm.model
@@ -45,6 +50,31 @@ class TcpKinematics:
         # `PinocchioMachine.configuration` for the identity attitude (quaternion 0, 0, 0, 1).
         self._q_level = np.zeros(self.model.nq)
         self._q_level[6] = 1.0
+        self._position_plan(compiled)
+
+    def _position_plan(self, compiled: bool) -> None:
+        """What `position` computes: the tree coordinates of the TCP's supporting joints.
+
+        The TCP's placement is a product of the placements of the joints that support its
+        body (Pinocchio's ``model.supports``): the chassis (level, at the origin) and the
+        crane. The other joints (bogies, wheels, the cylinders' barrels and pistons) do not
+        enter it, so `position` leaves them at zero and computes no angle for them; it
+        still checks every chain's stroke, as `TreeCoordinates.joint_positions` does.
+        """
+        coords = self.pm.coordinates
+        parent = self.model.frames[self.frame_id].parentJoint
+        supports = {self.model.names[j] for j in self.model.supports[parent]}
+        q_index = self.pm.joint_q_index
+        self._direct = tuple((i, q_index[name]) for i, name in
+                             enumerate(coords.independent_names)
+                             if name in supports and coords.binding(i) is None)
+        self._chains = tuple((i, b.chain, q_index[b.driven_joint] if b.driven_joint in supports
+                              else None) for i, b in coords.chains())
+        self._qp = self._q_level.copy()  # kept: the supporting entries are rewritten each call
+        self._q_in = np.zeros(N_INDEPENDENT)  # the C's input
+        bound = compiled_tcp_tree(self._direct, self._chains, self._q_in, self._qp) \
+            if compiled else None
+        self._tree_c, self._keep = (None, None) if bound is None else bound
 
     @staticmethod
     def _checked(q) -> np.ndarray:
@@ -64,11 +94,33 @@ class TcpKinematics:
     def position(self, q) -> np.ndarray:
         """TCP position in fb [m], shape (3,), for independent coordinates q (13,).
 
-        Positions only: the tree's joint positions (`TreeCoordinates.joint_positions`, the
-        same numbers `_configuration` gives), without its velocities and Jacobian.
+        Positions only: of the tree's joint positions (`TreeCoordinates.joint_positions`,
+        the same numbers `_configuration` gives) those of the joints that support the TCP
+        (`_position_plan`), without velocities and Jacobian.
+
+        Raises:
+            WbcInputError: ``q`` of the wrong shape or non-finite.
+            StrokeOutOfRangeError: A chain's stroke outside its range.
         """
-        qp = self._q_level.copy()
-        qp[self.pm._tree_q_idx] = self.pm.coordinates.joint_positions(self._checked(q))
+        if self._tree_c is not None and type(q) is np.ndarray and q.shape == _Q_SHAPE \
+                and q.dtype == np.float64:
+            self._q_in[:] = q
+            if self._tree_c() == 0:
+                pin.framesForwardKinematics(self.model, self.data, self._qp)
+                return self.data.oMf[self.frame_id].translation.copy()
+        return self._position_python(q)
+
+    def _position_python(self, q) -> np.ndarray:
+        """`position` in Python (the reference of `tcp_c`; its typed errors)."""
+        x = self._checked(q).tolist()
+        qp = self._qp
+        for i, j in self._direct:
+            qp[j] = x[i]
+        for i, chain, j in self._chains:
+            if j is None:
+                chain.check_stroke(x[i])
+            else:
+                qp[j] = chain.angles(x[i])[0]
         pin.framesForwardKinematics(self.model, self.data, qp)
         return self.data.oMf[self.frame_id].translation.copy()
 
