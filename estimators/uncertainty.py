@@ -143,13 +143,20 @@ def closure_margin(closure, model, state: MachineState, uncertainty: StateUncert
     ``d_qd`` and contact flags and the stepped forces: `estimators.margin_kernel`, the same
     bits); else numpy.
     """
-    model_g = None if model is closure else model.linearize(state).G
     fused = _margin_pass() if hasattr(closure, "stepped_suspension_forces") else None
     if fused is not None and state.suspension_force is not None:
         # The closure's G, d_qd, contact flags and stepped forces in one kernel call where
-        # it has it (`margin_terms`, the same bits), else its linearization and steps.
-        terms = (closure.margin_terms(state, _SUSPENSION_STEP)
-                 if hasattr(closure, "margin_terms") else None)
+        # it has it (`margin_terms`, the same bits), with the model's linearization where
+        # the model has that (`linearize_with_margin`), else its linearization and steps.
+        joint = (model.linearize_with_margin(state, closure, _SUSPENSION_STEP)
+                 if model is not closure and hasattr(model, "linearize_with_margin")
+                 and hasattr(closure, "margin_terms") else None)
+        if joint is not None:
+            model_g, terms = joint[0].G, joint[1]
+        else:
+            model_g = None if model is closure else model.linearize(state).G
+            terms = (closure.margin_terms(state, _SUSPENSION_STEP)
+                     if hasattr(closure, "margin_terms") else None)
         if terms is None:
             lin = closure.linearize(state)
             terms = (lin.G, lin.d_qd, lin.in_contact,
@@ -162,6 +169,7 @@ def closure_margin(closure, model, state: MachineState, uncertainty: StateUncert
                            _quantile(_confidence(confidence)))
             if margin is not None:
                 return margin
+    model_g = None if model is closure else model.linearize(state).G
     lin = closure.linearize(state)
     if model_g is not None:
         lin = dataclasses.replace(lin, G=lin.G - model_g)  # checks that it is finite

@@ -1,5 +1,5 @@
-"""The margin's kernel (`estimators.margin_kernel`): the linearization's and the stepped
-forces' bits on closed-loop ticks and random states, and None where it does not apply."""
+"""The margin's kernels (`estimators.margin_kernel`): the linearizations' and the stepped
+forces' bits on closed-loop ticks and random states, and None where they do not apply."""
 
 from dataclasses import replace
 
@@ -8,7 +8,8 @@ import pytest
 
 import scenarios.closed_loop as closed_loop
 from estimators.margin_kernel import MARGIN_STEP, margin_terms
-from estimators.payload import SPAN, PayloadEstimator
+from estimators.estimator import NormalForceEstimator
+from estimators.payload import SPAN, PayloadEstimator, anchor_machines
 from estimators.suspension_response import stepped_forces
 from estimators.uncertainty import closure_margin, force_margin, normal_force_std
 from models import build_reference_machine
@@ -42,6 +43,28 @@ def _check_terms(closure: PayloadEstimator, state, what) -> None:
     assert _same(closure.normal_forces(state), closure._est.estimate(state).normal_forces)
 
 
+def _check_joint(model: PayloadEstimator, closure: PayloadEstimator, state, what) -> None:
+    """`linearize_with_margin` against a fresh `linearize` and `_check_terms`, bit for bit."""
+    model._last = closure._stepped = None  # nothing kept: the joint call runs
+    got = model.linearize_with_margin(state, closure, MARGIN_STEP)
+    assert got is not None, what
+    lin, terms = got
+    assert model.linearize(state) is lin  # kept for the plan's first node
+    fresh = NormalForceEstimator(anchor_machines(MACHINE)[0], strokes="clip")
+    fresh.payload_mass = model.payload_mass
+    ref = fresh.linearize(state)
+    for name in ("normal_forces", "G", "g0", "d_q", "d_qd", "in_contact"):
+        assert _same(getattr(lin, name), getattr(ref, name)), (what, name)
+    assert (lin.mode, lin.clipped, lin.time) == (ref.mode, ref.clipped, ref.time), what
+    if terms is None:
+        assert closure.margin_terms(state, MARGIN_STEP) is None, what
+        return
+    joint = [np.array(t) for t in terms]
+    alone = [np.array(t) for t in closure.margin_terms(state, MARGIN_STEP)]
+    assert all(_same(a, b) for a, b in zip(joint, alone)), what
+    _check_terms(closure, state, what)
+
+
 @pytest.fixture(scope="module")
 def ticks(tmp_path_factory):
     """(closure, model, state, uncertainty, confidence, margin, payloads) of every fifth tick
@@ -71,6 +94,7 @@ def test_closed_loop_ticks_are_the_linearizations_bits(ticks):
     for k, (closure, model, state, unc, confidence, margin, masses) in enumerate(ticks):
         closure.payload_mass, model.payload_mass = masses
         _check_terms(closure, state, k)
+        _check_joint(model, closure, state, k)
         # The margin again, through the kernel, and as numpy makes it.
         assert _same(closure_margin(closure, model, state, unc, confidence), margin), k
         lin = closure.linearize(state)
@@ -84,11 +108,13 @@ def test_closed_loop_ticks_are_the_linearizations_bits(ticks):
 
 def test_random_states_and_payloads_are_the_linearizations_bits():
     closure = PayloadEstimator(MACHINE, fourth="cylinder-force", strokes="clip")
+    model = PayloadEstimator(MACHINE, strokes="clip")
     if not _compiled(closure):
         pytest.skip("no compiled kernels")
     rng = np.random.default_rng(7)
     for k in range(24):
         closure.payload_mass = float(rng.uniform(0.0, 300.0))
+        model.payload_mass = float(rng.uniform(0.0, 300.0))
         s = replace(random_state(MACHINE, rng, max_tilt=0.3, speed=0.5),
                     suspension_force=rng.uniform(2e4, 6e4, 2))
         if k % 3 == 1:  # a rear wheel lifted (the three-wheel system), or two (tipping)
@@ -98,8 +124,11 @@ def test_random_states_and_payloads_are_the_linearizations_bits():
                                                   np.tile(s.base_rotation[2], (4, 1))))
         if closure.linearize(s).mode == "tipping":
             assert closure.margin_terms(s, MARGIN_STEP) is None
+            model._last = None
+            assert model.linearize_with_margin(s, closure, MARGIN_STEP) is None
             continue
         _check_terms(closure, s, k)
+        _check_joint(model, closure, s, k)
 
 
 def test_where_it_does_not_apply_it_says_none():
@@ -111,3 +140,8 @@ def test_where_it_does_not_apply_it_says_none():
     assert margin_terms(quasi._est, s, MARGIN_STEP, SPAN) is None
     reference = PayloadEstimator(MACHINE, fourth="cylinder-force", backend="reference")
     assert reference.margin_terms(s, MARGIN_STEP) is None
+    model = PayloadEstimator(MACHINE, strokes="clip")
+    assert model.linearize_with_margin(s, reference, MARGIN_STEP) is None  # other kernels
+    assert model.linearize_with_margin(s, quasi, MARGIN_STEP) is None
+    assert model.linearize_with_margin(s, closure, MARGIN_STEP) is not None
+    assert model.linearize_with_margin(s, closure, MARGIN_STEP) is None  # kept already
