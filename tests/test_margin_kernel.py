@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 import scenarios.closed_loop as closed_loop
-from estimators.margin_kernel import MARGIN_STEP, margin_terms
 from estimators.estimator import NormalForceEstimator
+from estimators.margin_kernel import MARGIN_STEP, margin_terms
 from estimators.payload import SPAN, PayloadEstimator, anchor_machines
 from estimators.suspension_response import stepped_forces
 from estimators.uncertainty import closure_margin, force_margin, normal_force_std
