@@ -153,7 +153,11 @@ def joint_function(derivatives: ca.Function, estimate: ca.Function, step: float,
 def joint_kernel(kernels, step: float, payload_step: float) -> Compiled | None:
     """The compiled ``nf_linearize_margin`` of `estimators._symbolic.Kernels`.
 
-    As `margin_kernel` compiles ``nf_margin``: once per kernels object and steps, ``-O1``.
+    As `margin_kernel` compiles ``nf_margin`` (once per kernels object and steps), but at
+    ``-O2``: its code (~450 kB) is ~6 % smaller than at ``-O1`` and runs from a cold cache
+    in ~15 us instead of ~20 (a 4 MB array written between calls; warm, both ~8 us), where
+    a closed loop runs it once a tick. The first compile takes ~25 s (then the disk cache);
+    no contraction at either level, so the same bits.
     """
     if not kernels.compiled:
         return None
@@ -162,7 +166,7 @@ def joint_kernel(kernels, step: float, payload_step: float) -> Compiled | None:
     fun = joint_function(kernels.functions["nf_derivatives"],
                          kernels.functions["nf_estimate"], step, payload_step)
     try:
-        lib = compile_shared(kernel_source(fun), fun.name(), "-O1")
+        lib = compile_shared(kernel_source(fun), fun.name(), "-O2")
     except OSError:
         return None
     return Compiled(ctypes.CDLL(str(lib)), fun)
