@@ -201,7 +201,7 @@ class MarginTerms:
         """Whether the margin's rows are finite and their systems not singular."""
         out = self.out
         return (math.isfinite(out[MARGIN_SUM]) and out[MARGIN_COND] < SINGULAR_CONDITION
-                and (self.conditions < SINGULAR_CONDITION).all())
+                and max(self.conditions.tolist()) < SINGULAR_CONDITION)
 
 
 def margin_terms(estimator, state: MachineState, step: float, payload_step: float
