@@ -79,6 +79,13 @@ class RowPacker:
             q[i] = min(max(q[i], lo), hi)
         return q, tuple(name for name, *_ in bad)
 
+    def state_selectors(self, state: MachineState, d: float, beta: float
+                        ) -> tuple[np.ndarray, fd.Selectors, np.ndarray]:
+        """`selectors` of ``state`` as `fill` takes them (all wheels in without contacts)."""
+        c = state.contacts
+        return self.selectors(_ALL_IN if c is None else c.in_contact,
+                              state.suspension_force is not None, d, beta)
+
     def selectors(self, in_contact: np.ndarray, has_cylinder_force: bool, d: float,
                   beta: float) -> tuple[np.ndarray, fd.Selectors, np.ndarray]:
         """(packed selector block with D and beta, `Selectors`, read-only contact flags)."""

@@ -29,6 +29,13 @@ from estimators.batch import SINGULAR_CONDITION
 from estimators.estimator import NormalForceEstimator
 from estimators.linearization import ForceLinearization
 from estimators.linearize_batch import linearize_first, linearize_rows, linearize_states
+from estimators.margin_kernel import (
+    MARGIN_STEP,
+    joint_kernel,
+    linearize_with_margin,
+    margin_kernel,
+    margin_terms,
+)
 from estimators.results import Estimate
 from estimators.suspension_response import stepped_forces
 from models.description import Machine
@@ -92,6 +99,10 @@ class PayloadEstimator:
         self.machine = machine
         self._est = NormalForceEstimator(anchor_machines(machine)[0], **options)
         self._est.warm()  # loaded now, not in a controller's first tick
+        if self._est._kernels is not None and self._est.fourth == "cylinder-force":
+            # The margin's kernel (`margin_terms`), likewise: a closure's.
+            margin_kernel(self._est._kernels, MARGIN_STEP, SPAN)
+            joint_kernel(self._est._kernels, MARGIN_STEP, SPAN)  # `linearize_with_margin`'s
         self.method, self.fourth = self._est.method, self._est.fourth
         self._kept: tuple = ()  # `estimate`'s (state, key, estimate), newest first
         self._last: tuple | None = None  # (state, key, linearization) of the last `linearize`
@@ -252,6 +263,55 @@ class PayloadEstimator:
         result = self._est.linearize(state)
         self._last = (state, key, result)
         return result
+
+    def margin_terms(self, state: MachineState, step: float
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
+        """What the force margin reads of this estimator at ``state``, in one kernel call.
+
+        (``G``, ``d_qd``, ``in_contact``) of `linearize` and `stepped_suspension_forces`
+        ``(state, step)`` at the current payload mass, the same bits
+        (`estimators.margin_kernel.margin_terms`; ``G`` and ``d_qd`` are views of a buffer
+        valid until this thread's next call). The forces at the mass plus `SPAN` are kept
+        for `payload_sensitivity` as `stepped_suspension_forces` keeps them; the
+        linearization is not kept (nothing else in a tick asks for the closure's). None
+        where it does not apply: then `linearize` and `stepped_suspension_forces`.
+        """
+        got = margin_terms(self._est, state, step, SPAN)
+        return None if got is None else self._kept_terms(state, *got)
+
+    def _kept_terms(self, state: MachineState, terms, flags: np.ndarray) -> tuple:
+        """`margin_terms`' result from an evaluated `estimators.margin_kernel.MarginTerms`."""
+        forces = terms.forces.copy()
+        forces.flags.writeable = False  # its rows are kept and handed out
+        self._stepped = (state, self._key(), forces[0], forces[3])
+        return terms.G, terms.d_qd, flags, forces[:3]
+
+    def linearize_with_margin(self, state: MachineState, closure: PayloadEstimator,
+                              step: float) -> tuple[ForceLinearization, tuple | None] | None:
+        """`linearize` of ``state`` and ``closure.margin_terms(state, step)`` in one call.
+
+        The force margin's (`estimators.uncertainty.closure_margin`): it reads this model's
+        ``G`` and the closure's terms, and the controller then linearizes this model at the
+        same state (its plan's first node). One kernel makes both, the dynamics of the state
+        once (`estimators.margin_kernel.linearize_with_margin`, the same bits); the
+        linearization is kept as `linearize` keeps it, the closure's stepped forces as its
+        `margin_terms` keeps them.
+
+        Returns:
+            (``linearize(state)``, ``closure.margin_terms(state, step)`` or None where that
+            would be None); None where ``state``'s linearization is kept already or the two
+            cannot share the call: then `linearize` and the closure's `margin_terms`.
+        """
+        key = self._key()
+        last = self._last
+        if last is not None and last[0] is state and last[1] == key:
+            return None
+        got = linearize_with_margin(self._est, closure._est, state, step, SPAN)
+        if got is None:
+            return None
+        lin, terms = got
+        self._last = (state, key, lin)
+        return lin, None if terms is None else closure._kept_terms(state, *terms)
 
     def linearize_states(self, state: MachineState, dt: np.ndarray, rotation: np.ndarray,
                          q_head: np.ndarray, qd_head: np.ndarray

@@ -38,6 +38,7 @@ import numpy as np
 
 from estimators.errors import EstimatorError
 from estimators.linearization import N_GENERALIZED, ForceLinearization
+from estimators.margin_kernel import MARGIN_STEP
 from estimators.suspension_response import stepped_forces
 from models.coordinates import N_INDEPENDENT
 from models.state import MachineState, frozen_array
@@ -45,7 +46,9 @@ from models.state import MachineState, frozen_array
 __all__ = ["StateUncertainty", "closure_margin", "force_margin", "model_normal_forces",
            "normal_force_std", "suspension_sensitivity"]
 
-_SUSPENSION_STEP = 100.0  # [N] the forces are affine in the cylinder forces: any step works
+# [N] the forces are affine in the cylinder forces: any step works (`margin_terms`' kernel
+# is built for this one)
+_SUSPENSION_STEP = MARGIN_STEP
 
 
 @dataclass(frozen=True, eq=False)
@@ -135,20 +138,39 @@ def closure_margin(closure, model, state: MachineState, uncertainty: StateUncert
     (the acceleration errors enter only through the load split the two models disagree on;
     ``G_c`` alone when ``model`` is ``closure``), the closure's suspension and payload
     sensitivities, and `force_margin`. One compiled pass (`estimators.uncertainty_c`, the
-    same bits) where the closure has stepped suspension forces; else numpy.
+    same bits) where the closure has stepped suspension forces, on what the closure's
+    ``margin_terms`` makes in one kernel call where it has them (the linearization's ``G``,
+    ``d_qd`` and contact flags and the stepped forces: `estimators.margin_kernel`, the same
+    bits); else numpy.
     """
-    lin = closure.linearize(state)
-    model_g = None if model is closure else model.linearize(state).G
     fused = _margin_pass() if hasattr(closure, "stepped_suspension_forces") else None
     if fused is not None and state.suspension_force is not None:
-        stepped = closure.stepped_suspension_forces(state, _SUSPENSION_STEP)
+        # The closure's G, d_qd, contact flags and stepped forces in one kernel call where
+        # it has it (`margin_terms`, the same bits), with the model's linearization where
+        # the model has that (`linearize_with_margin`), else its linearization and steps.
+        joint = (model.linearize_with_margin(state, closure, _SUSPENSION_STEP)
+                 if model is not closure and hasattr(model, "linearize_with_margin")
+                 and hasattr(closure, "margin_terms") else None)
+        if joint is not None:
+            model_g, terms = joint[0].G, joint[1]
+        else:
+            model_g = None if model is closure else model.linearize(state).G
+            terms = (closure.margin_terms(state, _SUSPENSION_STEP)
+                     if hasattr(closure, "margin_terms") else None)
+        if terms is None:
+            lin = closure.linearize(state)
+            terms = (lin.G, lin.d_qd, lin.in_contact,
+                     closure.stepped_suspension_forces(state, _SUSPENSION_STEP))
+        g, d_qd, in_contact, stepped = terms
         d_m = (closure.payload_sensitivity(state) if hasattr(closure, "payload_sensitivity")
                else None)
         if stepped is not None:
-            margin = fused(lin.G, model_g, lin.d_qd, stepped, d_m, lin.in_contact,
-                           uncertainty, _quantile(_confidence(confidence)))
+            margin = fused(g, model_g, d_qd, stepped, d_m, in_contact, uncertainty,
+                           _quantile(_confidence(confidence)))
             if margin is not None:
                 return margin
+    model_g = None if model is closure else model.linearize(state).G
+    lin = closure.linearize(state)
     if model_g is not None:
         lin = dataclasses.replace(lin, G=lin.G - model_g)  # checks that it is finite
     d_susp = suspension_sensitivity(closure, state)
