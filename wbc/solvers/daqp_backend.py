@@ -43,6 +43,7 @@ import qpsolvers
 from scipy.linalg import lapack
 
 from models.numeric import clip
+from estimators.observer.tail_c import numpy_blas
 from wbc.errors import ConfigurationError, QPSolveError
 from wbc.solvers.daqp_c import LeastDistanceWorkspace, ldp_library
 from wbc.solvers.factor_rows import FactorRows, RowStructure
@@ -131,6 +132,12 @@ def _equal(H, kept: tuple) -> bool:
             and H.tobytes() == kept[1] or np.array_equal(kept[0], H))
 
 
+def _vector(a, size: int) -> bool:
+    """``a`` is a contiguous float64 array of shape ``(size,)``, as C reads it."""
+    return (isinstance(a, np.ndarray) and a.dtype == np.float64 and a.shape == (size,)
+            and a.flags.c_contiguous)
+
+
 def _senses(size: int, first_equality: int) -> np.ndarray:
     """DAQP's sense flags (it writes into them): rows from ``first_equality`` on equalities."""
     sense = np.zeros(size, dtype=np.intc)
@@ -177,12 +184,15 @@ class DaqpBackend:
         self._screen_c: tuple | None = None  # (structure key, `CompiledScreen` or None)
         self._kept_rest: tuple | None = None  # the C screening's (kept, rest) rows
         self._workspace: LeastDistanceWorkspace | None = None
+        self._blas: tuple[int, int] | None = None  # numpy's cblas_dgemv, cblas_ddot
+        self.fused = False
         # The C parts compiled (or loaded) now, not in a control loop's first solves.
         if screen:
             screen_library()
         if least_distance:
             product_library()
             self.kept_workspace = True
+            self.fused = True
 
     @property
     def compiled(self) -> bool:
@@ -196,6 +206,22 @@ class DaqpBackend:
     def compiled(self, value: bool) -> None:
         self._rows.compiled = bool(value)
         self.kept_workspace = bool(value)
+        self.fused = bool(value)
+
+    @property
+    def fused(self) -> bool:
+        """The least-distance form's bounds, warm start, ``x`` and multipliers in the kept
+        workspace's one C call (`LeastDistanceWorkspace.step`: numpy's bits, its BLAS).
+
+        True only with a kept workspace and numpy's BLAS reachable
+        (`estimators.observer.tail_c.numpy_blas`); False: numpy around the workspace's solve.
+        """
+        return self._blas is not None
+
+    @fused.setter
+    def fused(self, value: bool) -> None:
+        blas = numpy_blas() if value else None
+        self._blas = None if blas is None else blas[:2]
 
     @property
     def kept_workspace(self) -> bool:
@@ -331,6 +357,34 @@ class DaqpBackend:
                                                    structure.done))
         return self._screen_c[1]
 
+    def _fused(self, t0: float, G, kept: np.ndarray, inv_t: np.ndarray, a_all, f, lb, ub,
+               h, b, m_in: int, m_eq: int, blocks: tuple, diagonal: tuple,
+               structure: RowStructure | None) -> QPSolution | None:
+        """`solve`'s least-distance form through `LeastDistanceWorkspace.step`.
+
+        None (nothing done) when an argument is not as the C reads it: `solve` then runs
+        its numpy.
+        """
+        n = f.size
+        if not (_vector(f, n) and (ub is None or _vector(ub, n)) and (lb is None or _vector(lb, n))
+                and (m_in == 0 or _vector(h, m_in)) and (m_eq == 0 or _vector(b, m_eq))
+                and kept.dtype == np.int64 and kept.strides[0] == 8
+                and inv_t.flags.c_contiguous):
+            return None
+        a_all = self._rows.least_distance_rows(G, kept, inv_t, blocks, a_all, structure,
+                                               self._kept_rest, diagonal)
+        n_all = n + m_in + m_eq
+        warm = self.warm_start and self._lam is not None and self._lam.size == n_all
+        x, lam, flag, iterations, warm, call, solved = self._workspace.step(
+            self._blas, a_all, inv_t, f, ub, lb, h if m_in else None, kept,
+            b if m_eq else None, m_in, self._lam if warm else None)
+        elapsed = time.perf_counter() - t0
+        if not solved:
+            self._lam = None
+            raise QPSolveError(f"daqp found no solution (exit flag {flag})", "not_found")
+        self._lam, self._n = lam, n
+        return QPSolution(x, "solved", iterations, elapsed, warm, call)
+
     def _daqp(self, hessian: np.ndarray, cost: np.ndarray | None, a: np.ndarray,
               upper: np.ndarray, lower: np.ndarray, first_equality: int,
               dual: np.ndarray | None, least_distance: bool
@@ -377,6 +431,12 @@ class DaqpBackend:
             a_all = G if m_eq == 0 else np.concatenate([G, A])
         else:
             a_all = G[kept] if m_eq == 0 else np.concatenate([G[kept], A])
+        self.form = "direct" if factor is None else "least-distance"
+        if factor is not None and self._blas is not None and self._workspace is not None:
+            solution = self._fused(t0, G, kept, factor[0], a_all, f, lb, ub, h, b, m_in, m_eq,
+                                   blocks, diagonal, structure)
+            if solution is not None:
+                return solution
         upper = np.empty(n + m_k + m_eq)
         lower = np.empty(n + m_k + m_eq)
         upper[:n] = np.inf if ub is None else ub
@@ -387,7 +447,6 @@ class DaqpBackend:
         if m_eq:
             upper[n + m_k:] = b
             lower[n + m_k:] = b
-        self.form = "direct" if factor is None else "least-distance"
         if factor is None:
             # (daqp.solve takes writable buffers only; the builder's kept P is read-only)
             hessian, cost = (H if H.flags.writeable else np.array(H)), f
