@@ -186,6 +186,7 @@ class DaqpBackend:
         self._workspace: LeastDistanceWorkspace | None = None
         self._blas: tuple[int, int] | None = None  # numpy's cblas_dgemv, cblas_ddot
         self.fused = False
+        self._consumed = -1  # the `FactorRows` pass whose rows the last fused solve took
         # The C parts compiled (or loaded) now, not in a control loop's first solves.
         if screen:
             screen_library()
@@ -375,9 +376,11 @@ class DaqpBackend:
                                                self._kept_rest, diagonal)
         n_all = n + m_in + m_eq
         warm = self.warm_start and self._lam is not None and self._lam.size == n_all
+        same = self._rows.same_rows(self._consumed)
+        self._consumed = self._rows.passes
         x, lam, flag, iterations, warm, call, solved = self._workspace.step(
             self._blas, a_all, inv_t, f, ub, lb, h if m_in else None, kept,
-            b if m_eq else None, m_in, self._lam if warm else None)
+            b if m_eq else None, m_in, self._lam if warm else None, same)
         elapsed = time.perf_counter() - t0
         if not solved:
             self._lam = None

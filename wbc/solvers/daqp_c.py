@@ -65,7 +65,7 @@ SIGNATURES = {  # `LDP_C`'s functions: (argtypes, restype)
     "ldp_new": ([ctypes.c_double, ctypes.c_int], _p),
     "ldp_free": ([_p], None),
     "ldp_solve": ([_p, _lg, _lg, _lg, _p, _p, _p, _p, _p, _p, _p], ctypes.c_int),
-    "ldp_step": ([_p, _p, _p, _lg, _lg, _lg, _lg, *[_p] * 20], ctypes.c_int)}
+    "ldp_step": ([_p, _p, _p, _lg, _lg, _lg, _lg, *[_p] * 21], ctypes.c_int)}
 
 LDP_C = DAQP_API_C + r"""
 #include <math.h>
@@ -80,6 +80,8 @@ typedef struct {
   DAQPSettings settings;
   DAQPWorkspace work;
   int live;     /* work holds a set-up workspace the next solve may keep */
+  int valid;    /* the rows of work's M and scaling that `normalize` formed from the last
+                   solve's A (0 after a fresh set-up or none) */
   int n, cap;   /* its variables, the rows its arrays hold */
   double* eye;  /* the identity, n x n */
   int* sense;   /* the problem's senses, cap long */
@@ -91,6 +93,7 @@ static void drop(Ldp* c) {
   daqp.free_daqp_workspace(&c->work);
   daqp.free_daqp_ldp(&c->work);
   c->live = 0;
+  c->valid = 0;
 }
 
 void* ldp_new(double primal_tol, int iter_limit) {
@@ -113,12 +116,19 @@ void ldp_free(void* p) {
 
 /* Rows [0, m) of A (n long) times d, as daqp_update_M forms DAQP's M, normalised as
    daqp_normalize_M does it: scaling[i] = 1 / sqrt(sum_j M_ij^2), the squares added in j's
-   order, and M_i *= scaling[i]. Returns 0; -1 if a row's sum is below zero_tol or not
-   finite (M and scaling then partly written): DAQP's own pass handles it. */
+   order, and M_i *= scaling[i]. Eight rows below `valid` that same[] marks (the bits of
+   the rows that formed M and scaling there; same NULL: none) are left as they are.
+   Returns 0; -1 if a row's sum is below zero_tol or not finite (M and scaling then partly
+   written): DAQP's own pass handles it. */
 static int normalize(const double* A, const double* d, long n, long m, double zero_tol,
-                     double* M, double* scaling) {
+                     double* M, double* scaling, const unsigned char* same, long valid) {
   for (long i0 = 0; i0 < m; i0 += 8) {
     const long used = m - i0 < 8 ? m - i0 : 8;
+    if (same && i0 + 8 <= valid && i0 + 8 <= m) {
+      uint64_t all;  /* eight flags of 0 or 1 */
+      memcpy(&all, same + i0, sizeof all);
+      if (all == 0x0101010101010101ULL) continue;
+    }
     double s[8], scale[8];
 #if defined(__AVX512F__)
     /* Lane l sums row i0 + l; the rows past m repeat the last one (their sums unused). An
@@ -207,10 +217,11 @@ static int plain(const DAQPWorkspace* w) {
 /* daqp.solve(eye(n), None, A, bu, bl, sense, dual_start=dual, primal_tol, iter_limit)
    with sense 0 for rows [0, first_eq) and 5 after, A (m x n) C-contiguous, m >= 1: x (n),
    lam (m, written if the exit flag is positive), out = {exit flag, iterations, path}
-   (path: 1 the kept workspace, 0 a fresh set-up, -1 no solve: the set-up failed). Returns
-   0; -1 out of memory. */
-int ldp_solve(void* p, long n, long m, long first_eq, const double* A, const double* bu,
-              const double* bl, const double* dual, double* x, double* lam, int* out) {
+   (path: 1 the kept workspace, 0 a fresh set-up, -1 no solve: the set-up failed); same:
+   `normalize`'s (NULL: none). Returns 0; -1 out of memory. */
+static int solve_rows(void* p, long n, long m, long first_eq, const double* A,
+                      const double* bu, const double* bl, const double* dual, double* x,
+                      double* lam, int* out, const unsigned char* same) {
   Ldp* c = p;
   DAQPWorkspace* w = &c->work;
   if (c->n != n) {
@@ -239,7 +250,9 @@ int ldp_solve(void* p, long n, long m, long first_eq, const double* A, const dou
     memcpy(w->sense, c->sense, m * sizeof(int));
     w->m = (int)m;
     kept = !daqp.daqp_eq_wanted(w, &qp, mask) &&
-           normalize(A, w->RinvD, n, m, c->settings.zero_tol, w->M, w->scaling) == 0;
+           normalize(A, w->RinvD, n, m, c->settings.zero_tol, w->M, w->scaling, same,
+                     c->valid) == 0;
+    c->valid = kept ? (int)m : 0;
   }
   if (kept) {
     w->state = 0; /* daqp_update_R's flags for the identity: none (a set-up's start) */
@@ -286,6 +299,11 @@ int ldp_solve(void* p, long n, long m, long first_eq, const double* A, const dou
   return 0;
 }
 
+int ldp_solve(void* p, long n, long m, long first_eq, const double* A, const double* bu,
+              const double* bl, const double* dual, double* x, double* lam, int* out) {
+  return solve_rows(p, n, m, first_eq, A, bu, bl, dual, x, lam, out, NULL);
+}
+
 /* numpy's own BLAS routines (`estimators.observer.tail_c.numpy_blas`), called as numpy's
    matmul calls them: a matrix and a vector in cblas_dgemv (transposed, the matrix's
    rows as columns: 101/102 = row/column major, 112 = transposed), one row in cblas_ddot. */
@@ -317,14 +335,15 @@ static int all_finite(const double* x, long n) {
    x = inv_t u - shift and, if the exit flag is positive and x finite, lam (n + m_in +
    m_eq, zeros) gets DAQP's multipliers at their rows. A: DAQP's rows, (n + m_k + m_eq)
    x n, C-contiguous. v, shift (n), upper, lower, dual, lam_daqp (n + m_k + m_eq), u (n):
-   the caller's scratch. out = {exit flag, iterations, path (ldp_solve's), warm, solved:
+   the caller's scratch. same (NULL: none): 1 for a row of A with the bits of the same
+   row of the last solve's A (`normalize` keeps what it formed from it). out = {exit flag, iterations, path (ldp_solve's), warm, solved:
    x and lam written}, time = the seconds inside ldp_solve. Returns 0; -1 out of memory. */
 int ldp_step(void* p, void* gemv_p, void* ddot_p, long n, long m_in, long m_k, long m_eq,
              const double* A, const double* inv_t, const double* f, const double* ub,
              const double* lb, const double* h, const int64_t* kept, const double* b,
              const double* lam_prev, double* v, double* shift, double* upper,
              double* lower, double* dual, double* u, double* lam_daqp, double* x,
-             double* lam, int* out, double* time) {
+             double* lam, int* out, double* time, const unsigned char* same) {
   const gemv_fn gemv = (gemv_fn)gemv_p;
   const long m = n + m_k + m_eq, rows = m_k + m_eq;
   gemv(101, 112, n, n, 1.0, inv_t, n, f, 1, 0.0, v, 1);      /* inv_t.T @ f */
@@ -350,12 +369,14 @@ int ldp_step(void* p, void* gemv_p, void* ddot_p, long n, long m_in, long m_k, l
     for (long e = 0; e < m_eq; ++e) dual[n + m_k + e] = lam_prev[n + m_in + e];
   }
   double t0 = now();
-  if (ldp_solve(p, n, m, n + m_k, A, upper, lower, warm ? dual : NULL, u, lam_daqp, out))
+  if (solve_rows(p, n, m, n + m_k, A, upper, lower, warm ? dual : NULL, u, lam_daqp, out,
+                 same))
     return -1;
   int iterations = out[1];
   if (warm && !(out[0] > 0 && all_finite(u, n))) {
     warm = 0;
-    if (ldp_solve(p, n, m, n + m_k, A, upper, lower, NULL, u, lam_daqp, out)) return -1;
+    if (solve_rows(p, n, m, n + m_k, A, upper, lower, NULL, u, lam_daqp, out, same))
+      return -1;
     iterations += out[1];
   }
   *time = now() - t0;
@@ -440,7 +461,7 @@ class LeastDistanceWorkspace:
     def step(self, blas: tuple[int, int], a: np.ndarray, inv_t: np.ndarray, f: np.ndarray,
              ub: np.ndarray | None, lb: np.ndarray | None, h: np.ndarray | None,
              kept: np.ndarray, b: np.ndarray | None, m_in: int,
-             lam_prev: np.ndarray | None) -> tuple[np.ndarray, np.ndarray, int, int, bool,
+             lam_prev: np.ndarray | None, same: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, int, int, bool,
                                                    float, bool]:
         """`wbc.solvers.DaqpBackend.solve`'s numpy around `solve` in one C call, its bits.
 
@@ -462,6 +483,9 @@ class LeastDistanceWorkspace:
             kept: The kept rows of ``G``, int64, contiguous.
             m_in: The rows of ``G``.
             lam_prev: The last multipliers, float64 (n + m_in + m_eq,), contiguous.
+            same: uint8, contiguous, at least as long as ``a``, or None: 1 marks a row of
+                ``a`` with the bits of the same row of the rows this workspace solved last
+                (the caller vouches); those DAQP normalised then are not normalised again.
 
         Returns:
             ``(x, lam, exit flag, iterations, warm, seconds in DAQP, solved)``: ``x`` (n,)
@@ -489,7 +513,7 @@ class LeastDistanceWorkspace:
                       None if b is None else address(b),
                       None if lam_prev is None else address(lam_prev), *scratch[3],
                       address(x), address(lam), self._step_out_address,
-                      self._time_address) != 0:
+                      self._time_address, None if same is None else address(same)) != 0:
             raise MemoryError("no memory for the DAQP workspace")
         out = self._step_out
         self.kept = bool(out[2] == 1)

@@ -91,19 +91,23 @@ static void flush(const double* tile, long used, const int64_t* slot, long n,
    constant[] copied from products[kept[t]] unless out holds it already (last[t] == kept[t],
    t < m_last: the rows of the last pass, the caller vouches for out and products), the
    others multiplied; last[] then gets kept[]. Returns 0; -1 if a multiplied row has a
-   non-finite entry (out and last then partly written). */
+   non-finite entry (out and last then partly written). same (NULL: not wanted): 1 for the
+   rows of out left as they were, 0 for the others. */
 int times_factor(const double* G, long ld, long n, const int64_t* kept, long m_kept,
                  const unsigned char* constant, const double* products, long ld_products,
                  const int64_t* start, const int64_t* row, const double* val, double* tile,
-                 double* sums, int64_t* slot, double* out, int64_t* last, long m_last) {
+                 double* sums, int64_t* slot, double* out, int64_t* last, long m_last,
+                 unsigned char* same) {
   long used = 0;
   for (long t = 0; t < m_kept; ++t) {
     const int64_t r = kept[t];
     if (constant[r]) {
-      if (t >= m_last || last[t] != r)
-        memcpy(out + t * n, products + r * ld_products, n * sizeof(double));
+      const int left = t < m_last && last[t] == r;
+      if (!left) memcpy(out + t * n, products + r * ld_products, n * sizeof(double));
+      if (same) same[t] = (unsigned char)left;
       continue;
     }
+    if (same) same[t] = 0;
     const double* g = G + r * ld;
     for (long k = 0; k < n; ++k) {
       if (!isfinite(g[k])) return -1;
@@ -126,7 +130,7 @@ def product_library():
     """`PRODUCT_C` compiled and loaded once per process; None without a compiler."""
     p, lg = ctypes.c_void_p, ctypes.c_long
     return load_shared(PRODUCT_C, "daqp_product", {
-        "times_factor": ([p, lg, lg, p, lg, p, p, lg, p, p, p, p, p, p, p, p, lg],
+        "times_factor": ([p, lg, lg, p, lg, p, p, lg, p, p, p, p, p, p, p, p, lg, p],
                          ctypes.c_int)},
         "numpy")
 
@@ -157,7 +161,8 @@ class CompiledProduct:
         self._last = (np.empty(0, dtype=np.int64), 0, 0)  # (the last kept, address, size)
 
     def run(self, G: np.ndarray, kept: np.ndarray, constant: np.ndarray,
-            products: np.ndarray, out: np.ndarray, held: bool = False) -> bool:
+            products: np.ndarray, out: np.ndarray, held: bool = False,
+            same: np.ndarray | None = None) -> bool:
         """``out[:] = G[kept] @ inv_t``, the rows ``constant`` marks from ``products``.
 
         ``G``: float64 (m, n), unit column stride; ``kept``: int64 row indices, contiguous;
@@ -166,6 +171,8 @@ class CompiledProduct:
         ``held``: ``out`` is the last run's (it returned True), unwritten since, and the
         constant rows of ``products`` are the same: a constant row already at its place is
         not copied again (the MPC's ~170 rows, 0.16 MB, mostly out of the caches by then).
+        ``same``: uint8, at least ``kept.size`` long, contiguous, or None: gets 1 for the
+        rows of ``out`` left as they were (``held``), 0 for the others (if True is returned).
         False: a row to multiply has a non-finite entry (``out`` is then undefined).
         """
         last = self._last
@@ -180,7 +187,8 @@ class CompiledProduct:
                                      address(products))
         ok = self._fun(address(G), G.strides[0] // 8, self.n, address(kept),
                        kept.size, arrays[1], arrays[3], products.strides[0] // 8, *self._args,
-                       address(out), last[1], last[2] if held else 0) == 0
+                       address(out), last[1], last[2] if held else 0,
+                       None if same is None else address(same)) == 0
         self._last = (last[0], last[1], kept.size if ok else 0)
         return ok
 
