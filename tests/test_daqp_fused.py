@@ -20,9 +20,9 @@ from wbc.solvers import DaqpBackend, daqp_backend
 from wbc.solvers.daqp_c import LeastDistanceWorkspace
 
 
-def _backends() -> tuple[DaqpBackend, DaqpBackend, DaqpBackend]:
-    """(fused, numpy tail on the kept workspace, daqp.solve)."""
-    fused, tail, reference = DaqpBackend(), DaqpBackend(), DaqpBackend()
+def _backends(**settings) -> tuple[DaqpBackend, DaqpBackend, DaqpBackend]:
+    """(fused, numpy tail on the kept workspace, daqp.solve), with these settings."""
+    fused, tail, reference = (DaqpBackend(**settings) for _ in range(3))
     if not fused.fused:
         pytest.skip("no compiled DAQP workspace or numpy's BLAS not reachable")
     tail.fused = False
@@ -171,3 +171,51 @@ def test_without_numpys_blas_the_backend_runs_the_numpy_tail(monkeypatch):
     assert backend.fused
     backend.compiled = False
     assert not backend.fused and not backend.kept_workspace
+
+
+def test_constant_rows_the_screening_moves_are_normalised_again(monkeypatch):
+    """A constant block (`wbc.qp.QP.constant_rows`) whose kept rows change from tick to tick:
+    its rows land in other places of DAQP's rows, which the workspace must normalise again;
+    the rows that stay in place are left (the same bits all the same)."""
+    from wbc.qp import QP
+
+    rng = np.random.default_rng(17)
+    n = 40
+    base = _problem(rng, n, 0, 0)
+    block = rng.normal(size=(48, n)) * 0.3
+    block.setflags(write=False)
+    backends = _backends()
+    counts = _counting(monkeypatch)
+    for k in range(12):
+        h = np.full(48, 1e3)
+        h[(np.arange(48) + k // 2) % 3 == 0] = 0.05  # the same rows two ticks in a row
+        q = base.q + rng.normal(size=n)
+        solutions = [b.solve(QP(base.P, q, block, h, None, None, base.lb, base.ub,
+                                constant_rows=((0, block),))) for b in backends]
+        _assert_same(solutions, backends, k)
+        assert backends[0].rows_kept == 16
+    assert counts["same"] >= 9
+
+
+def test_a_warm_solve_that_fails_is_retried_cold():
+    """Warm started from many rows that bind no more (the multipliers of another problem),
+    DAQP runs out of iterations; the cold retry needs few: solved, not warm."""
+    rng = np.random.default_rng(23)
+    n = 40
+    box = _problem(rng, n, 0, 0)
+    G = np.vstack([np.eye(n), -np.eye(n)])
+    pushed = qpsolvers.Problem(box.P, box.q * 40, G, np.full(2 * n, 0.1), lb=box.lb,
+                               ub=box.ub)  # many rows bind
+    free = qpsolvers.Problem(box.P, box.q * 1e-3, G, np.full(2 * n, 0.1), lb=box.lb,
+                             ub=box.ub)  # none binds
+    helper = DaqpBackend()
+    helper.solve(pushed)
+    start = helper.solve(pushed)
+    assert start.iterations <= 1 and np.count_nonzero(helper._lam) > 8
+    backends = _backends(iter_limit=8)
+    for b in backends:
+        b.solve(free)  # the factor kept
+        b._lam = helper._lam.copy()
+    solutions = [b.solve(free) for b in backends]
+    _assert_same(solutions, backends, "")
+    assert not solutions[0].warm_started and solutions[0].iterations > 8
