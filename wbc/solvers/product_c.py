@@ -72,19 +72,88 @@ static inline __attribute__((always_inline)) void columns(
   }
 }
 
-/* `columns` with as few vectors as hold the `used` rows (the others' lanes: stale), then
-   row l of the products to out[slot[l] * n]. */
-static void flush(const double* tile, long used, const int64_t* slot, long n,
-                  const int64_t* start, const int64_t* row, const double* val, double* sums,
-                  double* out) {
-  switch ((used + LANES - 1) / LANES) {
+#if defined(__AVX512F__)
+/* c[q] = column q of the 8 x 8 block whose rows are v[0..7] (lane l: row l). */
+static inline void transpose8(const __m512d v[8], __m512d c[8]) {
+  const __m512i lo2 = _mm512_set_epi64(13, 12, 5, 4, 9, 8, 1, 0);
+  const __m512i hi2 = _mm512_set_epi64(15, 14, 7, 6, 11, 10, 3, 2);
+  const __m512i lo4 = _mm512_set_epi64(11, 10, 9, 8, 3, 2, 1, 0);
+  const __m512i hi4 = _mm512_set_epi64(15, 14, 13, 12, 7, 6, 5, 4);
+  __m512d t[8], u[8];
+  for (int p = 0; p < 4; ++p) {
+    t[2 * p] = _mm512_unpacklo_pd(v[2 * p], v[2 * p + 1]);     /* cols 0 2 4 6 */
+    t[2 * p + 1] = _mm512_unpackhi_pd(v[2 * p], v[2 * p + 1]); /* cols 1 3 5 7 */
+  }
+  for (int h = 0; h < 2; ++h)
+    for (int odd = 0; odd < 2; ++odd) {
+      const __m512d a = t[4 * h + odd], b = t[4 * h + 2 + odd];
+      u[4 * h + odd] = _mm512_permutex2var_pd(a, lo2, b);     /* cols odd, odd + 4 */
+      u[4 * h + 2 + odd] = _mm512_permutex2var_pd(a, hi2, b); /* cols 2 + odd, 6 + odd */
+    }
+  for (int q = 0; q < 4; ++q) {
+    c[q] = _mm512_permutex2var_pd(u[q], lo4, u[4 + q]);
+    c[q + 4] = _mm512_permutex2var_pd(u[q], hi4, u[4 + q]);
+  }
+}
+#endif
+
+/* The `used` rows g[l] (n long) into the tile (tile[k * ROWS + l]: row l's entry k; the
+   lanes past `used` of the vectors that hold them: copies of the last row, or stale, all
+   finite), `columns` with as few vectors as hold them, then row l of the products to
+   out[slot[l] * n]. Returns 0; -1 if a row has a non-finite entry (nothing written). */
+static int flush(const double* const* g, long used, const int64_t* slot, long n,
+                 const int64_t* start, const int64_t* row, const double* val, double* tile,
+                 double* sums, double* out) {
+  const int nv = (int)((used + LANES - 1) / LANES);
+#if defined(__AVX512F__)
+  /* 8 x 8 blocks transposed in registers, both ways. */
+  for (int w = 0; w < nv; ++w) {
+    const double* r[8];
+    for (int l = 0; l < 8; ++l) r[l] = g[w * 8 + l < used ? w * 8 + l : used - 1];
+    for (long j = 0; j < n; j += 8) {
+      const __mmask8 k = n - j >= 8 ? 0xFF : (__mmask8)((1u << (n - j)) - 1);
+      __m512d v[8], c[8];
+      for (int l = 0; l < 8; ++l) {
+        v[l] = _mm512_maskz_loadu_pd(k, r[l] + j);
+        /* x - x: 0 for a finite x, NaN otherwise */
+        if (_mm512_mask_cmp_pd_mask(k, _mm512_sub_pd(v[l], v[l]), _mm512_setzero_pd(),
+                                    _CMP_EQ_OQ) != k)
+          return -1;
+      }
+      transpose8(v, c);
+      for (long q = 0; q < 8 && j + q < n; ++q)
+        _mm512_storeu_pd(tile + (j + q) * ROWS + w * LANES, c[q]);
+    }
+  }
+#else
+  for (long l = 0; l < used; ++l)
+    for (long k = 0; k < n; ++k) {
+      if (!isfinite(g[l][k])) return -1;
+      tile[k * ROWS + l] = g[l][k];
+    }
+#endif
+  switch (nv) {
     case 1: columns(tile, 1, n, start, row, val, sums); break;
     case 2: columns(tile, 2, n, start, row, val, sums); break;
     case 3: columns(tile, 3, n, start, row, val, sums); break;
     default: columns(tile, VECS, n, start, row, val, sums);
   }
+#if defined(__AVX512F__)
+  for (int w = 0; w < nv; ++w)
+    for (long j = 0; j < n; j += 8) {
+      const __mmask8 k = n - j >= 8 ? 0xFF : (__mmask8)((1u << (n - j)) - 1);
+      __m512d v[8], c[8];
+      for (int q = 0; q < 8; ++q)  /* column j + q of the 8 rows (past n: unused) */
+        v[q] = _mm512_loadu_pd(sums + (j + q < n ? j + q : n - 1) * ROWS + w * LANES);
+      transpose8(v, c);
+      for (long l = 0; l < 8 && w * 8 + l < used; ++l)
+        _mm512_mask_storeu_pd(out + slot[w * 8 + l] * n + j, k, c[l]);
+    }
+#else
   for (long l = 0; l < used; ++l)
     for (long j = 0; j < n; ++j) out[slot[l] * n + j] = sums[j * ROWS + l];
+#endif
+  return 0;
 }
 
 /* out[t] = G[kept[t]] @ factor for t < m_kept (out's rows n long): a row marked in
@@ -99,6 +168,7 @@ int times_factor(const double* G, long ld, long n, const int64_t* kept, long m_k
                  double* sums, int64_t* slot, double* out, int64_t* last, long m_last,
                  unsigned char* same) {
   long used = 0;
+  const double* g[ROWS];
   for (long t = 0; t < m_kept; ++t) {
     const int64_t r = kept[t];
     if (constant[r]) {
@@ -108,18 +178,14 @@ int times_factor(const double* G, long ld, long n, const int64_t* kept, long m_k
       continue;
     }
     if (same) same[t] = 0;
-    const double* g = G + r * ld;
-    for (long k = 0; k < n; ++k) {
-      if (!isfinite(g[k])) return -1;
-      tile[k * ROWS + used] = g[k];
-    }
+    g[used] = G + r * ld;
     slot[used++] = t;
     if (used == ROWS) {
-      flush(tile, used, slot, n, start, row, val, sums, out);
+      if (flush(g, used, slot, n, start, row, val, tile, sums, out)) return -1;
       used = 0;
     }
   }
-  if (used) flush(tile, used, slot, n, start, row, val, sums, out);
+  if (used && flush(g, used, slot, n, start, row, val, tile, sums, out)) return -1;
   memcpy(last, kept, m_kept * sizeof(int64_t));
   return 0;
 }
@@ -132,7 +198,7 @@ def product_library():
     return load_shared(PRODUCT_C, "daqp_product", {
         "times_factor": ([p, lg, lg, p, lg, p, p, lg, p, p, p, p, p, p, p, p, lg, p],
                          ctypes.c_int)},
-        "numpy")
+        "numpy", opt="-O3")
 
 
 class CompiledProduct:
