@@ -219,3 +219,29 @@ def test_a_warm_solve_that_fails_is_retried_cold():
     solutions = [b.solve(free) for b in backends]
     _assert_same(solutions, backends, "")
     assert not solutions[0].warm_started and solutions[0].iterations > 8
+
+
+def test_kept_block_sums_follow_the_blocks_and_the_bounds():
+    """The screening's sums of constant blocks are reused only for the same blocks in the
+    same places under the same bounds: other blocks, or moved bounds, are summed again."""
+    from wbc.qp import QP
+    from wbc.solvers.daqp_backend import redundant_rows
+
+    rng = np.random.default_rng(29)
+    n = 40
+    base = _problem(rng, n, 0, 0)
+    blocks = [rng.normal(size=(30, n)) * s for s in (0.05, 0.5)]
+    for block in blocks:
+        block.setflags(write=False)
+    h = np.full(30, 0.8)
+    backend = DaqpBackend()
+    for k, (i, lb_shift) in enumerate([(0, 0), (0, 0), (1, 0), (1, 0), (0, 0), (0, 0.5),
+                                       (0, 0.5), (0, 0)]):
+        lb = base.lb - lb_shift
+        qp = QP(base.P, base.q, blocks[i].copy(), h, None, None, lb, base.ub,
+                constant_rows=((0, blocks[i]),))
+        backend.solve(qp)
+        expected = np.flatnonzero(~redundant_rows(blocks[i], h, lb, base.ub, 1e-7))
+        assert backend.rows_kept == expected.size, k
+        np.testing.assert_array_equal(
+            backend._screen(qp.G, qp.h, lb, base.ub, qp.constant_rows), expected)

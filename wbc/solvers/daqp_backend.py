@@ -113,6 +113,11 @@ def redundant_rows(G: np.ndarray, h: np.ndarray, lb: np.ndarray | None,
     return _worst(G, _box_terms(lb, ub, G.shape[1], tolerance)) <= h
 
 
+def _same_place(a: tuple, b: tuple) -> bool:
+    """Two ``(first row, block)`` pairs: the same block object at the same row."""
+    return a[1] is b[1] and a[0] == b[0]
+
+
 def _frozen(H) -> bool:
     """``H`` is a read-only array that owns its data: no one can write it in place.
 
@@ -179,6 +184,7 @@ class DaqpBackend:
         self._n: int | None = None
         self._box: tuple | None = None  # (the bounds' bytes, their `_BoxTerms`)
         self._screens: dict = {}  # id(block) -> (block, columns, their bounds, sums)
+        self._block_sums: tuple | None = None  # (rows, blocks, `_block_worst`'s sums)
         self._rows_structure: RowStructure | None = None
         self._rows = FactorRows()  # DAQP's rows, the products kept from solve to solve
         self._screen_c: tuple | None = None  # (structure key, `CompiledScreen` or None)
@@ -316,9 +322,34 @@ class DaqpBackend:
         lo = np.full(n, -np.inf) if lb is None else np.asarray(lb, float)
         hi = np.full(n, np.inf) if ub is None else np.asarray(ub, float)
         bounds = lo.tobytes() + hi.tobytes()
-        if self._box is None or self._box[0] != bounds:
+        box_kept = self._box is not None and self._box[0] == bounds
+        if not box_kept:
             self._box = (bounds, _box_terms(lo, hi, n, self.tolerances["primal_tol"]))
         box = self._box[1]
+        sums = self._block_sums
+        if (box_kept and sums is not None and sums[0] == m_in and len(sums[1]) == len(blocks)
+                and all(map(_same_place, sums[1], blocks))):
+            # The same blocks in the same places, every bound the same: every block's sums
+            # are where the last solve put them (the tick after tick case).
+            worst = sums[2]
+        else:
+            worst = self._block_worst(m_in, blocks, lo, hi, box)
+            self._block_sums = (m_in, blocks, worst)
+        if structure is None:
+            structure = self._structure(m_in, blocks, diagonal)
+        c = self._compiled_screen(G, h, structure)
+        found = None if c is None else c.run(G, worst, h, box)
+        self._kept_rest = found  # `_times_factor`'s rows, if the C pass found them
+        if found is not None:
+            return found[0]
+        for a, b in structure.gaps:
+            worst[a:b] = _worst(G[a:b], box)
+        return np.flatnonzero(~(worst <= h))
+
+    def _block_worst(self, m_in: int, blocks: tuple, lo: np.ndarray, hi: np.ndarray,
+                     box: _BoxTerms) -> np.ndarray:
+        """`_worst` of the rows of ``G``'s constant ``blocks``, each block's kept while the
+        bounds of its columns stay; shape (m_in,), the other rows' entries undefined."""
         worst = np.empty(m_in)  # the gap rows' sums written only by the numpy screening
         screens = {}
         for first, block in blocks:
@@ -335,16 +366,7 @@ class DaqpBackend:
             screens[id(block)] = entry
             worst[first:first + block.shape[0]] = entry[3]
         self._screens = screens  # the blocks of this problem only
-        if structure is None:
-            structure = self._structure(m_in, blocks, diagonal)
-        c = self._compiled_screen(G, h, structure)
-        found = None if c is None else c.run(G, worst, h, box)
-        self._kept_rest = found  # `_times_factor`'s rows, if the C pass found them
-        if found is not None:
-            return found[0]
-        for a, b in structure.gaps:
-            worst[a:b] = _worst(G[a:b], box)
-        return np.flatnonzero(~(worst <= h))
+        return worst
 
     def _compiled_screen(self, G: np.ndarray, h: np.ndarray, structure: RowStructure
                          ) -> CompiledScreen | None:
