@@ -30,6 +30,18 @@ normalising the rows: ~75 us of a ~80 us warm solve of the MPC's ~400 rows) is d
 workspace kept from solve to solve when its C API can be reached
 (`wbc.solvers.daqp_c`: ``daqp.solve``'s bits, set up in ~20 us); ``daqp.solve`` is the
 reference (``kept_workspace = False``) and solves the direct form.
+
+On that workspace the rest of a least-distance solve is one C call too
+(`LeastDistanceWorkspace.step`, ``fused``): the shifts ``v = L^-1 f`` and ``L^-T v``, the
+bounds, the rows' shifts ``M v``, the clips, the warm start's gather, the cold retry,
+``x = L^-T u - shift`` and the multipliers' scatter, ~15 us of numpy calls a tick before. Its
+products are numpy's own BLAS routines (`estimators.observer.tail_c.numpy_blas`:
+``cblas_dgemv``, and ``cblas_ddot`` for a single row) called with the arguments numpy's
+matmul passes them (a transposed view: row-major, else column-major, both transposed), so
+the bits are numpy's; where numpy's BLAS cannot be reached the numpy path runs
+(`tests/test_daqp_fused.py` compares both, and ``daqp.solve``, solve by solve). The rows
+the product pass left in place since the last solve (the factor's, most constant rows) are
+not normalised again (`FactorRows.same_rows`).
 """
 
 from __future__ import annotations

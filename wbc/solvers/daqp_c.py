@@ -16,7 +16,10 @@ bits (`tests/test_daqp_c.py` compares every call with ``daqp.solve``):
 
 * the rows normalised here, eight at a time in the lanes of a vector, each row's squares
   summed in DAQP's order (`LDP_C`'s ``normalize``; no fused multiply-add, as in the wheel's
-  build, which has none): DAQP's ``M`` and ``scaling`` to the bit;
+  build, which has none): DAQP's ``M`` and ``scaling`` to the bit; eight rows the caller
+  marks as the same bits as the last solve's (`LeastDistanceWorkspace.step`'s ``same``) are
+  left as they are, if that solve normalised them here (DAQP's solve only reads ``M`` and
+  ``scaling``; after a fresh set-up every row is normalised again);
 * the identity's factor kept (DAQP's diagonal ``RinvD``, ones: a set-up forms the same
   again from the same identity, and sets no state flag for it);
 * the workspace's per-solve fields reset as ``allocate_daqp_workspace`` sets them (iterate
@@ -32,6 +35,9 @@ equalities DAQP would eliminate (``daqp_eq_wanted``), a set-up or update that fa
 exit flag then says so, and no solve runs, as in ``daqp.solve``), and a solve that left
 anything but the plain dual active-set method's state in the workspace (equality
 elimination, branch and bound, proximal iterations, a hierarchy, an AVI).
+
+`LeastDistanceWorkspace.step` runs `wbc.solvers.DaqpBackend`'s numpy around a solve in the
+same call (its docstring), with numpy's own BLAS for the products.
 
 The warm start is the wrapper's: the senses (0, and 5 for the equalities from
 ``first_equality`` on) marked active by ``daqp_dual_init_active`` from ``dual_start``.
@@ -515,10 +521,9 @@ class LeastDistanceWorkspace:
                       address(x), address(lam), self._step_out_address,
                       self._time_address, None if same is None else address(same)) != 0:
             raise MemoryError("no memory for the DAQP workspace")
-        out = self._step_out
-        self.kept = bool(out[2] == 1)
-        return (x, lam, int(out[0]), int(out[1]), bool(out[3]), float(self._time[0]),
-                bool(out[4]))
+        flag, iterations, path, warm, solved = self._step_out.tolist()
+        self.kept = path == 1
+        return x, lam, flag, iterations, warm == 1, self._time.item(), solved == 1
 
     def __deepcopy__(self, memo) -> LeastDistanceWorkspace:
         """A workspace of its own, empty: its first solve sets DAQP up (the same bits)."""

@@ -10,7 +10,9 @@ rows that are zero outside blocks along a diagonal (``diagonal_rows``,
 `wbc.constraints.DiagonalBlocks`: the MPC's effort rows, each step's on that step's inputs)
 block by block, a ninth of the dense work, the rest in one BLAS product. DAQP's rows are
 written into a buffer kept from solve to solve, where the C pass leaves a constant row that
-the last pass put in the same place (most of them: the screening keeps much the same rows).
+the last pass put in the same place (most of them: the screening keeps much the same rows);
+`FactorRows.same_rows` says which rows those are, for the pass after the one the last
+solve took.
 """
 
 from __future__ import annotations
