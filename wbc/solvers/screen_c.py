@@ -33,10 +33,24 @@ SCREEN_C = r"""
 #include <math.h>
 #include <stdint.h>
 #include <string.h>
-typedef double v4 __attribute__((vector_size(32)));
-typedef long long v4i __attribute__((vector_size(32)));
-static const v4i ABS = {0x7fffffffffffffffLL, 0x7fffffffffffffffLL, 0x7fffffffffffffffLL,
-                        0x7fffffffffffffffLL};  /* clears the sign bit: fabs */
+typedef double v8 __attribute__((vector_size(64)));
+typedef long long v8i __attribute__((vector_size(64)));
+#define M 0x7fffffffffffffffLL
+static const v8i ABS = {M, M, M, M, M, M, M, M};  /* clears the sign bit: fabs */
+#undef M
+
+/* nextafter(x, -INFINITY) and nextafter(x, INFINITY), inline: the neighbours of x. */
+static inline double next_down(double x) {
+  if (x != x || x == -INFINITY) return x;
+  if (x == 0.0) return -4.9406564584124654e-324;
+  uint64_t b;
+  memcpy(&b, &x, sizeof b);
+  b = x > 0.0 ? b - 1 : b + 1;
+  memcpy(&x, &b, sizeof x);
+  return x;
+}
+
+static inline double next_up(double x) { return -next_down(-x); }
 
 /* Rows 0..m-1 of G (row stride ld): kept[] gets the kept rows in order, rest[] those of
    them in a gap and not done[]; counts = (kept, rest). A gap row (inside one of the
@@ -56,24 +70,24 @@ int screen_rows(const double* G, long m, long n, long ld, const double* worst,
     if (g < n_gaps && i >= gaps[2 * g]) {
       const double* row = G + i * ld;
       double w = 0.0, s = 0.0, lo, hi;
-      /* four lanes of vectors (a sum's order does not matter to the margin) */
-      v4 wv = {0.0, 0.0, 0.0, 0.0}, sv = wv, wu = wv, su = wv;
-      for (k = 0; k + 8 <= n; k += 8) {  /* two accumulators: the adds' latency */
-        v4 x, y, a, b, c, d;
+      /* eight lanes of vectors (a sum's order does not matter to the margin) */
+      v8 wv = {0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0}, sv = wv, wu = wv, su = wv;
+      for (k = 0; k + 16 <= n; k += 16) {  /* two accumulators: the adds' latency */
+        v8 x, y, a, b, c, d;
         memcpy(&x, row + k, sizeof x);
-        memcpy(&y, row + k + 4, sizeof y);
+        memcpy(&y, row + k + 8, sizeof y);
         memcpy(&a, mid + k, sizeof a);
-        memcpy(&c, mid + k + 4, sizeof c);
+        memcpy(&c, mid + k + 8, sizeof c);
         memcpy(&b, spread + k, sizeof b);
-        memcpy(&d, spread + k + 4, sizeof d);
+        memcpy(&d, spread + k + 8, sizeof d);
         a *= x;
         c *= y;
-        b *= (v4)((v4i)x & ABS);
-        d *= (v4)((v4i)y & ABS);
+        b *= (v8)((v8i)x & ABS);
+        d *= (v8)((v8i)y & ABS);
         wv += a + b;
         wu += c + d;
-        sv += (v4)((v4i)a & ABS) + (v4)((v4i)b & ABS);  /* b < 0 only if a box is empty */
-        su += (v4)((v4i)c & ABS) + (v4)((v4i)d & ABS);
+        sv += (v8)((v8i)a & ABS) + (v8)((v8i)b & ABS);  /* b < 0 only if a box is empty */
+        su += (v8)((v8i)c & ABS) + (v8)((v8i)d & ABS);
       }
       wv += wu;
       sv += su;
@@ -82,8 +96,8 @@ int screen_rows(const double* G, long m, long n, long ld, const double* worst,
         w += a + b;
         s += fabs(a) + fabs(b);
       }
-      w += (wv[0] + wv[1]) + (wv[2] + wv[3]);
-      s += (sv[0] + sv[1]) + (sv[2] + sv[3]);
+      w += ((wv[0] + wv[1]) + (wv[2] + wv[3])) + ((wv[4] + wv[5]) + (wv[6] + wv[7]));
+      s += ((sv[0] + sv[1]) + (sv[2] + sv[3])) + ((sv[4] + sv[5]) + (sv[6] + sv[7]));
       for (j = 0; j < n_open; ++j) {
         double x = row[open[j]];
         double a = x > 0.0 ? x * hi_open[j] : (x < 0.0 ? x * lo_open[j] : 0.0);
@@ -92,8 +106,8 @@ int screen_rows(const double* G, long m, long n, long ld, const double* worst,
       }
       if (!isfinite(w) || !(s < 1e300) || isnan(h[i])) return -1;  /* no overflow */
       s = gamma * s + 1e-300;  /* the margin; 1e-300: products that underflow */
-      lo = nextafter(w - s, -INFINITY);  /* below the exact w - margin */
-      hi = nextafter(w + s, INFINITY);
+      lo = next_down(w - s);  /* below the exact w - margin */
+      hi = next_up(w + s);
       if (lo > h[i]) keep = 1;
       else if (hi <= h[i]) keep = 0;
       else return -1;
