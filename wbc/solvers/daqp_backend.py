@@ -54,8 +54,8 @@ import numpy as np
 import qpsolvers
 from scipy.linalg import lapack
 
-from models.numeric import clip
 from estimators.observer.tail_c import numpy_blas
+from models.numeric import clip
 from wbc.errors import ConfigurationError, QPSolveError
 from wbc.solvers.daqp_c import LeastDistanceWorkspace, ldp_library
 from wbc.solvers.factor_rows import FactorRows, RowStructure
@@ -229,11 +229,11 @@ class DaqpBackend:
 
     @property
     def fused(self) -> bool:
-        """The least-distance form's bounds, warm start, ``x`` and multipliers in the kept
-        workspace's one C call (`LeastDistanceWorkspace.step`: numpy's bits, its BLAS).
+        """The least-distance form's numpy in the kept workspace's call (module docstring).
 
-        True only with a kept workspace and numpy's BLAS reachable
-        (`estimators.observer.tail_c.numpy_blas`); False: numpy around the workspace's solve.
+        `LeastDistanceWorkspace.step`: numpy's bits, through its BLAS. True only with a
+        kept workspace and numpy's BLAS reachable (`estimators.observer.tail_c.numpy_blas`);
+        False: numpy around the workspace's solve.
         """
         return self._blas is not None
 
@@ -360,8 +360,11 @@ class DaqpBackend:
 
     def _block_worst(self, m_in: int, blocks: tuple, lo: np.ndarray, hi: np.ndarray,
                      box: _BoxTerms) -> np.ndarray:
-        """`_worst` of the rows of ``G``'s constant ``blocks``, each block's kept while the
-        bounds of its columns stay; shape (m_in,), the other rows' entries undefined."""
+        """`_worst` of the rows of ``G``'s constant ``blocks``, shape (m_in,).
+
+        Each block's sums are kept while the bounds of its columns stay; the other rows'
+        entries are undefined.
+        """
         worst = np.empty(m_in)  # the gap rows' sums written only by the numpy screening
         screens = {}
         for first, block in blocks:
