@@ -47,7 +47,6 @@ not normalised again (`FactorRows.same_rows`).
 from __future__ import annotations
 
 import time
-from typing import NamedTuple
 
 import daqp
 import numpy as np
@@ -57,6 +56,10 @@ from scipy.linalg import lapack
 from estimators.observer.tail_c import numpy_blas
 from models.numeric import clip
 from wbc.errors import ConfigurationError, QPSolveError
+from wbc.solvers.box_screen import BIG as _BIG
+from wbc.solvers.box_screen import BlockSums, redundant_rows
+from wbc.solvers.box_screen import box_terms as _box_terms
+from wbc.solvers.box_screen import worst as _worst
 from wbc.solvers.daqp_c import LeastDistanceWorkspace, ldp_library
 from wbc.solvers.factor_rows import FactorRows, RowStructure
 from wbc.solvers.product_c import product_library
@@ -65,69 +68,11 @@ from wbc.solvers.solution import QPSolution
 
 __all__ = ["DaqpBackend", "redundant_rows"]
 
-_BIG = 1e20  # stands in for an infinite bound in the screening sums
 _all = np.logical_and.reduce  # `np.all` of a 1-D array without its Python dispatch
 _EQUALITY = 5  # DAQP's sense flags: active (1) | immutable (4)
 # Below this many variables DAQP's own set-up costs less than the extra numpy calls of the
 # least-distance form (the whole-body QP, 9 variables: 41 us direct, 67 us with the form).
 _LEAST_DISTANCE_SIZE = 32
-
-
-class _BoxTerms(NamedTuple):
-    """What `_worst` needs of the box ``lb <= x <= ub`` widened by a tolerance.
-
-    ``mid`` and ``spread`` (half the width plus the tolerance) of the finite intervals, 0
-    where a bound is infinite; ``open`` the variables with an infinite bound, ``hi_open`` and
-    ``lo_open`` their bounds clipped to +-_BIG.
-    """
-
-    mid: np.ndarray
-    spread: np.ndarray
-    open: np.ndarray
-    hi_open: np.ndarray
-    lo_open: np.ndarray
-
-
-def _box_terms(lb: np.ndarray | None, ub: np.ndarray | None, n: int,
-               tolerance: float) -> _BoxTerms:
-    lo = np.full(n, -np.inf) if lb is None else np.asarray(lb, float)
-    hi = np.full(n, np.inf) if ub is None else np.asarray(ub, float)
-    box = np.isfinite(lo) & np.isfinite(hi)
-    # Over a finite interval the worst of g_i x_i is g_i mid_i + |g_i| half_i (one pass over G).
-    lo_box, hi_box = np.where(box, lo, 0.0), np.where(box, hi, 0.0)
-    mid, half = 0.5 * (lo_box + hi_box), 0.5 * (hi_box - lo_box)
-    open_ = np.flatnonzero(~box)  # the few variables with an infinite bound, exactly
-    return _BoxTerms(mid, half + tolerance, open_, np.minimum(hi[open_], _BIG),
-                     np.maximum(lo[open_], -_BIG))
-
-
-def _worst(G: np.ndarray, box: _BoxTerms) -> np.ndarray:
-    """``max g x`` of every row of ``G`` over the widened box, shape (rows,).
-
-    A column of ``G`` that is zero adds exact zeros, whatever the box says of its variable:
-    the sums of the rows that are zero there do not depend on those bounds.
-    """
-    worst = G @ box.mid + np.abs(G) @ box.spread
-    if box.open.size:
-        g = G[:, box.open]
-        worst += np.maximum(g, 0.0) @ box.hi_open + np.minimum(g, 0.0) @ box.lo_open
-    return worst
-
-
-def redundant_rows(G: np.ndarray, h: np.ndarray, lb: np.ndarray | None,
-                   ub: np.ndarray | None, tolerance: float) -> np.ndarray:
-    """Rows of ``G x <= h`` that every ``x`` in the box (widened by ``tolerance``) satisfies.
-
-    Returns:
-        Boolean mask, shape (rows,). An infinite or missing bound keeps every row that
-        depends on its variable.
-    """
-    return _worst(G, _box_terms(lb, ub, G.shape[1], tolerance)) <= h
-
-
-def _same_place(a: tuple, b: tuple) -> bool:
-    """Two ``(first row, block)`` pairs: the same block object at the same row."""
-    return a[1] is b[1] and a[0] == b[0]
 
 
 def _frozen(H) -> bool:
@@ -194,9 +139,7 @@ class DaqpBackend:
         self.rows_kept = 0
         self._lam: np.ndarray | None = None  # multipliers of every row, dropped ones 0
         self._n: int | None = None
-        self._box: tuple | None = None  # (the bounds' bytes, their `_BoxTerms`)
-        self._screens: dict = {}  # id(block) -> (block, columns, their bounds, sums)
-        self._block_sums: tuple | None = None  # (rows, blocks, `_block_worst`'s sums)
+        self._sums = BlockSums(self.tolerances["primal_tol"])  # the constant blocks' sums
         self._rows_structure: RowStructure | None = None
         self._rows = FactorRows()  # DAQP's rows, the products kept from solve to solve
         self._screen_c: tuple | None = None  # (structure key, `CompiledScreen` or None)
@@ -322,31 +265,14 @@ class DaqpBackend:
                 diagonal: tuple = (), structure: RowStructure | None = None) -> np.ndarray:
         """The rows `redundant_rows` keeps, as indices; a constant block's screening sums kept.
 
-        A block's sums depend only on the bounds of the columns where it has entries
-        (`_worst`): they are kept while those bounds stay the same (the MPC's stroke and
-        speed limits depend on the acceleration limits only). ``structure``: the rows'
-        `RowStructure`, if the caller has it.
+        The constant blocks' sums are kept (`wbc.solvers.box_screen.BlockSums`).
+        ``structure``: the rows' `RowStructure`, if the caller has it.
         """
         m_in, n = G.shape
         if not blocks:
             box = _box_terms(lb, ub, n, self.tolerances["primal_tol"])
             return np.flatnonzero(~(_worst(G, box) <= h))
-        lo = np.full(n, -np.inf) if lb is None else np.asarray(lb, float)
-        hi = np.full(n, np.inf) if ub is None else np.asarray(ub, float)
-        bounds = lo.tobytes() + hi.tobytes()
-        box_kept = self._box is not None and self._box[0] == bounds
-        if not box_kept:
-            self._box = (bounds, _box_terms(lo, hi, n, self.tolerances["primal_tol"]))
-        box = self._box[1]
-        sums = self._block_sums
-        if (box_kept and sums is not None and sums[0] == m_in and len(sums[1]) == len(blocks)
-                and all(map(_same_place, sums[1], blocks))):
-            # The same blocks in the same places, every bound the same: every block's sums
-            # are where the last solve put them (the tick after tick case).
-            worst = sums[2]
-        else:
-            worst = self._block_worst(m_in, blocks, lo, hi, box)
-            self._block_sums = (m_in, blocks, worst)
+        box, worst = self._sums.sums(m_in, n, blocks, lb, ub)
         if structure is None:
             structure = self._structure(m_in, blocks, diagonal)
         c = self._compiled_screen(G, h, structure)
@@ -357,31 +283,6 @@ class DaqpBackend:
         for a, b in structure.gaps:
             worst[a:b] = _worst(G[a:b], box)
         return np.flatnonzero(~(worst <= h))
-
-    def _block_worst(self, m_in: int, blocks: tuple, lo: np.ndarray, hi: np.ndarray,
-                     box: _BoxTerms) -> np.ndarray:
-        """`_worst` of the rows of ``G``'s constant ``blocks``, shape (m_in,).
-
-        Each block's sums are kept while the bounds of its columns stay; the other rows'
-        entries are undefined.
-        """
-        worst = np.empty(m_in)  # the gap rows' sums written only by the numpy screening
-        screens = {}
-        for first, block in blocks:
-            entry = self._screens.get(id(block))
-            if entry is None or entry[0] is not block:
-                nonzero = np.flatnonzero(np.abs(block).sum(axis=0))
-                cols = (slice(int(nonzero[0]), int(nonzero[-1]) + 1) if nonzero.size
-                        else slice(0, 0))
-                entry = (block, cols, None, None)
-            cols = entry[1]
-            key = lo[cols].tobytes() + hi[cols].tobytes()
-            if entry[2] != key:
-                entry = (block, cols, key, _worst(block, box))
-            screens[id(block)] = entry
-            worst[first:first + block.shape[0]] = entry[3]
-        self._screens = screens  # the blocks of this problem only
-        return worst
 
     def _compiled_screen(self, G: np.ndarray, h: np.ndarray, structure: RowStructure
                          ) -> CompiledScreen | None:

@@ -1,7 +1,7 @@
 """`DaqpBackend`'s row screening in C: the same kept rows as numpy's, proven row by row.
 
 The screening keeps row ``i`` of ``G x <= h`` unless ``w_i <= h_i``, with ``w_i`` the row's
-worst value over the widened box (`wbc.solvers.daqp_backend._worst`: two or four BLAS
+worst value over the widened box (`wbc.solvers.box_screen.worst`: two or four BLAS
 matrix-vector products). In numpy that is ~18 us a tick for the MPC's ~170 rows outside its
 constant blocks, plus the comparison and the index list. `SCREEN_C` does it in one pass, but
 its sums are not numpy's bits (OpenBLAS's gemv sums in its own order, with fused
@@ -152,14 +152,14 @@ class CompiledScreen:
         self.counts = np.zeros(2, dtype=np.int64)
         self._gaps, self._done = self.gaps.ctypes.data, self.done.ctypes.data
         self._fun = fun
-        self._box = None  # (the `_BoxTerms`, its arrays as C reads them, the addresses)
+        self._box = None  # (the `BoxTerms`, its arrays as C reads them, the addresses)
 
     def run(self, G: np.ndarray, worst: np.ndarray, h: np.ndarray, box
             ) -> tuple[np.ndarray, np.ndarray] | None:
         """``(kept, rest)`` row indices (views of kept buffers, valid until the next run).
 
         ``G``: shape (m, n) with unit column stride; ``worst``: the block rows' numpy sums,
-        (m,); ``box``: the `_BoxTerms` of the bounds. None: a row could not be decided
+        (m,); ``box``: the `wbc.solvers.box_screen.BoxTerms` of the bounds. None: a row could not be decided
         (module docstring); the caller screens in numpy.
         """
         if self._box is None or self._box[0] is not box:
