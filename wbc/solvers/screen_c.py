@@ -159,8 +159,8 @@ class CompiledScreen:
         """``(kept, rest)`` row indices (views of kept buffers, valid until the next run).
 
         ``G``: shape (m, n) with unit column stride; ``worst``: the block rows' numpy sums,
-        (m,); ``box``: the `wbc.solvers.box_screen.BoxTerms` of the bounds. None: a row could not be decided
-        (module docstring); the caller screens in numpy.
+        (m,); ``box``: the `wbc.solvers.box_screen.BoxTerms` of the bounds. None: a row
+        could not be decided (module docstring); the caller screens in numpy.
         """
         if self._box is None or self._box[0] is not box:
             n_terms = 2 * self.n + 2 * box.open.size + 4  # roundings on a term's way, both
