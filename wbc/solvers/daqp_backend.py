@@ -30,20 +30,36 @@ normalising the rows: ~75 us of a ~80 us warm solve of the MPC's ~400 rows) is d
 workspace kept from solve to solve when its C API can be reached
 (`wbc.solvers.daqp_c`: ``daqp.solve``'s bits, set up in ~20 us); ``daqp.solve`` is the
 reference (``kept_workspace = False``) and solves the direct form.
+
+On that workspace the rest of a least-distance solve is one C call too
+(`LeastDistanceWorkspace.step`, ``fused``): the shifts ``v = L^-1 f`` and ``L^-T v``, the
+bounds, the rows' shifts ``M v``, the clips, the warm start's gather, the cold retry,
+``x = L^-T u - shift`` and the multipliers' scatter, ~15 us of numpy calls a tick before. Its
+products are numpy's own BLAS routines (`estimators.observer.tail_c.numpy_blas`:
+``cblas_dgemv``, and ``cblas_ddot`` for a single row) called with the arguments numpy's
+matmul passes them (a transposed view: row-major, else column-major, both transposed), so
+the bits are numpy's; where numpy's BLAS cannot be reached the numpy path runs
+(`tests/test_daqp_fused.py` compares both, and ``daqp.solve``, solve by solve). The rows
+the product pass left in place since the last solve (the factor's, most constant rows) are
+not normalised again (`FactorRows.same_rows`).
 """
 
 from __future__ import annotations
 
 import time
-from typing import NamedTuple
 
 import daqp
 import numpy as np
 import qpsolvers
 from scipy.linalg import lapack
 
+from estimators.observer.tail_c import numpy_blas
 from models.numeric import clip
 from wbc.errors import ConfigurationError, QPSolveError
+from wbc.solvers.box_screen import BIG as _BIG
+from wbc.solvers.box_screen import BlockSums, redundant_rows
+from wbc.solvers.box_screen import box_terms as _box_terms
+from wbc.solvers.box_screen import worst as _worst
 from wbc.solvers.daqp_c import LeastDistanceWorkspace, ldp_library
 from wbc.solvers.factor_rows import FactorRows, RowStructure
 from wbc.solvers.product_c import product_library
@@ -52,64 +68,11 @@ from wbc.solvers.solution import QPSolution
 
 __all__ = ["DaqpBackend", "redundant_rows"]
 
-_BIG = 1e20  # stands in for an infinite bound in the screening sums
 _all = np.logical_and.reduce  # `np.all` of a 1-D array without its Python dispatch
 _EQUALITY = 5  # DAQP's sense flags: active (1) | immutable (4)
 # Below this many variables DAQP's own set-up costs less than the extra numpy calls of the
 # least-distance form (the whole-body QP, 9 variables: 41 us direct, 67 us with the form).
 _LEAST_DISTANCE_SIZE = 32
-
-
-class _BoxTerms(NamedTuple):
-    """What `_worst` needs of the box ``lb <= x <= ub`` widened by a tolerance.
-
-    ``mid`` and ``spread`` (half the width plus the tolerance) of the finite intervals, 0
-    where a bound is infinite; ``open`` the variables with an infinite bound, ``hi_open`` and
-    ``lo_open`` their bounds clipped to +-_BIG.
-    """
-
-    mid: np.ndarray
-    spread: np.ndarray
-    open: np.ndarray
-    hi_open: np.ndarray
-    lo_open: np.ndarray
-
-
-def _box_terms(lb: np.ndarray | None, ub: np.ndarray | None, n: int,
-               tolerance: float) -> _BoxTerms:
-    lo = np.full(n, -np.inf) if lb is None else np.asarray(lb, float)
-    hi = np.full(n, np.inf) if ub is None else np.asarray(ub, float)
-    box = np.isfinite(lo) & np.isfinite(hi)
-    # Over a finite interval the worst of g_i x_i is g_i mid_i + |g_i| half_i (one pass over G).
-    lo_box, hi_box = np.where(box, lo, 0.0), np.where(box, hi, 0.0)
-    mid, half = 0.5 * (lo_box + hi_box), 0.5 * (hi_box - lo_box)
-    open_ = np.flatnonzero(~box)  # the few variables with an infinite bound, exactly
-    return _BoxTerms(mid, half + tolerance, open_, np.minimum(hi[open_], _BIG),
-                     np.maximum(lo[open_], -_BIG))
-
-
-def _worst(G: np.ndarray, box: _BoxTerms) -> np.ndarray:
-    """``max g x`` of every row of ``G`` over the widened box, shape (rows,).
-
-    A column of ``G`` that is zero adds exact zeros, whatever the box says of its variable:
-    the sums of the rows that are zero there do not depend on those bounds.
-    """
-    worst = G @ box.mid + np.abs(G) @ box.spread
-    if box.open.size:
-        g = G[:, box.open]
-        worst += np.maximum(g, 0.0) @ box.hi_open + np.minimum(g, 0.0) @ box.lo_open
-    return worst
-
-
-def redundant_rows(G: np.ndarray, h: np.ndarray, lb: np.ndarray | None,
-                   ub: np.ndarray | None, tolerance: float) -> np.ndarray:
-    """Rows of ``G x <= h`` that every ``x`` in the box (widened by ``tolerance``) satisfies.
-
-    Returns:
-        Boolean mask, shape (rows,). An infinite or missing bound keeps every row that
-        depends on its variable.
-    """
-    return _worst(G, _box_terms(lb, ub, G.shape[1], tolerance)) <= h
 
 
 def _frozen(H) -> bool:
@@ -129,6 +92,12 @@ def _equal(H, kept: tuple) -> bool:
     """
     return (H.dtype == kept[0].dtype and H.shape == kept[0].shape
             and H.tobytes() == kept[1] or np.array_equal(kept[0], H))
+
+
+def _vector(a, size: int) -> bool:
+    """``a`` is a contiguous float64 array of shape ``(size,)``, as C reads it."""
+    return (isinstance(a, np.ndarray) and a.dtype == np.float64 and a.shape == (size,)
+            and a.flags.c_contiguous)
 
 
 def _senses(size: int, first_equality: int) -> np.ndarray:
@@ -170,19 +139,22 @@ class DaqpBackend:
         self.rows_kept = 0
         self._lam: np.ndarray | None = None  # multipliers of every row, dropped ones 0
         self._n: int | None = None
-        self._box: tuple | None = None  # (the bounds' bytes, their `_BoxTerms`)
-        self._screens: dict = {}  # id(block) -> (block, columns, their bounds, sums)
+        self._sums = BlockSums(self.tolerances["primal_tol"])  # the constant blocks' sums
         self._rows_structure: RowStructure | None = None
         self._rows = FactorRows()  # DAQP's rows, the products kept from solve to solve
         self._screen_c: tuple | None = None  # (structure key, `CompiledScreen` or None)
         self._kept_rest: tuple | None = None  # the C screening's (kept, rest) rows
         self._workspace: LeastDistanceWorkspace | None = None
+        self._blas: tuple[int, int] | None = None  # numpy's cblas_dgemv, cblas_ddot
+        self.fused = False
+        self._consumed = -1  # the `FactorRows` pass whose rows the last fused solve took
         # The C parts compiled (or loaded) now, not in a control loop's first solves.
         if screen:
             screen_library()
         if least_distance:
             product_library()
             self.kept_workspace = True
+            self.fused = True
 
     @property
     def compiled(self) -> bool:
@@ -196,6 +168,22 @@ class DaqpBackend:
     def compiled(self, value: bool) -> None:
         self._rows.compiled = bool(value)
         self.kept_workspace = bool(value)
+        self.fused = bool(value)
+
+    @property
+    def fused(self) -> bool:
+        """The least-distance form's numpy in the kept workspace's call (module docstring).
+
+        `LeastDistanceWorkspace.step`: numpy's bits, through its BLAS. True only with a
+        kept workspace and numpy's BLAS reachable (`estimators.observer.tail_c.numpy_blas`);
+        False: numpy around the workspace's solve.
+        """
+        return self._blas is not None
+
+    @fused.setter
+    def fused(self, value: bool) -> None:
+        blas = numpy_blas() if value else None
+        self._blas = None if blas is None else blas[:2]
 
     @property
     def kept_workspace(self) -> bool:
@@ -277,37 +265,14 @@ class DaqpBackend:
                 diagonal: tuple = (), structure: RowStructure | None = None) -> np.ndarray:
         """The rows `redundant_rows` keeps, as indices; a constant block's screening sums kept.
 
-        A block's sums depend only on the bounds of the columns where it has entries
-        (`_worst`): they are kept while those bounds stay the same (the MPC's stroke and
-        speed limits depend on the acceleration limits only). ``structure``: the rows'
-        `RowStructure`, if the caller has it.
+        The constant blocks' sums are kept (`wbc.solvers.box_screen.BlockSums`).
+        ``structure``: the rows' `RowStructure`, if the caller has it.
         """
         m_in, n = G.shape
         if not blocks:
             box = _box_terms(lb, ub, n, self.tolerances["primal_tol"])
             return np.flatnonzero(~(_worst(G, box) <= h))
-        lo = np.full(n, -np.inf) if lb is None else np.asarray(lb, float)
-        hi = np.full(n, np.inf) if ub is None else np.asarray(ub, float)
-        bounds = lo.tobytes() + hi.tobytes()
-        if self._box is None or self._box[0] != bounds:
-            self._box = (bounds, _box_terms(lo, hi, n, self.tolerances["primal_tol"]))
-        box = self._box[1]
-        worst = np.empty(m_in)  # the gap rows' sums written only by the numpy screening
-        screens = {}
-        for first, block in blocks:
-            entry = self._screens.get(id(block))
-            if entry is None or entry[0] is not block:
-                nonzero = np.flatnonzero(np.abs(block).sum(axis=0))
-                cols = (slice(int(nonzero[0]), int(nonzero[-1]) + 1) if nonzero.size
-                        else slice(0, 0))
-                entry = (block, cols, None, None)
-            cols = entry[1]
-            key = lo[cols].tobytes() + hi[cols].tobytes()
-            if entry[2] != key:
-                entry = (block, cols, key, _worst(block, box))
-            screens[id(block)] = entry
-            worst[first:first + block.shape[0]] = entry[3]
-        self._screens = screens  # the blocks of this problem only
+        box, worst = self._sums.sums(m_in, n, blocks, lb, ub)
         if structure is None:
             structure = self._structure(m_in, blocks, diagonal)
         c = self._compiled_screen(G, h, structure)
@@ -330,6 +295,36 @@ class DaqpBackend:
             self._screen_c = (key, compiled_screen(G.shape[0], G.shape[1], structure.gaps,
                                                    structure.done))
         return self._screen_c[1]
+
+    def _fused(self, t0: float, G, kept: np.ndarray, inv_t: np.ndarray, a_all, f, lb, ub,
+               h, b, m_in: int, m_eq: int, blocks: tuple, diagonal: tuple,
+               structure: RowStructure | None) -> QPSolution | None:
+        """`solve`'s least-distance form through `LeastDistanceWorkspace.step`.
+
+        None (nothing done) when an argument is not as the C reads it: `solve` then runs
+        its numpy.
+        """
+        n = f.size
+        if not (_vector(f, n) and (ub is None or _vector(ub, n)) and (lb is None or _vector(lb, n))
+                and (m_in == 0 or _vector(h, m_in)) and (m_eq == 0 or _vector(b, m_eq))
+                and kept.dtype == np.int64 and kept.strides[0] == 8
+                and inv_t.flags.c_contiguous):
+            return None
+        a_all = self._rows.least_distance_rows(G, kept, inv_t, blocks, a_all, structure,
+                                               self._kept_rest, diagonal)
+        n_all = n + m_in + m_eq
+        warm = self.warm_start and self._lam is not None and self._lam.size == n_all
+        same = self._rows.same_rows(self._consumed)
+        self._consumed = self._rows.passes
+        x, lam, flag, iterations, warm, call, solved = self._workspace.step(
+            self._blas, a_all, inv_t, f, ub, lb, h if m_in else None, kept,
+            b if m_eq else None, m_in, self._lam if warm else None, same)
+        elapsed = time.perf_counter() - t0
+        if not solved:
+            self._lam = None
+            raise QPSolveError(f"daqp found no solution (exit flag {flag})", "not_found")
+        self._lam, self._n = lam, n
+        return QPSolution(x, "solved", iterations, elapsed, warm, call)
 
     def _daqp(self, hessian: np.ndarray, cost: np.ndarray | None, a: np.ndarray,
               upper: np.ndarray, lower: np.ndarray, first_equality: int,
@@ -377,6 +372,12 @@ class DaqpBackend:
             a_all = G if m_eq == 0 else np.concatenate([G, A])
         else:
             a_all = G[kept] if m_eq == 0 else np.concatenate([G[kept], A])
+        self.form = "direct" if factor is None else "least-distance"
+        if factor is not None and self._blas is not None and self._workspace is not None:
+            solution = self._fused(t0, G, kept, factor[0], a_all, f, lb, ub, h, b, m_in, m_eq,
+                                   blocks, diagonal, structure)
+            if solution is not None:
+                return solution
         upper = np.empty(n + m_k + m_eq)
         lower = np.empty(n + m_k + m_eq)
         upper[:n] = np.inf if ub is None else ub
@@ -387,7 +388,6 @@ class DaqpBackend:
         if m_eq:
             upper[n + m_k:] = b
             lower[n + m_k:] = b
-        self.form = "direct" if factor is None else "least-distance"
         if factor is None:
             # (daqp.solve takes writable buffers only; the builder's kept P is read-only)
             hessian, cost = (H if H.flags.writeable else np.array(H)), f

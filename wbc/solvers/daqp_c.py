@@ -16,7 +16,10 @@ bits (`tests/test_daqp_c.py` compares every call with ``daqp.solve``):
 
 * the rows normalised here, eight at a time in the lanes of a vector, each row's squares
   summed in DAQP's order (`LDP_C`'s ``normalize``; no fused multiply-add, as in the wheel's
-  build, which has none): DAQP's ``M`` and ``scaling`` to the bit;
+  build, which has none): DAQP's ``M`` and ``scaling`` to the bit; eight rows the caller
+  marks as the same bits as the last solve's (`LeastDistanceWorkspace.step`'s ``same``) are
+  left as they are, if that solve normalised them here (DAQP's solve only reads ``M`` and
+  ``scaling``; after a fresh set-up every row is normalised again);
 * the identity's factor kept (DAQP's diagonal ``RinvD``, ones: a set-up forms the same
   again from the same identity, and sets no state flag for it);
 * the workspace's per-solve fields reset as ``allocate_daqp_workspace`` sets them (iterate
@@ -32,6 +35,9 @@ equalities DAQP would eliminate (``daqp_eq_wanted``), a set-up or update that fa
 exit flag then says so, and no solve runs, as in ``daqp.solve``), and a solve that left
 anything but the plain dual active-set method's state in the workspace (equality
 elimination, branch and bound, proximal iterations, a hierarchy, an AVI).
+
+`LeastDistanceWorkspace.step` runs `wbc.solvers.DaqpBackend`'s numpy around a solve in the
+same call (its docstring), with numpy's own BLAS for the products.
 
 The warm start is the wrapper's: the senses (0, and 5 for the equalities from
 ``first_equality`` on) marked active by ``daqp_dual_init_active`` from ``dual_start``.
@@ -53,7 +59,9 @@ import daqp
 import numpy as np
 
 from models.cbuild import address, load_shared
+from wbc.solvers import ldp_step
 from wbc.solvers.daqp_api import DAQP_API_C, DAQP_VERSION, bind_daqp, daqp_version
+from wbc.solvers.ldp_step import STEP_C
 
 __all__ = ["LDP_C", "SIGNATURES", "LeastDistanceWorkspace", "ldp_library"]
 
@@ -64,11 +72,14 @@ SIGNATURES = {  # `LDP_C`'s functions: (argtypes, restype)
     "daqp_bind": ([_p], None),
     "ldp_new": ([ctypes.c_double, ctypes.c_int], _p),
     "ldp_free": ([_p], None),
-    "ldp_solve": ([_p, _lg, _lg, _lg, _p, _p, _p, _p, _p, _p, _p], ctypes.c_int)}
+    "ldp_solve": ([_p, _lg, _lg, _lg, _p, _p, _p, _p, _p, _p, _p], ctypes.c_int),
+    "ldp_step": ([_p, _p, _p, _lg, _lg, _lg, _lg, *[_p] * 21], ctypes.c_int)}
 
 LDP_C = DAQP_API_C + r"""
 #include <math.h>
+#include <stdint.h>
 #include <stdlib.h>
+#include <time.h>
 #if defined(__AVX512F__)
 #include <immintrin.h>
 #endif
@@ -77,6 +88,8 @@ typedef struct {
   DAQPSettings settings;
   DAQPWorkspace work;
   int live;     /* work holds a set-up workspace the next solve may keep */
+  int valid;    /* the rows of work's M and scaling that `normalize` formed from the last
+                   solve's A (0 after a fresh set-up or none) */
   int n, cap;   /* its variables, the rows its arrays hold */
   double* eye;  /* the identity, n x n */
   int* sense;   /* the problem's senses, cap long */
@@ -88,6 +101,7 @@ static void drop(Ldp* c) {
   daqp.free_daqp_workspace(&c->work);
   daqp.free_daqp_ldp(&c->work);
   c->live = 0;
+  c->valid = 0;
 }
 
 void* ldp_new(double primal_tol, int iter_limit) {
@@ -110,12 +124,19 @@ void ldp_free(void* p) {
 
 /* Rows [0, m) of A (n long) times d, as daqp_update_M forms DAQP's M, normalised as
    daqp_normalize_M does it: scaling[i] = 1 / sqrt(sum_j M_ij^2), the squares added in j's
-   order, and M_i *= scaling[i]. Returns 0; -1 if a row's sum is below zero_tol or not
-   finite (M and scaling then partly written): DAQP's own pass handles it. */
+   order, and M_i *= scaling[i]. Eight rows below `valid` that same[] marks (the bits of
+   the rows that formed M and scaling there; same NULL: none) are left as they are.
+   Returns 0; -1 if a row's sum is below zero_tol or not finite (M and scaling then partly
+   written): DAQP's own pass handles it. */
 static int normalize(const double* A, const double* d, long n, long m, double zero_tol,
-                     double* M, double* scaling) {
+                     double* M, double* scaling, const unsigned char* same, long valid) {
   for (long i0 = 0; i0 < m; i0 += 8) {
     const long used = m - i0 < 8 ? m - i0 : 8;
+    if (same && i0 + 8 <= valid && i0 + 8 <= m) {
+      uint64_t all;  /* eight flags of 0 or 1 */
+      memcpy(&all, same + i0, sizeof all);
+      if (all == 0x0101010101010101ULL) continue;
+    }
     double s[8], scale[8];
 #if defined(__AVX512F__)
     /* Lane l sums row i0 + l; the rows past m repeat the last one (their sums unused). An
@@ -204,10 +225,11 @@ static int plain(const DAQPWorkspace* w) {
 /* daqp.solve(eye(n), None, A, bu, bl, sense, dual_start=dual, primal_tol, iter_limit)
    with sense 0 for rows [0, first_eq) and 5 after, A (m x n) C-contiguous, m >= 1: x (n),
    lam (m, written if the exit flag is positive), out = {exit flag, iterations, path}
-   (path: 1 the kept workspace, 0 a fresh set-up, -1 no solve: the set-up failed). Returns
-   0; -1 out of memory. */
-int ldp_solve(void* p, long n, long m, long first_eq, const double* A, const double* bu,
-              const double* bl, const double* dual, double* x, double* lam, int* out) {
+   (path: 1 the kept workspace, 0 a fresh set-up, -1 no solve: the set-up failed); same:
+   `normalize`'s (NULL: none). Returns 0; -1 out of memory. */
+static int solve_rows(void* p, long n, long m, long first_eq, const double* A,
+                      const double* bu, const double* bl, const double* dual, double* x,
+                      double* lam, int* out, const unsigned char* same) {
   Ldp* c = p;
   DAQPWorkspace* w = &c->work;
   if (c->n != n) {
@@ -236,7 +258,9 @@ int ldp_solve(void* p, long n, long m, long first_eq, const double* A, const dou
     memcpy(w->sense, c->sense, m * sizeof(int));
     w->m = (int)m;
     kept = !daqp.daqp_eq_wanted(w, &qp, mask) &&
-           normalize(A, w->RinvD, n, m, c->settings.zero_tol, w->M, w->scaling) == 0;
+           normalize(A, w->RinvD, n, m, c->settings.zero_tol, w->M, w->scaling, same,
+                     c->valid) == 0;
+    c->valid = kept ? (int)m : 0;
   }
   if (kept) {
     w->state = 0; /* daqp_update_R's flags for the identity: none (a set-up's start) */
@@ -282,7 +306,13 @@ int ldp_solve(void* p, long n, long m, long first_eq, const double* A, const dou
   }
   return 0;
 }
-"""
+
+int ldp_solve(void* p, long n, long m, long first_eq, const double* A, const double* bu,
+              const double* bl, const double* dual, double* x, double* lam, int* out) {
+  return solve_rows(p, n, m, first_eq, A, bu, bl, dual, x, lam, out, NULL);
+}
+
+""" + STEP_C
 
 
 @functools.cache
@@ -339,6 +369,14 @@ class LeastDistanceWorkspace:
         self._out_address = self._out.ctypes.data
         self._lib, self._settings = lib, (float(primal_tol), int(iter_limit))
         self.kept = False  # the last solve's path: the kept workspace, else a fresh set-up
+        self._step = functools.partial(lib.ldp_step, self._ctx)
+        self._step_out = np.zeros(5, dtype=np.intc)
+        self._step_out_address = self._step_out.ctypes.data
+        self._time = np.zeros(1)
+        self._time_address = self._time.ctypes.data
+        self._scratch = (0, 0, None, ())  # `step`'s vectors: (n, rows, buffer, addresses)
+
+    step = ldp_step.step
 
     def __deepcopy__(self, memo) -> LeastDistanceWorkspace:
         """A workspace of its own, empty: its first solve sets DAQP up (the same bits)."""

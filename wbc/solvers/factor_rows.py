@@ -10,7 +10,9 @@ rows that are zero outside blocks along a diagonal (``diagonal_rows``,
 `wbc.constraints.DiagonalBlocks`: the MPC's effort rows, each step's on that step's inputs)
 block by block, a ninth of the dense work, the rest in one BLAS product. DAQP's rows are
 written into a buffer kept from solve to solve, where the C pass leaves a constant row that
-the last pass put in the same place (most of them: the screening keeps much the same rows).
+the last pass put in the same place (most of them: the screening keeps much the same rows);
+`FactorRows.same_rows` says which rows those are, for the pass after the one the last
+solve took.
 """
 
 from __future__ import annotations
@@ -68,6 +70,7 @@ class FactorRows:
         products: ``id(block) -> (block, L^-T, block @ L^-T)`` of the last problem's
             constant blocks.
         ldp_rows: ``(L^-T, buffer of DAQP's rows)``, None before the first product.
+        passes: `least_distance_rows` calls so far.
     """
 
     def __init__(self):
@@ -79,6 +82,11 @@ class FactorRows:
         # What the last C pass wrote: (out's array, its address, `_rows_t`); None after
         # any other write into DAQP's rows.
         self._written: tuple | None = None
+        self.passes = 0
+        # 1 for DAQP's rows left as the last pass had them (uint8; the factor's first), and
+        # the pass it holds (that of a C pass onto the rows it held, `same_rows`), else -1
+        self._same = np.ones(0, dtype=np.uint8)
+        self._same_pass = -1
 
     def _compiled(self, G: np.ndarray, kept: np.ndarray, inv_t: np.ndarray
                   ) -> CompiledProduct | None:
@@ -129,8 +137,16 @@ class FactorRows:
             last = self._written
             held = (last is not None and last[0] is written[0] and last[1] == written[1]
                     and last[2] is written[2])
-            self._written = written if c.run(G, kept, constant, buffer, out, held) else None
-            if self._written is not None:
+            same = None
+            if held:  # the factor's rows before out's: the same buffer, the same factor
+                n = inv_t.shape[0]
+                if self._same.size < n + out.shape[0]:
+                    self._same = np.ones(n + 2 * out.shape[0], dtype=np.uint8)
+                same = self._same[n:]
+            ok = c.run(G, kept, constant, buffer, out, held, same)
+            self._written = written if ok else None
+            if ok:
+                self._same_pass = self.passes if held else -1
                 return
         self._written = None
         for first, d in diagonal:
@@ -154,6 +170,8 @@ class FactorRows:
         every tick; DAQP leaves its arguments as they are); its first rows are rewritten
         when the factor changes.
         """
+        self.passes += 1
+        self._same_pass = -1
         m = kept.size if rows is None else rows.shape[0]
         n = inv_t.shape[0]
         buf = self.ldp_rows
@@ -168,3 +186,14 @@ class FactorRows:
             np.matmul(rows, inv_t, out=out[n:])
             self._written = None
         return out
+
+    def same_rows(self, consumed: int) -> np.ndarray | None:
+        """Which of this pass's rows have the bits of the same rows of pass ``consumed``.
+
+        uint8, 1 for a row the C pass left as it was (`CompiledProduct.run`'s ``same``)
+        and for the factor's rows, when ``consumed`` is the pass before this one; None
+        (nothing known) otherwise.
+        """
+        if self._same_pass != self.passes or consumed != self.passes - 1:
+            return None
+        return self._same

@@ -1,7 +1,7 @@
 """`DaqpBackend`'s row screening in C: the same kept rows as numpy's, proven row by row.
 
 The screening keeps row ``i`` of ``G x <= h`` unless ``w_i <= h_i``, with ``w_i`` the row's
-worst value over the widened box (`wbc.solvers.daqp_backend._worst`: two or four BLAS
+worst value over the widened box (`wbc.solvers.box_screen.worst`: two or four BLAS
 matrix-vector products). In numpy that is ~18 us a tick for the MPC's ~170 rows outside its
 constant blocks, plus the comparison and the index list. `SCREEN_C` does it in one pass, but
 its sums are not numpy's bits (OpenBLAS's gemv sums in its own order, with fused
@@ -33,10 +33,24 @@ SCREEN_C = r"""
 #include <math.h>
 #include <stdint.h>
 #include <string.h>
-typedef double v4 __attribute__((vector_size(32)));
-typedef long long v4i __attribute__((vector_size(32)));
-static const v4i ABS = {0x7fffffffffffffffLL, 0x7fffffffffffffffLL, 0x7fffffffffffffffLL,
-                        0x7fffffffffffffffLL};  /* clears the sign bit: fabs */
+typedef double v8 __attribute__((vector_size(64)));
+typedef long long v8i __attribute__((vector_size(64)));
+#define M 0x7fffffffffffffffLL
+static const v8i ABS = {M, M, M, M, M, M, M, M};  /* clears the sign bit: fabs */
+#undef M
+
+/* nextafter(x, -INFINITY) and nextafter(x, INFINITY), inline: the neighbours of x. */
+static inline double next_down(double x) {
+  if (x != x || x == -INFINITY) return x;
+  if (x == 0.0) return -4.9406564584124654e-324;
+  uint64_t b;
+  memcpy(&b, &x, sizeof b);
+  b = x > 0.0 ? b - 1 : b + 1;
+  memcpy(&x, &b, sizeof x);
+  return x;
+}
+
+static inline double next_up(double x) { return -next_down(-x); }
 
 /* Rows 0..m-1 of G (row stride ld): kept[] gets the kept rows in order, rest[] those of
    them in a gap and not done[]; counts = (kept, rest). A gap row (inside one of the
@@ -56,24 +70,24 @@ int screen_rows(const double* G, long m, long n, long ld, const double* worst,
     if (g < n_gaps && i >= gaps[2 * g]) {
       const double* row = G + i * ld;
       double w = 0.0, s = 0.0, lo, hi;
-      /* four lanes of vectors (a sum's order does not matter to the margin) */
-      v4 wv = {0.0, 0.0, 0.0, 0.0}, sv = wv, wu = wv, su = wv;
-      for (k = 0; k + 8 <= n; k += 8) {  /* two accumulators: the adds' latency */
-        v4 x, y, a, b, c, d;
+      /* eight lanes of vectors (a sum's order does not matter to the margin) */
+      v8 wv = {0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0}, sv = wv, wu = wv, su = wv;
+      for (k = 0; k + 16 <= n; k += 16) {  /* two accumulators: the adds' latency */
+        v8 x, y, a, b, c, d;
         memcpy(&x, row + k, sizeof x);
-        memcpy(&y, row + k + 4, sizeof y);
+        memcpy(&y, row + k + 8, sizeof y);
         memcpy(&a, mid + k, sizeof a);
-        memcpy(&c, mid + k + 4, sizeof c);
+        memcpy(&c, mid + k + 8, sizeof c);
         memcpy(&b, spread + k, sizeof b);
-        memcpy(&d, spread + k + 4, sizeof d);
+        memcpy(&d, spread + k + 8, sizeof d);
         a *= x;
         c *= y;
-        b *= (v4)((v4i)x & ABS);
-        d *= (v4)((v4i)y & ABS);
+        b *= (v8)((v8i)x & ABS);
+        d *= (v8)((v8i)y & ABS);
         wv += a + b;
         wu += c + d;
-        sv += (v4)((v4i)a & ABS) + (v4)((v4i)b & ABS);  /* b < 0 only if a box is empty */
-        su += (v4)((v4i)c & ABS) + (v4)((v4i)d & ABS);
+        sv += (v8)((v8i)a & ABS) + (v8)((v8i)b & ABS);  /* b < 0 only if a box is empty */
+        su += (v8)((v8i)c & ABS) + (v8)((v8i)d & ABS);
       }
       wv += wu;
       sv += su;
@@ -82,8 +96,8 @@ int screen_rows(const double* G, long m, long n, long ld, const double* worst,
         w += a + b;
         s += fabs(a) + fabs(b);
       }
-      w += (wv[0] + wv[1]) + (wv[2] + wv[3]);
-      s += (sv[0] + sv[1]) + (sv[2] + sv[3]);
+      w += ((wv[0] + wv[1]) + (wv[2] + wv[3])) + ((wv[4] + wv[5]) + (wv[6] + wv[7]));
+      s += ((sv[0] + sv[1]) + (sv[2] + sv[3])) + ((sv[4] + sv[5]) + (sv[6] + sv[7]));
       for (j = 0; j < n_open; ++j) {
         double x = row[open[j]];
         double a = x > 0.0 ? x * hi_open[j] : (x < 0.0 ? x * lo_open[j] : 0.0);
@@ -92,8 +106,8 @@ int screen_rows(const double* G, long m, long n, long ld, const double* worst,
       }
       if (!isfinite(w) || !(s < 1e300) || isnan(h[i])) return -1;  /* no overflow */
       s = gamma * s + 1e-300;  /* the margin; 1e-300: products that underflow */
-      lo = nextafter(w - s, -INFINITY);  /* below the exact w - margin */
-      hi = nextafter(w + s, INFINITY);
+      lo = next_down(w - s);  /* below the exact w - margin */
+      hi = next_up(w + s);
       if (lo > h[i]) keep = 1;
       else if (hi <= h[i]) keep = 0;
       else return -1;
@@ -138,15 +152,15 @@ class CompiledScreen:
         self.counts = np.zeros(2, dtype=np.int64)
         self._gaps, self._done = self.gaps.ctypes.data, self.done.ctypes.data
         self._fun = fun
-        self._box = None  # (the `_BoxTerms`, its arrays as C reads them, the addresses)
+        self._box = None  # (the `BoxTerms`, its arrays as C reads them, the addresses)
 
     def run(self, G: np.ndarray, worst: np.ndarray, h: np.ndarray, box
             ) -> tuple[np.ndarray, np.ndarray] | None:
         """``(kept, rest)`` row indices (views of kept buffers, valid until the next run).
 
         ``G``: shape (m, n) with unit column stride; ``worst``: the block rows' numpy sums,
-        (m,); ``box``: the `_BoxTerms` of the bounds. None: a row could not be decided
-        (module docstring); the caller screens in numpy.
+        (m,); ``box``: the `wbc.solvers.box_screen.BoxTerms` of the bounds. None: a row
+        could not be decided (module docstring); the caller screens in numpy.
         """
         if self._box is None or self._box[0] is not box:
             n_terms = 2 * self.n + 2 * box.open.size + 4  # roundings on a term's way, both
