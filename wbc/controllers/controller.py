@@ -244,14 +244,16 @@ class Controller(abc.ABC):
                 sampled at ``tau + sigma * offset`` (its clock and clock rate), with
                 velocities scaled by sigma and accelerations by sigma^2.
         """
-        offsets = np.asarray(offsets, float).reshape(-1)
+        offsets = np.asarray(offsets, float)
+        if offsets.ndim != 1:  # a 1-D array stays the caller's (the MPC's kept node times)
+            offsets = offsets.reshape(-1)
         shape = (offsets.size, N_AXES)
         p, v, a = np.zeros(shape), np.zeros(shape), np.zeros(shape)
         for key, ref in self._references():
             tau, sigma = self._clock[key]
             i = ref.index
             if isinstance(i, slice):  # its columns, written in place
-                ref.sample_columns_into(tau + sigma * offsets, sigma, p, v, a)
+                ref.sample_nodes_into(tau, sigma, offsets, p, v, a)
             else:
                 rp, rv, ra = (np.empty((offsets.size, ref.n)) for _ in range(3))
                 ref.sample_many_into(tau + sigma * offsets, sigma, rp, rv, ra)
