@@ -350,7 +350,7 @@ class Controller(abc.ABC):
         if self._goal_error is not None:
             info["goal_error"] = self._goal_error
         info["controller"] = self.name
-        return ControlCommand(rates, scale, qdd.copy(), fallback, info)
+        return ControlCommand.of(rates, scale, qdd.copy(), fallback, info)
 
     def fallback_command(self, state: MachineState, reason: Exception | str) -> ControlCommand:
         """The safe action, always finite.
