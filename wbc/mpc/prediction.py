@@ -25,7 +25,6 @@ from models.state import MachineState
 from wbc.axes import N_AXES
 from wbc.constraints.limits_c import compiled_brake
 from wbc.layout import VariableLayout
-from wbc.mpc.trajectory_c import TrajectoryProducts
 
 __all__ = ["CondensedPrediction", "nominal_state", "predict_base_pose",
            "predict_base_rotations"]
@@ -77,9 +76,6 @@ class CondensedPrediction:
         # `brake_trajectory`'s loop in C (`limits_c`; None without a compiler), for the
         # layout's axes: built, or loaded from the cache, here, not inside a control tick.
         self._brake = compiled_brake(h, na)
-        # `trajectory`'s products in C through numpy's BLAS (`trajectory_c`, the same bits;
-        # None without a compiler or that BLAS): loaded here, not inside a control tick.
-        self._products = TrajectoryProducts.make(self.Lq, self.Lv, na)
 
     @property
     def horizon(self) -> float:
@@ -104,10 +100,6 @@ class CondensedPrediction:
         ``free``: `free_response` of ``q0, qd0`` if the caller has it (a context does).
         """
         qf, vf = self.free_response(q0, qd0) if free is None else free
-        if self._products is not None:
-            done = self._products.run(qf, vf, inputs)
-            if done is not None:
-                return done
         return qf + self.Lq @ inputs, vf + self.Lv @ inputs
 
     def brake_trajectory(self, q0, qd0, acceleration, free=None) -> tuple[np.ndarray, ...]:
