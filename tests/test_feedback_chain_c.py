@@ -198,3 +198,23 @@ def test_without_the_chain_the_numpy_steps_run(machine):
     off = MpcController(machine, ctrl.config, force_model=ctrl.force_model,
                         feedback=ctrl.feedback, compiled=False)
     assert off._chain is None and off.governor is not None
+
+
+@pytest.mark.parametrize("off", [{"governor_z": 0.0}, {"drift_horizon": 0.0},
+                                 {"side_reserve": 0.0},
+                                 {"governor_z": 0.0, "drift_horizon": 0.0,
+                                  "side_reserve": 0.0}])
+def test_without_some_parts_numpys_bits(recorded, off):
+    """The chain with the governor, the drift or the side reserve off (its flags)."""
+    machine, config, ticks = recorded
+    config = dataclasses.replace(config, force=dataclasses.replace(config.force, **off))
+    fast, slow = _pair(machine, config)
+    for k, tick in enumerate(_odd(ticks, np.random.default_rng(6))):
+        assert _tick(fast, tick, fast._chained_feedback) == _tick(slow, tick,
+                                                                 slow._feedback_steps), k
+        parts = [(p, getattr(fast, p)) for p in ("governor", "warp_drift", "side_swing")]
+        assert all((x is None) == (getattr(slow, p) is None) for p, x in parts)
+        assert _bits(fast.speed_limit.cap, fast.side_reserve and fast.side_reserve.reserve,
+                     fast.warp_drift and fast.warp_drift.rate) == _bits(
+            slow.speed_limit.cap, slow.side_reserve and slow.side_reserve.reserve,
+            slow.warp_drift and slow.warp_drift.rate), k
