@@ -233,8 +233,22 @@ class Controller(abc.ABC):
             clock[0] += clock[1] * elapsed
 
     def _governor_error(self, ref: RuckigReference, tau: float, state: MachineState) -> float:
-        """The governor's ``e``: the largest ``|reference position at tau - q|`` of ``ref``."""
-        return float(_max(np.abs(ref.position(tau) - state.q[ref.index])))
+        """The governor's ``e``: the largest ``|reference position at tau - q|`` of ``ref``.
+
+        numpy's ``max(abs(d))`` on the differences as Python floats (the same IEEE
+        results; a NaN wins, as in numpy's maximum), the reference's kept position read
+        without a copy: ~1 us less a reference, every tick.
+        """
+        position = ref.kept(tau)
+        if position is None:
+            position = ref.position(tau)
+        d = (position - state.q[ref.index]).tolist()  # a reference has axes: d[0] exists
+        err = abs(d[0])
+        for x in d[1:]:  # numpy's maximum: the larger, a NaN kept once met
+            x = abs(x)
+            if not (err >= x or err != err):
+                err = x
+        return err
 
     def reference_at(self, offsets) -> ReferenceSample:
         """Reference of the nine axes ahead of now: arrays (len(offsets), 9).
