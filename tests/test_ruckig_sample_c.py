@@ -139,3 +139,62 @@ def test_reference_node_samples_are_the_bindings(machine, axes):
         for a, b, c in zip(*out):
             assert np.array_equal(a, c, equal_nan=True)
             assert np.array_equal(b, c, equal_nan=True)  # the other columns left NaN
+
+
+@pytest.mark.parametrize("axes", ["crane", "suspension"])
+def test_node_samples_from_offsets_are_the_columns(machine, axes):
+    """`RuckigReference.sample_nodes_into` (the times made in C) against
+    `sample_columns_into` of numpy's ``tau + rate * offsets`` on the binding: the same
+    bits, the same kept position; planned, held, odd clocks and offsets."""
+    from wbc import CRANE_AXES, SUSPENSION_AXES, AxisLimits, RuckigReference
+
+    limits = AxisLimits.from_machine(machine)
+    index = CRANE_AXES if axes == "crane" else SUSPENSION_AXES
+    rng = np.random.default_rng(4)
+    lo, hi = limits.position_lower[index], limits.position_upper[index]
+    steps = np.array([0.01, 0.03, 0.06] + [0.1] * 10)
+    kept = np.concatenate([[0.0], np.cumsum(steps)])
+    kept.setflags(write=False)  # the planner's node times: read-only, kept
+    for trial in range(60):
+        refs = [RuckigReference(limits, index, jerk_time=0.5) for _ in range(2)]
+        refs[1].compiled = False
+        t0 = float(rng.uniform(0, 5))
+        if trial % 5 == 0:
+            held = rng.uniform(lo, hi)
+            for ref in refs:
+                ref.hold(held)
+        else:
+            start, goal = rng.uniform(lo, hi), rng.uniform(lo, hi)
+            velocity = rng.uniform(-1.2, 1.2, len(index)) * limits.velocity_upper[index]
+            for ref in refs:
+                ref.plan(t0, start, velocity, np.zeros(len(index)), goal)
+        offsets = kept if trial % 3 else rng.uniform(-1.0, 3.0, int(rng.integers(0, 20)))
+        tau = t0 + float(rng.choice([-0.3, 0.0, -0.0, 0.37, 1e-9, 40.0]))
+        rate = float(rng.choice([1.0, 0.6, 0.0, 0.123456789]))
+        out = [[np.full((offsets.size, 9), np.nan) for _ in range(3)] for _ in range(2)]
+        refs[0].sample_nodes_into(tau, rate, offsets, *out[0])
+        assert refs[0]._compiled._offsets_of is (offsets if refs[0]._planned else None)
+        refs[1].sample_columns_into(tau + rate * offsets, rate, *out[1])
+        for a, b in zip(*out):
+            assert a.tobytes() == b.tobytes(), trial
+        if refs[0]._planned and offsets.size:
+            t = tau + rate * float(offsets[0])
+            assert refs[0].kept(t) is not None
+            assert refs[0].kept(t).tobytes() == refs[1].kept(t).tobytes()
+
+
+def test_node_samples_refuse_arrays_they_cannot_take():
+    rng = np.random.default_rng(5)
+    traj = None
+    while traj is None:
+        traj = _random_trajectory(rng, 2)
+    c = compiled_trajectory(np.full(2, -1.0), np.full(2, 1.0))
+    c.load(traj)
+    offsets = np.linspace(0, 1, 5)
+    good = [np.empty((5, 4)) for _ in range(3)]
+    assert c.sample_nodes(0.0, 1.0, offsets, 0.0, 0, *good) == 0.0
+    assert c.sample_nodes(0.0, 1.0, offsets, 0.0, 3, *good) is None  # columns 3, 4 of 4
+    assert c.sample_nodes(0.0, 1.0, offsets[:4], 0.0, 0, *good) is None
+    assert c.sample_nodes(0.0, 1.0, offsets, 0.0, 0, np.empty((5, 8))[:, ::2],
+                          *good[1:]) is None
+    assert c.sample_nodes(0.0, 1.0, offsets.reshape(5, 1), 0.0, 0, *good) is None

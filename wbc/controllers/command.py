@@ -31,6 +31,19 @@ class ControlCommand:
     fallback: bool = False
     info: dict = field(default_factory=dict)
 
+    @classmethod
+    def of(cls, rates: np.ndarray, wheel_speed_scale: float, accelerations: np.ndarray,
+           fallback: bool, info: dict) -> ControlCommand:
+        """``ControlCommand(...)`` of every field, without the frozen dataclass's setattr.
+
+        The fields set as its ``__init__`` sets them (it has no ``__post_init__``): one a
+        tick.
+        """
+        cmd = object.__new__(cls)
+        cmd.__dict__.update(rates=rates, wheel_speed_scale=wheel_speed_scale,
+                            accelerations=accelerations, fallback=fallback, info=info)
+        return cmd
+
     @property
     def suspension_rates(self) -> np.ndarray:
         """Stroke rates of the bogie cylinders L, R [m/s], shape (2,)."""

@@ -9,7 +9,7 @@ import qpsolvers
 
 from estimators.efforts import ActuatorEfforts
 from models.description import Machine
-from models.state import MachineState
+from models.state import N_SERVO_AXES, MachineState
 from wbc.axes import CRANE_AXES, N_AXES, SUSPENSION_AXES
 from wbc.constraints import (
     AccelerationLimit,
@@ -25,6 +25,7 @@ from wbc.controllers.config import ControllerConfig
 from wbc.controllers.controller import Controller
 from wbc.controllers.servo_state import ServoState
 from wbc.errors import ConfigurationError
+from wbc.force_models.chain_c import FeedbackChain
 from wbc.force_models.feedback import (
     ClosureFeedback,
     ForceFeedback,
@@ -79,13 +80,18 @@ class MpcController(Controller):
         force_model: The normal-force model (required).
         tcp_kinematics: For `TcpGoal`.
         feedback: The measured load split; None: the model alone.
+        compiled: Run the load split's per-tick chain in C (`wbc.force_models.chain_c`,
+            the same bits) where a compiler and numpy's BLAS are found; False: numpy's
+            steps (the reference).
     """
 
     name = "mpc"
 
     def __init__(self, machine: Machine, config: ControllerConfig | None = None, *,
                  force_model: NormalForceModel, tcp_kinematics: TcpKinematics | None = None,
-                 name: str | None = None, feedback: ClosureFeedback | None = None):
+                 name: str | None = None, feedback: ClosureFeedback | None = None,
+                 compiled: bool = True):
+        self.compiled = bool(compiled)
         if name is not None:
             self.name = name
         super().__init__(machine, config, tcp_kinematics=tcp_kinematics)
@@ -212,10 +218,32 @@ class MpcController(Controller):
                            if self.feedback is not None and (fc.side_reserve > 0
                                                              or fc.side_reserve_z > 0)
                            else None)
+        self._chain = None if self.warp is None or not self.compiled else self._make_chain()
+        self._reserve_kept = None
+
+    def _make_chain(self) -> FeedbackChain | None:
+        """The feedback chain in C with the parts' settings (None without a compiler)."""
+        chain = FeedbackChain.make(self.warp, N_SERVO_AXES)
+        if chain is None:
+            return None
+        fc = self.config.force
+        chain.set(leveling_limit=fc.leveling_limit)
+        if self.warp_drift is not None:
+            d = self.warp_drift
+            chain.set(stiffness=d.stiffness, drift_tc=d.time_constant, drift_horizon=d.horizon,
+                      drift_limit=d.limit)
+        if self.governor is not None:
+            g = self.governor
+            chain.set(gov_z=g.z, gov_drive_tc=g.drive_time_constant, gov_high_pass=g.high_pass,
+                      gov_window=g.window, gov_min_speed=g.min_speed)
+        if self.side_swing is not None:
+            chain.set(side_window=self.side_swing.window)
+        return chain
 
     def _init_loop_state(self) -> None:
         super()._init_loop_state()
         self.last_feedback: ForceFeedback | None = None
+        self._reserve_kept = None
         for part in ("servo", "warp_drift", "governor", "side_swing"):
             if getattr(self, part, None) is not None:
                 getattr(self, part).reset()
@@ -262,24 +290,73 @@ class MpcController(Controller):
         offset = 0.0
         drift = None
         if self.feedback is not None:
-            fb = self._compensated(self.feedback.measure(state, self.force_model), state)
-            self.last_feedback = fb
-            if self.warp is not None:
-                offset = leveling_offset(fb.forces, self.force_constraint.thresholds,
-                                         fb.in_contact, self.config.force.leveling_limit)
-                if self.warp_drift is not None:
-                    self.warp_drift.update(fb, float(q[SUSPENSION_AXES[0]]
-                                                     - q[SUSPENSION_AXES[1]]))
-                    drift = self.warp_drift.drift(self.planner.node_starts)
-            if self.governor is not None or self.side_swing is not None:
-                speed = float(np.hypot(state.base_twist[0], state.base_twist[1]))
-                if self.governor is not None:
-                    self._govern(fb, speed)
-                if self.side_swing is not None and self.side_reserve is not None:
-                    self._side_reserve(fb, speed)
+            measured = self.feedback.measure(state, self.force_model)
+            done = (None if self._chain is None
+                    else self._chained_feedback(measured, state, q))
+            fb, offset, drift = (self._feedback_steps(measured, state, q) if done is None
+                                 else done)
         return self.planner.context(state, ref, self._last_qdd, self._speed_scale, q=q,
                                     qd=qd, free=free, feedback=fb, warp=self.warp,
                                     leveling_offset=offset, warp_drift=drift)
+
+    def _feedback_steps(self, measured: ForceFeedback, state: MachineState,
+                        q: np.ndarray) -> tuple[ForceFeedback, float, np.ndarray | None]:
+        """(feedback, leveling offset, warp drift) of the split measured: numpy's steps.
+
+        The reference of `_chained_feedback`: the compensation, the leveling offset, the
+        warp drift, the speed governor's cap and the side reserve.
+        """
+        fb = self._compensated(measured, state)
+        self.last_feedback = fb
+        offset = 0.0
+        drift = None
+        if self.warp is not None:
+            offset = leveling_offset(fb.forces, self.force_constraint.thresholds,
+                                     fb.in_contact, self.config.force.leveling_limit)
+            if self.warp_drift is not None:
+                self.warp_drift.update(fb, float(q[SUSPENSION_AXES[0]]
+                                                 - q[SUSPENSION_AXES[1]]))
+                drift = self.warp_drift.drift(self.planner.node_starts)
+        if self.governor is not None or self.side_swing is not None:
+            speed = float(np.hypot(state.base_twist[0], state.base_twist[1]))
+            if self.governor is not None:
+                self._govern(fb, speed)
+            if self.side_swing is not None and self.side_reserve is not None:
+                self._side_reserve(fb, speed)
+        return fb, offset, drift
+
+    def _chained_feedback(self, measured: ForceFeedback, state: MachineState,
+                          q: np.ndarray) -> tuple | None:
+        """`_feedback_steps` in one C call (`wbc.force_models.chain_c`), the same bits.
+
+        None where the chain does not take the tick (a governor on the numpy path); the
+        side swing's measure (``side_reserve_z > 0``) stays numpy's, after the call.
+        """
+        servo, side = self.servo, None
+        swing = self.config.force.side_reserve_z > 0
+        if self.side_swing is not None and self.side_reserve is not None and not swing:
+            side = self.side_swing
+        fcon = self.force_constraint
+        out = self._chain.run(
+            measured, None if servo is None else servo.setpoint, state.servo_setpoint,
+            q[SUSPENSION_AXES[0]] - q[SUSPENSION_AXES[1]], state.base_twist,
+            self._speed_scale, fcon.thresholds, self.planner.node_starts, self.warp_drift,
+            self.governor, side)
+        if out is None:
+            return None
+        forces, offset, drift, speed, cap = out
+        fb = (measured if forces is None else
+              ForceFeedback.of(forces, measured.model_forces, measured.in_contact,
+                               measured.time))
+        self.last_feedback = fb
+        if cap is not None:
+            self.speed_limit.cap = cap
+        if self.side_swing is not None and self.side_reserve is not None:
+            if side is None:
+                self._side_reserve(fb, speed)
+            else:
+                self._set_side_reserve()
+        return fb, offset, drift
 
     def _govern(self, fb: ForceFeedback, speed: float) -> None:
         """Cap the speed scale by the speed governor (`wbc.force_models.fluctuation`).
@@ -298,8 +375,24 @@ class MpcController(Controller):
         fc = self.config.force
         self.side_swing.update(fb.forces, fb.in_contact, fb.time, speed,
                                swing=fc.side_reserve_z > 0)  # the floor needs the speed only
-        reserve = np.maximum(fc.side_reserve, fc.side_reserve_z * self.side_swing.sigma)
-        self.side_reserve.set_reserve(reserve if self.side_swing.driving else np.zeros(2))
+        self._set_side_reserve()
+
+    def _set_side_reserve(self) -> None:
+        """`SideReserveConstraint.set_reserve` of the side swing's reserve now.
+
+        Its value changes only with ``driving`` and ``sigma`` (a new array at each update):
+        while both and the constraint's reserve are the ones set last, it is not set again
+        (the same numbers).
+        """
+        fc, swing = self.config.force, self.side_swing
+        key = (swing.driving, swing.sigma)
+        kept = self._reserve_kept
+        if (kept is not None and kept[0] == key[0] and kept[1] is key[1]
+                and self.side_reserve.reserve is kept[2]):
+            return
+        reserve = np.maximum(fc.side_reserve, fc.side_reserve_z * swing.sigma)
+        self.side_reserve.set_reserve(reserve if key[0] else np.zeros(2))
+        self._reserve_kept = (*key, self.side_reserve.reserve)
 
     def _build(self, ctx: HorizonContext) -> qpsolvers.Problem:
         return self.planner.build(ctx)

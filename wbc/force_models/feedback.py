@@ -40,6 +40,7 @@ lagging it by the loop's time constant (~0.1 s here, against twist rates of 20-4
 from __future__ import annotations
 
 from dataclasses import dataclass
+from math import isfinite
 
 import numpy as np
 
@@ -56,7 +57,6 @@ __all__ = ["DIAGONAL", "ClosureFeedback", "ForceFeedback", "WarpDrift", "levelin
            "warp_matrix", "warp_stiffness"]
 
 DIAGONAL = np.array([1.0, -1.0, -1.0, 1.0])  # FL, RL, FR, RR: the free (warp) direction
-_all = np.logical_and.reduce  # `ndarray.all` of a 1-D array without its Python dispatch
 
 
 def warp_stiffness(machine: Machine, q=None) -> float:
@@ -165,8 +165,9 @@ class ClosureFeedback:
         except MODEL_ERRORS as exc:
             raise ForceModelError(f"force feedback failed at t={state.time:.3f} s: "
                                   f"{type(exc).__name__}: {exc}") from exc
-        if f.shape != (4,) or g.shape != (4,) or not (_all(np.isfinite(f))
-                                                      and _all(np.isfinite(g))):
+        # the eight finite checks on Python floats (`np.isfinite`'s answers, ~1 us less)
+        if f.shape != (4,) or g.shape != (4,) or not all(map(isfinite, f.tolist()
+                                                              + g.tolist())):
             raise ForceModelError(f"force feedback returned {f} and {g}")
         if state.suspension_force is None:
             f = g.copy()

@@ -43,6 +43,19 @@ class MpcPlan:
     slack: np.ndarray
     solution: QPSolution
 
+    @classmethod
+    def of(cls, inputs: np.ndarray, positions: np.ndarray, velocities: np.ndarray,
+           speed_scale: float, slack: np.ndarray, solution: QPSolution) -> MpcPlan:
+        """``MpcPlan(...)`` without the frozen dataclass's per-field setattr.
+
+        The fields set as its ``__init__`` sets them (it has no ``__post_init__``): one a
+        tick.
+        """
+        plan = object.__new__(cls)
+        plan.__dict__.update(inputs=inputs, positions=positions, velocities=velocities,
+                             speed_scale=speed_scale, slack=slack, solution=solution)
+        return plan
+
 
 class MpcPlanner:
     """Receding-horizon QP over a condensed double-integrator prediction.
@@ -183,4 +196,4 @@ class MpcPlanner:
         s = 1.0 if lay.scale is None else float(sol.x[lay.scale])
         slack = np.zeros(4) if lay.slack is None else sol.x[lay.slack].copy()
         self._plan, self._plan_time = u.copy(), ctx.state.time
-        return MpcPlan(u, qs, vs, s, slack, sol)
+        return MpcPlan.of(u, qs, vs, s, slack, sol)

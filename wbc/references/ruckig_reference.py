@@ -286,6 +286,29 @@ class RuckigReference:
             # `kept`'s trajectory time of times[0]; the row is the clipped sample there
             self.keep_position(max(float(times[0]) - self.start_time, 0.0), position[0, i])
 
+    def sample_nodes_into(self, tau: float, rate: float, offsets: np.ndarray,
+                          position: np.ndarray, velocity: np.ndarray,
+                          acceleration: np.ndarray) -> None:
+        """`sample_columns_into` at the times ``tau + rate * offsets`` [s] (the same bits).
+
+        The controller's node samples (``offsets`` its node times, float64 (m,)): the times
+        are made in the compiled call where it can (`sample_c.CompiledTrajectory.
+        sample_nodes`); a held reference does not need them.
+        """
+        i = self.index
+        if not self._planned:
+            self.sample_columns_into(offsets, rate, position, velocity, acceleration)
+            return
+        if self.compiled and self._compiled_loaded and isinstance(i, slice):
+            first = self._compiled.sample_nodes(tau, rate, offsets, self.start_time, i.start,
+                                                position, velocity, acceleration)
+            if first is not None:
+                if len(offsets):
+                    self.keep_position(max(first - self.start_time, 0.0), position[0, i])
+                return
+        self.sample_columns_into(tau + rate * offsets, rate, position, velocity,
+                                 acceleration)
+
     def sample_many_into(self, times, rate: float, position: np.ndarray,
                          velocity: np.ndarray, acceleration: np.ndarray) -> None:
         """`sample_many` written into arrays of shape (len(times), n), views are fine.

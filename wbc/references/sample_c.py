@@ -19,12 +19,19 @@ is this (`models.cbuild`).
 from __future__ import annotations
 
 import ctypes
+import math
 
 import numpy as np
 
-from models.cbuild import address, load_shared
+from models.cbuild import address, bind, load_shared
 
-__all__ = ["PROFILE_SIZE", "SAMPLE_C", "CompiledTrajectory", "compiled_trajectory"]
+__all__ = ["NODE_POINTERS", "NODE_SCALARS", "PROFILE_SIZE", "SAMPLE_C", "CompiledTrajectory",
+           "compiled_trajectory"]
+
+# ``sample_nodes``'s packed arguments, in their order.
+NODE_POINTERS = ("profiles", "offsets", "times", "lower", "upper", "position", "velocity",
+                 "acceleration")
+NODE_SCALARS = ("duration", "t0", "tau", "rate", "rate2", "m", "ld", "n")
 
 PROFILE_SIZE = 56  # doubles per axis: t, j (7), a, v, p (8), t_sum (7), the brake (11)
 
@@ -93,13 +100,26 @@ void sample(const double* prof, long n, double duration, double t0, const double
     }
   }
 }
+
+/* `sample` at the times tau + rate * offsets[k] (numpy's product, then its sum), written
+   to times[k] too; the arguments packed (`NODE_POINTERS`, `NODE_SCALARS`). */
+void sample_nodes(void* const* p, const double* s) {
+  const double* offsets = (const double*)p[1];
+  double* times = (double*)p[2];
+  long k, m = (long)s[5];
+  for (k = 0; k < m; ++k) times[k] = s[2] + s[3] * offsets[k];
+  sample((const double*)p[0], (long)s[7], s[0], s[1], times, m, s[3], s[4],
+         (const double*)p[3], (const double*)p[4], (double*)p[5], (double*)p[6],
+         (double*)p[7], (long)s[6]);
+}
 """
 
 
 def _library():
     p, lg, d = ctypes.c_void_p, ctypes.c_long, ctypes.c_double
     return load_shared(SAMPLE_C, "ruckig_sample", {
-        "sample": ([p, lg, d, d, p, lg, d, d, p, p, p, p, p, lg], None)},
+        "sample": ([p, lg, d, d, p, lg, d, d, p, p, p, p, p, lg], None),
+        "sample_nodes": ([p, p], None)},
         "Ruckig's at_time")
 
 
@@ -109,9 +129,10 @@ class CompiledTrajectory:
     Args:
         fun: `SAMPLE_C`'s ``sample``.
         lower, upper: The position limits the samples are clipped into, (n,).
+        nodes: `SAMPLE_C`'s ``sample_nodes`` (`sample_nodes`); None: not offered.
     """
 
-    def __init__(self, fun, lower: np.ndarray, upper: np.ndarray):
+    def __init__(self, fun, lower: np.ndarray, upper: np.ndarray, nodes=None):
         self.n = n = lower.size
         self.lower = np.ascontiguousarray(lower, dtype=float)
         self.upper = np.ascontiguousarray(upper, dtype=float)
@@ -121,6 +142,12 @@ class CompiledTrajectory:
         self._fun = fun
         self._args = (self.profiles.ctypes.data, n)
         self._limits = (self.lower.ctypes.data, self.upper.ctypes.data)
+        # `sample_nodes`'s packed arguments: the offsets copied when another array comes
+        self._node_p = np.zeros(len(NODE_POINTERS), np.uint64)
+        self._node_s = np.zeros(len(NODE_SCALARS))
+        self._node_p[[0, 3, 4]] = (self._args[0], *self._limits)
+        self._offsets_of: np.ndarray | None = None
+        self._nodes = bind(nodes, self._node_p, self._node_s) if nodes is not None else None
 
     def load(self, trajectory) -> bool:
         """Take ``trajectory``'s profiles (after each `Ruckig.calculate`).
@@ -193,7 +220,44 @@ class CompiledTrajectory:
         return True
 
 
+    def sample_nodes(self, tau: float, rate: float, offsets: np.ndarray, t0: float,
+                     first: int, position: np.ndarray, velocity: np.ndarray,
+                     acceleration: np.ndarray) -> float | None:
+        """`sample_columns` at the times ``tau + rate * offsets``, computed in the same call.
+
+        The MPC's node times every tick: numpy's ``tau + rate * offsets`` in C (its product,
+        then its sum, per element), the arguments packed, the offsets (a read-only array
+        kept by its owner, not changed in place) copied when another array comes. The
+        arrays as `sample_columns` takes them. Returns the first time (or NaN without
+        offsets), or None (nothing written) for arrays it cannot take.
+        """
+        m, k = position.shape
+        if not (self._nodes is not None and offsets.ndim == 1
+                and position.shape == velocity.shape
+                == acceleration.shape and m == offsets.shape[0] and 0 <= first
+                and first + self.n <= k and position.dtype == velocity.dtype
+                == acceleration.dtype == offsets.dtype == np.float64
+                and position.flags.c_contiguous
+                and velocity.flags.c_contiguous and acceleration.flags.c_contiguous
+                and position.flags.writeable and velocity.flags.writeable
+                and acceleration.flags.writeable):
+            return None
+        p = self._node_p
+        if offsets is not self._offsets_of:
+            self._offsets = np.array(offsets, float)
+            self._node_times = np.zeros(max(m, 1))
+            p[1], p[2] = address(self._offsets), address(self._node_times)
+            self._offsets_of = offsets
+        p[5] = address(position) + 8 * first
+        p[6] = address(velocity) + 8 * first
+        p[7] = address(acceleration) + 8 * first
+        self._node_s[:] = (self.duration, t0, tau, rate, rate**2, m, k, self.n)
+        self._nodes()
+        return float(self._node_times[0]) if m else math.nan
+
+
 def compiled_trajectory(lower: np.ndarray, upper: np.ndarray) -> CompiledTrajectory | None:
     """A `CompiledTrajectory` for these limits; None without a C compiler."""
     lib = _library()
-    return None if lib is None else CompiledTrajectory(lib.sample, lower, upper)
+    return None if lib is None else CompiledTrajectory(lib.sample, lower, upper,
+                                                       lib.sample_nodes)
