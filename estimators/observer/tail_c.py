@@ -24,16 +24,13 @@ returns a code: the observer runs the rest of the tick in Python.
 from __future__ import annotations
 
 import ctypes
-import glob
-import os
-
-import numpy as np
 
 from estimators._symbolic import LAYOUT
 from estimators.batch import SINGULAR_CONDITION
 from estimators.efforts_kernel import INPUTS
 from estimators.observer._states import STATE_SIZE
 from models.cbuild import load_shared
+from models.numpy_blas import numpy_blas
 from models.sensing import PRESSURE_CYLINDERS
 
 __all__ = ["HEAD_CODES", "POINTERS", "SCALARS", "TAIL_C", "compiled_tail", "numpy_blas"]
@@ -304,32 +301,3 @@ def compiled_tail():
         "tail_end": ([ctypes.c_void_p], ctypes.c_int)}, "Python")
 
 
-_BLAS_SYMBOLS = ("scipy_cblas_dgemv64_", "scipy_cblas_ddot64_", "scipy_dgesv_64_")
-
-
-def numpy_blas() -> tuple[int, int, int] | None:
-    """The addresses of ``cblas_dgemv``, ``cblas_ddot`` and ``dgesv`` that numpy calls.
-
-    numpy's wheels carry their own OpenBLAS (``scipy-openblas``, 64-bit integers, symbols
-    prefixed ``scipy_``); its ``ndarray.dot`` and ``@`` of a matrix and a vector end in
-    ``cblas_dgemv`` (a row and a vector: ``cblas_ddot``), ``linalg.solve`` in ``dgesv``. The
-    same routines on the same data give the same bits. None where numpy was built
-    otherwise (the observer then keeps numpy's calls).
-    """
-    try:
-        deps = np.show_config(mode="dicts")["Build Dependencies"]
-        blas, lapack = deps["blas"], deps["lapack"]
-        ok = (blas["name"] == lapack["name"] == "scipy-openblas"
-              and "USE64BITINT" in blas.get("openblas configuration", ""))
-    except (KeyError, TypeError, AttributeError):
-        return None
-    root = os.path.join(os.path.dirname(os.path.dirname(np.__file__)), "numpy.libs")
-    found = sorted(glob.glob(os.path.join(root, "libscipy_openblas64_*.so*")))
-    if not ok or len(found) != 1:
-        return None
-    try:
-        lib = ctypes.CDLL(found[0])  # numpy's: loaded already, the same handle
-        return tuple(ctypes.cast(getattr(lib, name), ctypes.c_void_p).value
-                     for name in _BLAS_SYMBOLS)
-    except (OSError, AttributeError):
-        return None

@@ -34,8 +34,8 @@ import ctypes
 
 import numpy as np
 
-from estimators.observer.tail_c import numpy_blas
 from models.cbuild import address, bind, load_shared
+from models.numpy_blas import numpy_blas
 from wbc.axes import N_AXES, SUSPENSION_AXES
 from wbc.force_models.feedback import DIAGONAL
 from wbc.force_models.fluctuation import _MIN_SCALE

@@ -53,8 +53,8 @@ import numpy as np
 import qpsolvers
 from scipy.linalg import lapack
 
-from estimators.observer.tail_c import numpy_blas
 from models.numeric import clip
+from models.numpy_blas import numpy_blas
 from wbc.errors import ConfigurationError, QPSolveError
 from wbc.solvers.box_screen import BIG as _BIG
 from wbc.solvers.box_screen import BlockSums, redundant_rows
