@@ -166,6 +166,25 @@ class QPBuilder:
         self._bounds_kept = (layout, boxes, lb.copy(), ub.copy()) if constant else None
         return lb, ub
 
+    def prepare(self, ctx) -> None:
+        """Make what the structure alone fixes before the first tick (`wbc.structure`).
+
+        ``ctx``: a `wbc.structure.StructureContext`. Each active task's and every
+        constraint's ``prepare`` (`Task.prepare`, `Constraint.prepare`), then, when every
+        active task gave its constant ``H``, their sum (`_hessian`: the first tick finds the
+        same arrays in the same order, or sums its own), the default bounds and the zeros
+        of ``q``. Nothing that depends on the state.
+        """
+        lay = ctx.layout
+        hessians = [task.prepare(ctx) for task in self.tasks if task.is_active(ctx)]
+        for con in self.constraints:
+            con.prepare(ctx)
+        if hessians and all(H is not None for H in hessians):
+            self._hessian(lay.n, hessians)
+        if lay is not self._layout:
+            self._defaults, self._layout = lay.default_bounds(), lay
+        self._zeros(lay.n)
+
     def build(self, ctx) -> QP:
         r"""The QP at ``ctx`` (a context with a ``layout``: `QPContext` or `HorizonContext`).
 

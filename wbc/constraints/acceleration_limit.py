@@ -21,6 +21,10 @@ class AccelerationLimit(Constraint):
         self._key = None
         self._box: Box | None = None
 
+    def prepare(self, ctx) -> None:
+        """The box of ``ctx``'s layout and limits, now (`Constraint.prepare`)."""
+        self.compute(ctx)
+
     def compute(self, ctx) -> Box:
         """Box on all axis accelerations."""
         lay = ctx.layout

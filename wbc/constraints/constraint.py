@@ -55,6 +55,14 @@ class Constraint(abc.ABC):
     def compute(self, ctx) -> Inequality | Box | None:
         """The constraint at this context; None when inactive."""
 
+    def prepare(self, ctx) -> None:
+        """Make what depends on the structure alone before the first tick (`wbc.structure`).
+
+        ``ctx`` is a `wbc.structure.StructureContext` (layout, prediction, period, limits):
+        what `compute` would make for that structure at its first tick, the same arrays,
+        and nothing that depends on the state. Nothing by default.
+        """
+
 
 @functools.lru_cache(maxsize=8)
 def _unbounded(n: int) -> tuple[np.ndarray, np.ndarray]:
