@@ -37,14 +37,19 @@ def _controller(machine, monkeypatch, feedback: bool = True):
     return ctrl, KinematicPlant(st, 0.01)
 
 
-def _run(ctrl, plant, ticks: int) -> list:
-    """Per tick: the QP's arrays, the command, the plan and the logged force rows, as bytes."""
+def _run(ctrl, plant, ticks: int, Gs: list | None = None) -> list:
+    """Per tick: the QP's arrays, the command, the plan and the logged force rows, as bytes.
+
+    ``Gs``: gets each tick's ``G``.
+    """
     qps = []
     build = ctrl.planner.builder.build
 
     def kept(ctx):
         qp = build(ctx)
         qps.append(tuple(getattr(qp, k).tobytes() for k in FIELDS))
+        if Gs is not None:
+            Gs.append(qp.G)
         return qp
 
     ctrl.planner.builder.build = kept
@@ -85,8 +90,10 @@ def test_a_prepared_planner_gives_the_bits_of_an_unprepared_one(machine, monkeyp
     for t in tasks:  # a Jacobian made at the first tick would be a cache not found
         monkeypatch.setattr(t, "compute_jacobian",
                             lambda ctx, f=t.compute_jacobian: made.append(1) or f(ctx))
-    first = _run(ctrl, plant, 1)
+    spare, Gs = planner.builder._spare, []
+    first = _run(ctrl, plant, 1, Gs)
     assert made == []
+    assert spare is not None and Gs[0] is spare  # the first G's array made beforehand
     assert all(t._H is H for t, H in zip(tasks, hessians))
     assert ctrl.force_constraint._structure_cache[1] is struct
     assert P is not None and (planner.builder._P is P) == (not feedback)

@@ -40,10 +40,10 @@ class HorizonLimit(Constraint):
     def _matrix(self, prediction) -> np.ndarray:
         """``P`` (N 9, n): ``y = P x + y_free``."""
 
-    def prepare(self, ctx) -> None:
+    def prepare(self, ctx) -> int:
         """``[P; -P]`` and the compiled ``h`` of ``ctx``'s structure (`Constraint.prepare`)."""
-        self._rows(ctx, self._matrix(ctx.prediction))
         self._compiled(np.empty((ctx.layout.n_steps, N_AXES)))
+        return self._rows(ctx, self._matrix(ctx.prediction)).shape[0]
 
     def _rows(self, ctx, P: np.ndarray) -> np.ndarray:
         """``[P; -P]``, read-only, made once per structure."""
