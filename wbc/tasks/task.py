@@ -156,10 +156,12 @@ class ConstantJacobianTask(Task):
     def prepare(self, ctx) -> np.ndarray | None:
         """Make the cache of ``ctx``'s structure now, as the first tick would; ``H``.
 
-        ``c`` is left to the first tick, with `constant_error` too (a subclass's error
-        may still read the tick's context).
+        With `constant_error` the whole objective (its error depends on the structure and
+        the weights alone).
         """
         self._fill(ctx, self.compute_weight(ctx), self.structure_key(ctx))
+        if self.constant_error:
+            return self.compute_qp_objective(ctx)[0]
         return self._H
 
     def _linear_term(self, ctx) -> np.ndarray:
