@@ -80,7 +80,15 @@ def test_a_prepared_planner_gives_the_bits_of_an_unprepared_one(machine, monkeyp
     plain = _run(*_controller(machine, monkeypatch, feedback), 40)
     ctrl, plant = _controller(machine, monkeypatch, feedback)
     planner = ctrl.planner
+    model = ctrl.force_model
+    if not hasattr(model, "prepare_nodes"):  # the estimator's hook, as `PayloadEstimator`'s
+        monkeypatch.setattr(model, "prepare_nodes", lambda n, m: prepare_rows(model._est, n, m),
+                            raising=False)
     prepare_planner(planner)
+    fmap = ctrl.force_constraint._compiled_map
+    buffers = fmap.iv, fmap.arrays["rows"]
+    nodes = model._est._calls.__dict__["linearize_rows"]
+    assert ctrl.force_constraint._offsets[0] is LINEARIZATION_VIEWS
     tasks = [t for t in planner.tasks if isinstance(t, ConstantJacobianTask)
              and t.is_active(_context(planner))]
     hessians = [t._H for t in tasks]
@@ -96,6 +104,8 @@ def test_a_prepared_planner_gives_the_bits_of_an_unprepared_one(machine, monkeyp
     assert spare is not None and Gs[0] is spare  # the first G's array made beforehand
     assert all(t._H is H for t, H in zip(tasks, hessians))
     assert ctrl.force_constraint._structure_cache[1] is struct
+    assert fmap.iv is buffers[0] and fmap.arrays["rows"] is buffers[1]  # not made again
+    assert model._est._calls.__dict__["linearize_rows"] is nodes
     assert P is not None and (planner.builder._P is P) == (not feedback)
     assert first + _run(ctrl, plant, 39) == plain
 
