@@ -121,6 +121,7 @@ int linearize_rows(kernel_t f, const double* const* p, const ci* iv, const doubl
 _IV = ("n", "n_in", "n_out", "m", "nq", "sz_arg", "sz_res", "rot", "acc", "n_acc", "q", "qd",
        "qdd", "cond", "sum", "twist", "predict", "first")
 _PREDICT, _FIRST = _IV.index("predict"), _IV.index("first")
+_ALL_IN = np.ones(4, bool)
 
 
 class _Nodes:
@@ -273,7 +274,10 @@ def prepare_rows(est, n: int, m: int) -> tuple | None:
     What the first call with n states of m given coordinates makes (`_Nodes`, bound to
     ``est``'s coordinate ranges), made before a controller's clock starts; nothing is
     evaluated, counted or kept of a state. The buffers are the first call's: ``capacity``
-    ``max(n, 1)`` unless this thread has some for n already.
+    ``max(n, 1)`` unless this thread has some for n already. Also the packer's selectors
+    of a state with every wheel in contact, with and without suspension forces
+    (`RowPacker.selectors`, a memo of `full_dynamics.select_system`: the likely first
+    states; another contact pattern makes its own at its first call).
 
     Returns:
         ``(views, width)``: the `RowViews` and width of the kernel rows that
@@ -284,6 +288,8 @@ def prepare_rows(est, n: int, m: int) -> tuple | None:
     if nodes is None:
         return None
     nodes.bound(est)
+    for suspension_force in (False, True):
+        est._packer.selectors(_ALL_IN, suspension_force, est.D, est.beta)
     return LINEARIZATION_VIEWS, nodes.out.shape[1]
 
 
