@@ -84,7 +84,14 @@ def test_a_prepared_planner_gives_the_bits_of_an_unprepared_one(machine, monkeyp
     if not hasattr(model, "prepare_nodes"):  # the estimator's hook, as `PayloadEstimator`'s
         monkeypatch.setattr(model, "prepare_nodes", lambda n, m: prepare_rows(model._est, n, m),
                             raising=False)
+    caches = (model._last, model._kept, model._stepped, model.n_clipped)
     prepare_planner(planner)
+    fc, effort = ctrl.force_constraint, ctrl.effort_limit
+    # nothing of a state: no logged rows, no efforts, nothing counted or kept by the model
+    assert fc.last_forces_map is None and fc.last_in_contact is None
+    assert fc.linearization_steps.size == 0 and (effort is None or effort._last is None)
+    assert all(a is b for a, b in zip(caches, (model._last, model._kept, model._stepped,
+                                               model.n_clipped)))
     fmap = ctrl.force_constraint._compiled_map
     buffers = fmap.iv, fmap.arrays["rows"]
     nodes = model._est._calls.__dict__["linearize_rows"]
