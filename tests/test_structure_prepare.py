@@ -20,6 +20,7 @@ from wbc.axes import N_AXES
 from wbc.controllers.registry import estimator_models
 from wbc.mpc.prediction import CondensedPrediction
 from wbc.structure import StructureContext, prepare_planner
+from wbc.tasks import HorizonLevelingTask
 from wbc.tasks.task import ConstantJacobianTask
 
 FIELDS = ("P", "q", "G", "h", "lb", "ub")
@@ -67,16 +68,16 @@ def _run(ctrl, plant, ticks: int, Gs: list | None = None) -> list:
     return out
 
 
-def _context(planner, prediction=None, dt=None) -> StructureContext:
+def _context(planner, prediction=None, dt=None, warp=None) -> StructureContext:
     return StructureContext(planner.layout, prediction or planner.prediction,
-                            planner.dt if dt is None else dt, planner.limits)
+                            planner.dt if dt is None else dt, planner.limits, warp)
 
 
 @pytest.mark.parametrize("feedback", [True, False])
 def test_a_prepared_planner_gives_the_bits_of_an_unprepared_one(machine, monkeypatch,
                                                                  feedback):
-    """With the feedback the warp is modelled: `HorizonLevelingTask` (not prepared: it needs
-    the warp matrix) is active at the ticks, and the first tick sums its own Hessian."""
+    """With the feedback the warp is modelled: `HorizonLevelingTask`, prepared with the
+    controller's warp matrix, is active at the ticks."""
     plain = _run(*_controller(machine, monkeypatch, feedback), 40)
     ctrl, plant = _controller(machine, monkeypatch, feedback)
     planner = ctrl.planner
@@ -85,7 +86,7 @@ def test_a_prepared_planner_gives_the_bits_of_an_unprepared_one(machine, monkeyp
         monkeypatch.setattr(model, "prepare_nodes", lambda n, m: prepare_rows(model._est, n, m),
                             raising=False)
     caches = (model._last, model._kept, model._stepped, model.n_clipped)
-    prepare_planner(planner)
+    prepare_planner(planner, ctrl.warp)
     fc, effort = ctrl.force_constraint, ctrl.effort_limit
     # nothing of a state: no logged rows, no efforts, nothing counted or kept by the model
     assert fc.last_forces_map is None and fc.last_in_contact is None
@@ -97,7 +98,8 @@ def test_a_prepared_planner_gives_the_bits_of_an_unprepared_one(machine, monkeyp
     nodes = model._est._calls.__dict__["linearize_rows"]
     assert ctrl.force_constraint._offsets[0] is LINEARIZATION_VIEWS
     tasks = [t for t in planner.tasks if isinstance(t, ConstantJacobianTask)
-             and t.is_active(_context(planner))]
+             and t.is_active(_context(planner, warp=ctrl.warp))]
+    assert len(tasks) == 6 + feedback  # the leveling task with the warp
     hessians = [t._H for t in tasks]
     struct = ctrl.force_constraint._structure_cache[1]
     P = planner.builder._P
@@ -113,24 +115,31 @@ def test_a_prepared_planner_gives_the_bits_of_an_unprepared_one(machine, monkeyp
     assert ctrl.force_constraint._structure_cache[1] is struct
     assert fmap.iv is buffers[0] and fmap.arrays["rows"] is buffers[1]  # not made again
     assert model._est._calls.__dict__["linearize_rows"] is nodes
-    assert P is not None and (planner.builder._P is P) == (not feedback)
+    assert P is not None and planner.builder._P is P
     assert first + _run(ctrl, plant, 39) == plain
 
 
-@pytest.mark.parametrize("other", ["steps", "dt"])
+@pytest.mark.parametrize("other", ["steps", "dt", "warp"])
 def test_a_structure_prepared_for_another_is_rebuilt(machine, monkeypatch, other):
     plain = _run(*_controller(machine, monkeypatch), 12)
     ctrl, plant = _controller(machine, monkeypatch)
     planner = ctrl.planner
     if other == "steps":
         steps = planner.prediction.step_lengths * 1.5
-        ctx = _context(planner, prediction=CondensedPrediction(planner.layout, steps))
+        ctx = _context(planner, prediction=CondensedPrediction(planner.layout, steps),
+                       warp=ctrl.warp)
+    elif other == "dt":
+        ctx = _context(planner, dt=2 * planner.dt, warp=ctrl.warp)
     else:
-        ctx = _context(planner, dt=2 * planner.dt)
+        ctx = _context(planner, warp=2 * ctrl.warp)
     planner.builder.prepare(ctx)
     struct = ctrl.force_constraint._structure_cache[1]
+    leveling = next(t for t in planner.tasks if isinstance(t, HorizonLevelingTask))
+    H = leveling._H
+    assert H is not None
     assert _run(ctrl, plant, 12) == plain
-    assert ctrl.force_constraint._structure_cache[1] is not struct
+    assert leveling._H is not H
+    assert (ctrl.force_constraint._structure_cache[1] is struct) == (other == "warp")
 
 
 def test_planner_construction_prepares(machine):

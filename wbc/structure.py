@@ -15,6 +15,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numpy as np
+
 from wbc.axes import AxisLimits
 from wbc.layout import VariableLayout
 
@@ -30,15 +32,16 @@ class StructureContext:
         prediction: Its `wbc.mpc.prediction.CondensedPrediction`.
         dt: The control period [s].
         limits: Its axis limits.
-        warp: None: the chassis warp is state (the controller's feedback); a task that
-            needs it (`wbc.tasks.HorizonLevelingTask`) is not prepared.
+        warp: The warp matrix the ticks' contexts will hold (`HorizonContext.warp`, the
+            controller's, read-only), for `wbc.tasks.HorizonLevelingTask`; None: not
+            known (that task is then not prepared).
     """
 
     layout: VariableLayout
     prediction: object
     dt: float
     limits: AxisLimits
-    warp: None = None
+    warp: np.ndarray | None = None
 
     @property
     def structure_key(self) -> tuple:
@@ -51,12 +54,13 @@ class StructureContext:
         return self.layout.n_steps
 
 
-def prepare_planner(planner) -> None:
+def prepare_planner(planner, warp: np.ndarray | None = None) -> None:
     """Make a `wbc.mpc.MpcPlanner`'s structure-only caches now (the module docstring).
 
     Called when the planner is built; again after its tasks, constraints or prediction
-    change (or not: the first tick of a new structure then makes them).
+    change (or not: the first tick of a new structure then makes them), or with the warp
+    matrix its controller will put in the contexts (`StructureContext.warp`).
     """
     ctx = StructureContext(planner.layout, planner.prediction, float(planner.dt),
-                           planner.limits)
+                           planner.limits, warp)
     planner.builder.prepare(ctx)
