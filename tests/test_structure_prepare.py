@@ -148,6 +148,9 @@ def test_planner_construction_prepares(machine):
     if not hasattr(planner_module, "prepare_planner"):
         pytest.skip("the planner does not prepare itself")
     assert ctrl.force_constraint._structure_cache is not None
+    if model._est.backend == "compiled":  # the model's node buffers (`prepare_nodes`)
+        assert ctrl.force_constraint._offsets[0] is LINEARIZATION_VIEWS
+        assert "linearize_rows" in model._est._calls.__dict__
     assert all(t._cache_key is not None for t in ctrl.planner.tasks
                if isinstance(t, ConstantJacobianTask) and t.is_active(_context(ctrl.planner)))
 
@@ -173,3 +176,5 @@ def test_prepared_rows_are_the_first_calls(machine):
     assert a[1].tobytes() == b[1].tobytes()
     quasi = PayloadEstimator(machine, method="quasi-static")
     assert prepare_rows(quasi._est, 2, N_AXES) is None
+    assert quasi.prepare_nodes(2, N_AXES) is None
+    assert fresh.prepare_nodes(2, N_AXES) == (views, width)
