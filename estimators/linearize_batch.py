@@ -30,7 +30,8 @@ from estimators.linearization import ForceLinearization
 from models.cbuild import bind, load_shared
 from models.state import MachineState
 
-__all__ = ["NODES_C", "library", "linearize_first", "linearize_rows", "linearize_states"]
+__all__ = ["NODES_C", "library", "linearize_first", "linearize_rows", "linearize_states",
+           "prepare_rows"]
 
 NODES_C = r"""
 #include <float.h>
@@ -120,6 +121,7 @@ int linearize_rows(kernel_t f, const double* const* p, const ci* iv, const doubl
 _IV = ("n", "n_in", "n_out", "m", "nq", "sz_arg", "sz_res", "rot", "acc", "n_acc", "q", "qd",
        "qdd", "cond", "sum", "twist", "predict", "first")
 _PREDICT, _FIRST = _IV.index("predict"), _IV.index("first")
+_ALL_IN = np.ones(4, bool)
 
 
 class _Nodes:
@@ -266,18 +268,37 @@ def linearize_first(est, state: MachineState, dt: np.ndarray, q_head: np.ndarray
     return first, (out[1:] if status == 0 else None)
 
 
-def _evaluate(est, state: MachineState, dt: np.ndarray, rotation: np.ndarray | None,
-              q_head: np.ndarray, qd_head: np.ndarray, first: int = 0,
-              q0: np.ndarray | None = None) -> tuple | None:
-    """(kept output rows, `Selectors`, contact flags, C status) of the n states, or None.
+def prepare_rows(est, n: int, m: int) -> tuple | None:
+    """Make this thread's buffers and C call for `linearize_first` of n states now.
 
-    ``rotation`` None: each state's rotation predicted in C (`linearize_rows`). ``first``
-    1: the state itself first (out's row 0, then the n states), 2: with its coordinates
-    ``q0`` (`linearize_first`). None: nothing evaluated; without ``first``, also a nonzero
-    status.
+    What the first call with n states of m given coordinates makes (`_Nodes`, bound to
+    ``est``'s coordinate ranges), made before a controller's clock starts; nothing is
+    evaluated, counted or kept of a state. The buffers are the first call's: ``capacity``
+    ``max(n, 1)`` unless this thread has some for n already. Also the packer's selectors
+    of a state with every wheel in contact, with and without suspension forces
+    (`RowPacker.selectors`, a memo of `full_dynamics.select_system`: the likely first
+    states; another contact pattern makes its own at its first call).
+
+    Returns:
+        ``(views, width)``: the `RowViews` and width of the kernel rows that
+        `linearize_first` and `linearize_rows` give (`LINEARIZATION_VIEWS`); None where
+        they give none (no compiled kernel, the quasi-static method).
     """
-    n, m = q_head.shape
-    if est.backend != "compiled" or est._qs is not None or n + first == 0:
+    nodes = _nodes(est, n, m)
+    if nodes is None:
+        return None
+    nodes.bound(est)
+    for suspension_force in (False, True):
+        est._packer.selectors(_ALL_IN, suspension_force, est.D, est.beta)
+    return LINEARIZATION_VIEWS, nodes.out.shape[1]
+
+
+def _nodes(est, n: int, m: int) -> _Nodes | None:
+    """This thread's `_Nodes` for n states of m coordinates (made if it has none that fit).
+
+    None: no compiled kernel or loop here (`_evaluate` leaves the states to ``est``).
+    """
+    if est.backend != "compiled" or est._qs is not None:
         return None
     calls = est._calls.__dict__
     nodes = calls.get("linearize_rows")
@@ -289,6 +310,25 @@ def _evaluate(est, state: MachineState, dt: np.ndarray, rotation: np.ndarray | N
         if not isinstance(kernel, Compiled):  # it did not compile: CasADi's VM
             return None
         nodes = calls["linearize_rows"] = _Nodes(lib, kernel, max(n, 1), m)
+    return nodes
+
+
+def _evaluate(est, state: MachineState, dt: np.ndarray, rotation: np.ndarray | None,
+              q_head: np.ndarray, qd_head: np.ndarray, first: int = 0,
+              q0: np.ndarray | None = None) -> tuple | None:
+    """(kept output rows, `Selectors`, contact flags, C status) of the n states, or None.
+
+    ``rotation`` None: each state's rotation predicted in C (`linearize_rows`). ``first``
+    1: the state itself first (out's row 0, then the n states), 2: with its coordinates
+    ``q0`` (`linearize_first`). None: nothing evaluated; without ``first``, also a nonzero
+    status.
+    """
+    n, m = q_head.shape
+    if n + first == 0:
+        return None
+    nodes = _nodes(est, n, m)
+    if nodes is None:
+        return None
     sel, flags = est._pack(nodes.template, state, est.D, est.beta, nodes.raw)
     if sel.tipping:
         return None

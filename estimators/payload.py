@@ -28,7 +28,12 @@ from estimators._symbolic import LAYOUT
 from estimators.batch import SINGULAR_CONDITION
 from estimators.estimator import NormalForceEstimator
 from estimators.linearization import ForceLinearization
-from estimators.linearize_batch import linearize_first, linearize_rows, linearize_states
+from estimators.linearize_batch import (
+    linearize_first,
+    linearize_rows,
+    linearize_states,
+    prepare_rows,
+)
 from estimators.margin_kernel import (
     MARGIN_STEP,
     joint_kernel,
@@ -334,6 +339,20 @@ class PayloadEstimator:
         must be linearized one by one.
         """
         return linearize_rows(self._est, state, dt, q_head, qd_head)
+
+    def prepare_nodes(self, n: int, m: int) -> tuple | None:
+        """Make what `linearize_nodes`' first call with n later states makes, now.
+
+        `estimators.linearize_batch.prepare_rows`: this thread's buffers and C call for
+        n states of m given coordinates, bound to the coordinate ranges, made before a
+        controller's clock starts (`wbc.structure`); nothing of a state is evaluated,
+        counted or kept (the payload mass, the kept linearization as they were).
+
+        Returns:
+            ``(views, width)``: the `RowViews` and width of the kernel rows
+            `linearize_nodes` gives; None where it gives none.
+        """
+        return prepare_rows(self._est, n, m)
 
     def linearize_nodes(self, state: MachineState, dt: np.ndarray, q_head: np.ndarray,
                         qd_head: np.ndarray) -> tuple[ForceLinearization, np.ndarray | None]:

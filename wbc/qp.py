@@ -84,6 +84,7 @@ class QPBuilder:
         self._bounds_kept: tuple | None = None  # (layout, boxes, lb, ub): `_bounds`
         self._zero: np.ndarray | None = None  # `_zeros`
         self._rows: tuple | None = None  # (the last G, its constant blocks' places)
+        self._spare: np.ndarray | None = None  # `prepare`'s G for the first `_stacked_rows`
 
     def _stacked_rows(self, Gs: list, constant: tuple, diagonal: tuple, m: int) -> np.ndarray:
         """``np.concatenate(Gs)``, shape (m, n); the constant blocks' rows kept from the last.
@@ -94,16 +95,19 @@ class QPBuilder:
         are written (the MPC's 430 constant rows of 580 are not copied every tick). Of rows
         whose `DiagonalBlocks` are the last tick's in the same place only the blocks are
         written: the rest of those rows is zeros in both (the MPC's effort rows: 3 % of
-        their entries). Else a fresh array.
+        their entries). Else a fresh array: the first time the one `prepare` made, if it
+        has the shape (its pages already mapped: the first tick does not fault them in).
         """
         last, self._rows = self._rows, None
+        spare, self._spare = self._spare, None
         n = Gs[0].shape[1]
         # References to the last array: the tuple `last`, getrefcount's argument and the
         # kept views of its diagonal blocks.
         if (last is None or last[0].shape != (m, n)
                 or sys.getrefcount(last[0]) != 2 + len(last[3]) or len(last[1]) != len(constant)
                 or not all(a[0] == b[0] and a[1] is b[1] for a, b in zip(last[1], constant))):
-            G = np.concatenate(Gs)
+            G = np.concatenate(Gs, out=spare if spare is not None and spare.shape == (m, n)
+                               and all(b.dtype == spare.dtype for b in Gs) else None)
             views = {}
         else:
             G, kept, views = last[0], last[2], last[3]
@@ -165,6 +169,28 @@ class QPBuilder:
             raise WbcError(f"empty bounds on x[{i}]: [{lb[i]}, {ub[i]}]")
         self._bounds_kept = (layout, boxes, lb.copy(), ub.copy()) if constant else None
         return lb, ub
+
+    def prepare(self, ctx) -> None:
+        """Make what the structure alone fixes before the first tick (`wbc.structure`).
+
+        ``ctx``: a `wbc.structure.StructureContext`. Each active task's and every
+        constraint's ``prepare`` (`Task.prepare`, `Constraint.prepare`), then, when every
+        active task gave its constant ``H``, their sum (`_hessian`: the first tick finds the
+        same arrays in the same order, or sums its own); when every constraint said its
+        number of rows, an array for the first ``G`` with its pages mapped
+        (`_stacked_rows`; every entry is written there); the default bounds and the zeros
+        of ``q``. Nothing that depends on the state.
+        """
+        lay = ctx.layout
+        hessians = [task.prepare(ctx) for task in self.tasks if task.is_active(ctx)]
+        rows = [con.prepare(ctx) for con in self.constraints]
+        if hessians and all(H is not None for H in hessians):
+            self._hessian(lay.n, hessians)
+        if self._rows is None and rows and None not in rows and sum(rows) > 0:
+            self._spare = np.full((sum(rows), lay.n), 0.0)  # written: its pages mapped
+        if lay is not self._layout:
+            self._defaults, self._layout = lay.default_bounds(), lay
+        self._zeros(lay.n)
 
     def build(self, ctx) -> QP:
         r"""The QP at ``ctx`` (a context with a ``layout``: `QPContext` or `HorizonContext`).

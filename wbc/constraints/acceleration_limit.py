@@ -21,6 +21,11 @@ class AccelerationLimit(Constraint):
         self._key = None
         self._box: Box | None = None
 
+    def prepare(self, ctx) -> int:
+        """The box of ``ctx``'s layout and limits, now (`Constraint.prepare`); no rows."""
+        self.compute(ctx)
+        return 0
+
     def compute(self, ctx) -> Box:
         """Box on all axis accelerations."""
         lay = ctx.layout

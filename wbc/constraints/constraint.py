@@ -55,6 +55,20 @@ class Constraint(abc.ABC):
     def compute(self, ctx) -> Inequality | Box | None:
         """The constraint at this context; None when inactive."""
 
+    def prepare(self, ctx) -> int | None:
+        """Make what depends on the structure alone before the first tick (`wbc.structure`).
+
+        ``ctx`` is a `wbc.structure.StructureContext` (layout, prediction, period, limits):
+        what `compute` would make for that structure at its first tick, the same arrays,
+        and nothing that depends on the state. Nothing by default.
+
+        Returns:
+            The number of rows of ``G`` that `compute` gives at a tick of this structure
+            (0: a box, or inactive; for a state-dependent count its likely one, e.g. every
+            wheel in contact), None: not known (the default).
+        """
+        return None
+
 
 @functools.lru_cache(maxsize=8)
 def _unbounded(n: int) -> tuple[np.ndarray, np.ndarray]:

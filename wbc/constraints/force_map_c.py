@@ -178,6 +178,10 @@ class CompiledForceMap:
         self._key: tuple | None = None
         self._header: tuple | None = None
 
+    def prepare(self, struct, n_steps: int, n: int, scale, rows_shape: tuple) -> None:
+        """Make the buffers of a structure and rows' shape now, not at the first call."""
+        self._buffers(struct, n_steps, n, scale, rows_shape)
+
     def _buffers(self, struct, n_steps: int, n: int, scale, rows_shape: tuple) -> None:
         """The buffers of a structure (`HorizonNormalForceConstraint._structure`)."""
         kept = self._key

@@ -95,6 +95,13 @@ class HorizonEffortLimit(Constraint):
                                      axis_index(self.axes), rows)
         return self._structure_cache[1:]
 
+    def prepare(self, ctx) -> int:
+        """The structure of ``ctx`` and the compiled rows' bounds (`Constraint.prepare`)."""
+        _, _, g_shape, _, _, ax, rows = self._structure(ctx)
+        if rows is not None:
+            rows.set_bounds(self.upper, self.lower, self._scale, ax)
+        return g_shape[0]
+
     def compute(self, ctx) -> Inequality:
         """Two rows per crane axis and step: ``+-E u_k <= bound - e_0``."""
         lay, pred = ctx.layout, ctx.prediction

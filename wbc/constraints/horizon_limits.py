@@ -36,13 +36,27 @@ class HorizonLimit(Constraint):
                                       np.ndarray]:
         """``(P (N 9, n), lower (9,), upper (9,), brake (N, 9), free (N, 9))`` of ``y``."""
 
-    def compute(self, ctx) -> Inequality:
-        """``[P; -P] x <= [hi - y_free; y_free - lo]``."""
-        P, lower, upper, brake, free = self._quantity(ctx)
+    @abc.abstractmethod
+    def _matrix(self, prediction) -> np.ndarray:
+        """``P`` (N 9, n): ``y = P x + y_free``."""
+
+    def prepare(self, ctx) -> int:
+        """``[P; -P]`` and the compiled ``h`` of ``ctx``'s structure (`Constraint.prepare`)."""
+        self._compiled(np.empty((ctx.layout.n_steps, N_AXES)))
+        return self._rows(ctx, self._matrix(ctx.prediction)).shape[0]
+
+    def _rows(self, ctx, P: np.ndarray) -> np.ndarray:
+        """``[P; -P]``, read-only, made once per structure."""
         if self._key != ctx.structure_key:
             self._G = np.vstack([P, -P])
             self._G.setflags(write=False)  # the same rows every tick (`wbc.qp.QP`)
             self._key = ctx.structure_key
+        return self._G
+
+    def compute(self, ctx) -> Inequality:
+        """``[P; -P] x <= [hi - y_free; y_free - lo]``."""
+        P, lower, upper, brake, free = self._quantity(ctx)
+        self._rows(ctx, P)
         c = self._compiled(free)
         if c is not None and brake.shape == free.shape and upper.shape == (N_AXES,):
             return Inequality(self._G, c.h(upper, lower, brake, free))
@@ -70,6 +84,9 @@ class HorizonLimit(Constraint):
 class HorizonPositionLimit(HorizonLimit):
     """Stroke and joint position limits ``q_lo <= q_k <= q_hi`` (rows of ``Pq``)."""
 
+    def _matrix(self, prediction) -> np.ndarray:
+        return prediction.Pq
+
     def _quantity(self, ctx):
         lim = ctx.limits
         return (ctx.prediction.Pq, lim.position_lower, lim.position_upper,
@@ -78,6 +95,9 @@ class HorizonPositionLimit(HorizonLimit):
 
 class HorizonVelocityLimit(HorizonLimit):
     r"""Velocity (flow) limits ``v_lo <= \dot q_k <= v_hi`` (rows of ``Pv``)."""
+
+    def _matrix(self, prediction) -> np.ndarray:
+        return prediction.Pv
 
     def _quantity(self, ctx):
         lim = ctx.limits

@@ -179,6 +179,32 @@ class HorizonNormalForceConstraint(ForceRowsConstraint):
         self._structure_cache = (*cache[:2], ctx)
         return cache[1]
 
+    def prepare(self, ctx) -> int:
+        """What ``ctx``'s structure fixes, before the first tick (`Constraint.prepare`).
+
+        `_structure`; with the C force map and a model that prepares its nodes' kernel rows
+        (``prepare_nodes(n, m)``, `estimators.payload.PayloadEstimator`: its buffers and
+        C call for the later nodes, returning the rows' `RowViews` and width), the row
+        offsets and the force map's buffers for those rows (`_rows_map`); and the rows of
+        all four wheels in contact (`ForceRowsConstraint._rows`: other flags at the first
+        tick make theirs): their number.
+        """
+        struct = self._structure(ctx)
+        lay = ctx.layout
+        self._rows(ctx, np.ones(4, dtype=bool), struct.n_eval)
+        n_rows = 4 * struct.nodes.size  # the four wheels at each constrained node
+        prepare_nodes = getattr(self.model, "prepare_nodes", None)
+        if (self._kernel() is None or lay.n_axes != N_AXES or prepare_nodes is None
+                or not hasattr(self.model, "linearize_nodes")):
+            return n_rows
+        kernel_rows = prepare_nodes(struct.later_steps.size, N_AXES)
+        if kernel_rows is not None and getattr(kernel_rows[0], "slices", None) is not None:
+            views, width = kernel_rows
+            self._offsets = (views, row_offsets(views))
+            self._compiled_map.prepare(struct, lay.n_steps, lay.n, lay.scale,
+                                       (struct.steps.size, width))
+        return n_rows
+
     def linearize(self, ctx) -> tuple[np.ndarray, list[ForceLinearization], np.ndarray,
                                       np.ndarray]:
         """Evaluate the model along the nominal trajectory.

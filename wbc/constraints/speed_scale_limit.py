@@ -31,6 +31,10 @@ class SpeedScaleLimit(Constraint):
         self.cap = 1.0
         self._box: tuple | None = None  # (n, scale index, lo, hi, the read-only Box)
 
+    def prepare(self, ctx) -> int:
+        """No rows: a box, which the speed scale now sets (`Constraint.prepare`)."""
+        return 0
+
     def bounds(self, previous: float, dt: float) -> tuple[float, float]:
         """(lower, upper) for a previous scale and a period [s]."""
         lo = max(self.minimum, min(previous, 1.0) - self.rate * dt)

@@ -18,6 +18,7 @@ from wbc.mpc.context import HorizonContext
 from wbc.mpc.prediction import CondensedPrediction
 from wbc.qp import QPBuilder
 from wbc.solvers import DaqpBackend, ProxQPWorkspace, QPSolution, QpsolversBackend
+from wbc.structure import prepare_planner
 from wbc.tasks.task import Task
 
 __all__ = ["MpcPlan", "MpcPlanner"]
@@ -92,6 +93,7 @@ class MpcPlanner:
         self._plan_time = 0.0
         self._shift: tuple | None = None  # (elapsed time, the plan's step for each step)
         self._kept_times: tuple | None = None  # (prediction, `node_times`, `node_starts`)
+        prepare_planner(self)  # the structure's caches now, not in the first tick
 
     @property
     def horizon(self) -> float:

@@ -40,6 +40,10 @@ class HorizonLevelingTask(ConstantJacobianTask):
         """Active when the context has a warp model."""
         return ctx.warp is not None and float(self.weight) > 0
 
+    def prepare(self, ctx) -> np.ndarray | None:
+        """`ConstantJacobianTask.prepare` for ``ctx.warp``; None (nothing) without one."""
+        return None if ctx.warp is None else super().prepare(ctx)
+
     def structure_key(self, ctx):
         """The prediction's structure and the warp matrix (the Jacobian is ``row @ Pq``)."""
         return (ctx.structure_key, self._kept(ctx.warp)[0], self.force_scale)

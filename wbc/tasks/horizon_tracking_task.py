@@ -73,6 +73,13 @@ class HorizonTrackingTask(ConstantJacobianTask):
         self._weight_cache = (key, pw, vw, kept[3])
         return kept[3]
 
+    def prepare(self, ctx) -> np.ndarray:
+        """`ConstantJacobianTask.prepare` and `_linear_term`'s array of e."""
+        N = ctx.layout.n_steps
+        if self._error is None or self._error.shape[1] != N:
+            self._error = np.empty((2, N, self.axes.size))
+        return super().prepare(ctx)
+
     def compute_error(self, ctx) -> np.ndarray:
         """Zero-input prediction minus reference, positions then velocities."""
         i = self._columns

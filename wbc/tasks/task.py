@@ -87,6 +87,15 @@ class Task(abc.ABC):
     def compute_jacobian(self, ctx) -> np.ndarray:
         """Derivative of the residual with respect to x, shape (m, layout.n)."""
 
+    def prepare(self, ctx) -> np.ndarray | None:
+        """Make what depends on the structure alone before the first tick (`wbc.structure`).
+
+        ``ctx`` is a `wbc.structure.StructureContext` (layout, prediction, period, limits).
+        Returns the read-only ``H`` that `compute_qp_objective` returns at every tick of
+        that structure, or None where ``H`` depends on more (nothing made: the default).
+        """
+        return None
+
     def compute_qp_objective(self, ctx) -> Objective:
         """(H, c): ``J^T W J`` (n, n) and ``J^T W e`` (n,)."""
         jac = self.compute_jacobian(ctx)
@@ -126,20 +135,34 @@ class ConstantJacobianTask(Task):
         same_weight = weight is self._weight and not weight.flags.writeable
         if (self._cache_key is None or self._cache_key[0] != structure
                 or (not same_weight and self._cache_key[1] != weight.tobytes())):
-            key = (structure, weight.tobytes())
-            self._weight = weight
-            jac = self.compute_jacobian(ctx)
-            self._jw = jac.T * weight
-            self._H = self._jw @ jac
-            self._H.setflags(write=False)
-            self._c = None
-            self._cache_key = key
+            self._fill(ctx, weight, structure)
         if not self.constant_error:
             return self._H, self._linear_term(ctx)
         if self._c is None:
             self._c = self._linear_term(ctx)
             self._c.setflags(write=False)
         return self._H, self._c
+
+    def _fill(self, ctx, weight: np.ndarray, structure) -> None:
+        """Make the cache of ``structure`` and ``weight``: ``J^T W``, ``H``; ``c`` unset."""
+        self._weight = weight
+        jac = self.compute_jacobian(ctx)
+        self._jw = jac.T * weight
+        self._H = self._jw @ jac
+        self._H.setflags(write=False)
+        self._c = None
+        self._cache_key = (structure, weight.tobytes())
+
+    def prepare(self, ctx) -> np.ndarray | None:
+        """Make the cache of ``ctx``'s structure now, as the first tick would; ``H``.
+
+        With `constant_error` the whole objective (its error depends on the structure and
+        the weights alone).
+        """
+        self._fill(ctx, self.compute_weight(ctx), self.structure_key(ctx))
+        if self.constant_error:
+            return self.compute_qp_objective(ctx)[0]
+        return self._H
 
     def _linear_term(self, ctx) -> np.ndarray:
         """``c = J^T W e``, (n,), from the kept ``J^T W`` (the cache is current)."""
