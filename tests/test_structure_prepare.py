@@ -145,14 +145,17 @@ def test_a_structure_prepared_for_another_is_rebuilt(machine, monkeypatch, other
 def test_planner_construction_prepares(machine):
     model, feedback = estimator_models(machine, "full")
     ctrl = MpcController(machine, ControllerConfig(), force_model=model, feedback=feedback)
-    if not hasattr(planner_module, "prepare_planner"):
-        pytest.skip("the planner does not prepare itself")
     assert ctrl.force_constraint._structure_cache is not None
     if model._est.backend == "compiled":  # the model's node buffers (`prepare_nodes`)
         assert ctrl.force_constraint._offsets[0] is LINEARIZATION_VIEWS
         assert "linearize_rows" in model._est._calls.__dict__
     assert all(t._cache_key is not None for t in ctrl.planner.tasks
                if isinstance(t, ConstantJacobianTask) and t.is_active(_context(ctrl.planner)))
+    # The controller prepares the leveling task with the warp its contexts will carry.
+    assert ctrl.warp is not None
+    leveling = next(t for t in ctrl.planner.tasks if isinstance(t, HorizonLevelingTask))
+    assert leveling._H is not None
+    assert leveling._cache_key[0] == leveling.structure_key(_context(ctrl.planner, warp=ctrl.warp))
 
 
 def test_prepared_rows_are_the_first_calls(machine):

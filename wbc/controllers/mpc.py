@@ -40,6 +40,7 @@ from wbc.layout import VariableLayout
 from wbc.mpc.context import HorizonContext
 from wbc.mpc.planner import MpcPlan, MpcPlanner
 from wbc.solvers import make_solver
+from wbc.structure import prepare_planner
 from wbc.tasks import (
     HorizonInputTask,
     HorizonLevelingTask,
@@ -141,6 +142,8 @@ class MpcController(Controller):
                              feasible_by_construction=fc.soft)
         self.planner = MpcPlanner(self.limits, layout, mc.step_lengths(cfg.dt), cfg.dt, tasks,
                                   constraints, solver)
+        if self.warp is not None:  # the leveling task's terms for the contexts' warp, now
+            prepare_planner(self.planner, self.warp)
         self.last_plan: MpcPlan | None = None
         self.force_margin = np.zeros(4)
         ranges = machine.coordinates  # the setpoints may use the full ranges (no margin)
@@ -172,6 +175,8 @@ class MpcController(Controller):
         self.force_model = force_model
         self.force_constraint.model = force_model
         self._set_feedback(feedback)
+        if self.warp is not None:
+            prepare_planner(self.planner, self.warp)
 
     def set_payload_mass(self, mass: float) -> None:
         """Tell the models the payload now held [kg] (the observer's estimate, or known).
