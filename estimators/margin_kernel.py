@@ -102,17 +102,7 @@ def margin_kernel(kernels, step: float, payload_step: float) -> Compiled | None:
     Compiled (or found in the disk cache) once per kernels object and steps, at ``-O1``
     like ``nf_derivatives``; None where those kernels are not compiled (no C compiler).
     """
-    if not kernels.compiled:
-        return None
-    from models.cbuild import compile_shared
-
-    fun = margin_function(kernels.functions["nf_derivatives"],
-                          kernels.functions["nf_estimate"], step, payload_step)
-    try:
-        lib = compile_shared(kernel_source(fun), fun.name(), "-O1")
-    except OSError:
-        return None
-    return Compiled(ctypes.CDLL(str(lib)), fun)
+    return _compiled(kernels, margin_function, step, payload_step, "-O1")
 
 
 # The closure's own entries of ``nf_linearize_margin``'s input, after the model's packed row:
@@ -159,14 +149,23 @@ def joint_kernel(kernels, step: float, payload_step: float) -> Compiled | None:
     a closed loop runs it once a tick. The first compile takes ~25 s (then the disk cache);
     no contraction at either level, so the same bits.
     """
+    return _compiled(kernels, joint_function, step, payload_step, "-O2")
+
+
+def _compiled(kernels, make, step: float, payload_step: float, level: str
+              ) -> Compiled | None:
+    """``make``'s function of ``kernels``' derivatives and estimate, compiled at ``level``.
+
+    None where those kernels are not compiled (no C compiler) or the compiler fails.
+    """
     if not kernels.compiled:
         return None
     from models.cbuild import compile_shared
 
-    fun = joint_function(kernels.functions["nf_derivatives"],
-                         kernels.functions["nf_estimate"], step, payload_step)
+    fun = make(kernels.functions["nf_derivatives"], kernels.functions["nf_estimate"], step,
+               payload_step)
     try:
-        lib = compile_shared(kernel_source(fun), fun.name(), "-O2")
+        lib = compile_shared(kernel_source(fun), fun.name(), level)
     except OSError:
         return None
     return Compiled(ctypes.CDLL(str(lib)), fun)
