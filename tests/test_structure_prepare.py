@@ -10,6 +10,7 @@ period), the caches are rebuilt at the first tick, not reused.
 import numpy as np
 import pytest
 
+import wbc.controllers.mpc as mpc_module
 import wbc.mpc.planner as planner_module
 from estimators._row_views import LINEARIZATION_VIEWS
 from estimators.linearize_batch import linearize_first, prepare_rows
@@ -29,7 +30,8 @@ FIELDS = ("P", "q", "G", "h", "lb", "ub")
 def _controller(machine, monkeypatch, feedback: bool = True):
     """mpc-full (with the estimator's feedback), its planner not prepared, and its plant."""
     with monkeypatch.context() as m:
-        m.setattr(planner_module, "prepare_planner", lambda planner: None, raising=False)
+        m.setattr(planner_module, "prepare_planner", lambda planner: None)
+        m.setattr(mpc_module, "prepare_planner", lambda planner, warp=None: None)
         model, split = estimator_models(machine, "full")
         ctrl = MpcController(machine, ControllerConfig(), force_model=model,
                              feedback=split if feedback else None)
