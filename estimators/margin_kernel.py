@@ -41,9 +41,10 @@ import casadi as ca
 import numpy as np
 
 from estimators._kernel_calls import Compiled
+from estimators._row_views import LINEARIZATION_VIEWS
 from estimators._symbolic import LAYOUT, checked_row, kernel_source
 from estimators.batch import SINGULAR_CONDITION
-from estimators.linearization import N_GENERALIZED
+from estimators.linearization import N_GENERALIZED, ForceLinearization
 from models.coordinates import N_INDEPENDENT
 from models.state import MachineState
 
@@ -203,6 +204,24 @@ class MarginTerms:
                 and max(self.conditions.tolist()) < SINGULAR_CONDITION)
 
 
+def _kept_terms(estimator, make_kernel, step: float, payload_step: float, *offset
+                ) -> MarginTerms | None:
+    """The `MarginTerms` of ``make_kernel``'s kernel kept in ``estimator``'s per-thread calls.
+
+    Made at the first call for these steps (``offset``: where the margin's row starts in the
+    kernel's output, `MarginTerms`); None where the kernel is not compiled.
+    """
+    calls = estimator._calls.__dict__
+    key = (make_kernel.__name__, step, payload_step)
+    terms = calls.get(key)
+    if terms is None:
+        kernel = make_kernel(estimator._kernels, step, payload_step)
+        if kernel is None:
+            return None
+        terms = calls[key] = MarginTerms(kernel, *offset)
+    return terms
+
+
 def margin_terms(estimator, state: MachineState, step: float, payload_step: float
                  ) -> tuple[MarginTerms, np.ndarray] | None:
     """(this thread's `MarginTerms` evaluated at ``state``, the contact flags (4,)).
@@ -218,14 +237,9 @@ def margin_terms(estimator, state: MachineState, step: float, payload_step: floa
     if (kernels is None or estimator._qs is not None or estimator._packer.zeroed is not None
             or state.suspension_force is None):
         return None
-    calls = estimator._calls.__dict__
-    key = ("nf_margin", step, payload_step)
-    terms = calls.get(key)
+    terms = _kept_terms(estimator, margin_kernel, step, payload_step)
     if terms is None:
-        kernel = margin_kernel(kernels, step, payload_step)
-        if kernel is None:
-            return None
-        terms = calls[key] = MarginTerms(kernel)
+        return None
     state, _ = estimator._checked(state)
     sel, flags = estimator._pack(terms.inp, state, estimator.D, estimator.beta, terms.raw)
     if sel.tipping:
@@ -245,23 +259,15 @@ def linearize_with_margin(model, closure, state: MachineState, step: float,
     None), or None where the model's linearization would not take the derivative kernel's
     regular path or the two do not share their kernels: the caller then goes one by one.
     """
-    from estimators._row_views import LINEARIZATION_VIEWS
-    from estimators.linearization import ForceLinearization
-
     kernels = model._kernels
     if (kernels is None or closure._kernels is not kernels or model._qs is not None
             or closure._qs is not None or model._packer.zeroed is not None
             or closure._packer.zeroed is not None or state.suspension_force is None
             or model.strokes != closure.strokes):
         return None
-    calls = model._calls.__dict__
-    key = ("nf_linearize_margin", step, payload_step)
-    terms = calls.get(key)
+    terms = _kept_terms(model, joint_kernel, step, payload_step, LAYOUT.der_size)
     if terms is None:
-        kernel = joint_kernel(kernels, step, payload_step)
-        if kernel is None:
-            return None
-        terms = calls[key] = MarginTerms(kernel, LAYOUT.der_size)
+        return None
     state, clipped = model._checked(state)
     sel, flags = model._pack(terms.inp, state, model.D, model.beta, terms.raw)
     if sel.tipping:
