@@ -62,6 +62,7 @@ from models.cbuild import address, load_shared
 from wbc.solvers import ldp_step
 from wbc.solvers.daqp_api import DAQP_API_C, DAQP_VERSION, bind_daqp, daqp_version
 from wbc.solvers.ldp_step import STEP_C
+from wbc.solvers.product_c import TRANSPOSE8_C
 
 __all__ = ["LDP_C", "SIGNATURES", "LeastDistanceWorkspace", "ldp_library"]
 
@@ -83,7 +84,7 @@ LDP_C = DAQP_API_C + r"""
 #if defined(__AVX512F__)
 #include <immintrin.h>
 #endif
-
+""" + TRANSPOSE8_C + r"""
 typedef struct {
   DAQPSettings settings;
   DAQPWorkspace work;
@@ -144,32 +145,14 @@ static int normalize(const double* A, const double* d, long n, long m, double ze
        the columns past n load as zeros, whose squares (+0) leave every sum as it is. */
     const double* r[8];
     for (int l = 0; l < 8; ++l) r[l] = A + (i0 + (l < used ? l : used - 1)) * n;
-    const __m512i lo2 = _mm512_set_epi64(13, 12, 5, 4, 9, 8, 1, 0);
-    const __m512i hi2 = _mm512_set_epi64(15, 14, 7, 6, 11, 10, 3, 2);
-    const __m512i lo4 = _mm512_set_epi64(11, 10, 9, 8, 3, 2, 1, 0);
-    const __m512i hi4 = _mm512_set_epi64(15, 14, 13, 12, 7, 6, 5, 4);
     __m512d acc = _mm512_setzero_pd();
     for (long j = 0; j < n; j += 8) {
       const __mmask8 k = n - j >= 8 ? 0xFF : (__mmask8)((1u << (n - j)) - 1);
       const __m512d dj = _mm512_maskz_loadu_pd(k, d + j);
       __m512d v[8];
       for (int l = 0; l < 8; ++l) v[l] = _mm512_mul_pd(_mm512_maskz_loadu_pd(k, r[l] + j), dj);
-      /* t: pairs of rows interleaved; u: fours; c[q]: column j + q of the eight rows. */
-      __m512d t[8], u[8], c[8];
-      for (int p = 0; p < 4; ++p) {
-        t[2 * p] = _mm512_unpacklo_pd(v[2 * p], v[2 * p + 1]);     /* cols 0 2 4 6 */
-        t[2 * p + 1] = _mm512_unpackhi_pd(v[2 * p], v[2 * p + 1]); /* cols 1 3 5 7 */
-      }
-      for (int h = 0; h < 2; ++h)
-        for (int odd = 0; odd < 2; ++odd) {
-          const __m512d a = t[4 * h + odd], b = t[4 * h + 2 + odd];
-          u[4 * h + odd] = _mm512_permutex2var_pd(a, lo2, b);     /* cols odd, odd + 4 */
-          u[4 * h + 2 + odd] = _mm512_permutex2var_pd(a, hi2, b); /* cols 2 + odd, 6 + odd */
-        }
-      for (int q = 0; q < 4; ++q) {
-        c[q] = _mm512_permutex2var_pd(u[q], lo4, u[4 + q]);
-        c[q + 4] = _mm512_permutex2var_pd(u[q], hi4, u[4 + q]);
-      }
+      __m512d c[8];  /* c[q]: column j + q of the eight rows */
+      transpose8(v, c);
       for (int q = 0; q < 8; ++q) acc = _mm512_add_pd(acc, _mm512_mul_pd(c[q], c[q]));
     }
     _mm512_storeu_pd(s, acc);

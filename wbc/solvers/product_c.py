@@ -27,9 +27,41 @@ import numpy as np
 
 from models.cbuild import address, load_shared
 
-__all__ = ["PRODUCT_C", "ROWS", "CompiledProduct", "compiled_product", "product_library"]
+__all__ = [
+    "PRODUCT_C", "ROWS", "TRANSPOSE8_C", "CompiledProduct", "compiled_product",
+    "product_library",
+]
 
 ROWS = 16  # rows multiplied together: a lane each of two vectors (`PRODUCT_C`'s VECS)
+
+# An 8 x 8 block of doubles transposed in AVX-512 registers (also `wbc.solvers.daqp_c`'s
+# row normalisation): C put into a source after its ``immintrin.h`` include.
+TRANSPOSE8_C = r"""
+#if defined(__AVX512F__)
+/* c[q] = column q of the 8 x 8 block whose rows are v[0..7] (lane l: row l). */
+static inline void transpose8(const __m512d v[8], __m512d c[8]) {
+  const __m512i lo2 = _mm512_set_epi64(13, 12, 5, 4, 9, 8, 1, 0);
+  const __m512i hi2 = _mm512_set_epi64(15, 14, 7, 6, 11, 10, 3, 2);
+  const __m512i lo4 = _mm512_set_epi64(11, 10, 9, 8, 3, 2, 1, 0);
+  const __m512i hi4 = _mm512_set_epi64(15, 14, 13, 12, 7, 6, 5, 4);
+  __m512d t[8], u[8];
+  for (int p = 0; p < 4; ++p) {
+    t[2 * p] = _mm512_unpacklo_pd(v[2 * p], v[2 * p + 1]);     /* cols 0 2 4 6 */
+    t[2 * p + 1] = _mm512_unpackhi_pd(v[2 * p], v[2 * p + 1]); /* cols 1 3 5 7 */
+  }
+  for (int h = 0; h < 2; ++h)
+    for (int odd = 0; odd < 2; ++odd) {
+      const __m512d a = t[4 * h + odd], b = t[4 * h + 2 + odd];
+      u[4 * h + odd] = _mm512_permutex2var_pd(a, lo2, b);     /* cols odd, odd + 4 */
+      u[4 * h + 2 + odd] = _mm512_permutex2var_pd(a, hi2, b); /* cols 2 + odd, 6 + odd */
+    }
+  for (int q = 0; q < 4; ++q) {
+    c[q] = _mm512_permutex2var_pd(u[q], lo4, u[4 + q]);
+    c[q + 4] = _mm512_permutex2var_pd(u[q], hi4, u[4 + q]);
+  }
+}
+#endif
+"""
 
 PRODUCT_C = r"""
 #include <math.h>
@@ -74,31 +106,7 @@ static inline __attribute__((always_inline)) void columns(
   }
 }
 
-#if defined(__AVX512F__)
-/* c[q] = column q of the 8 x 8 block whose rows are v[0..7] (lane l: row l). */
-static inline void transpose8(const __m512d v[8], __m512d c[8]) {
-  const __m512i lo2 = _mm512_set_epi64(13, 12, 5, 4, 9, 8, 1, 0);
-  const __m512i hi2 = _mm512_set_epi64(15, 14, 7, 6, 11, 10, 3, 2);
-  const __m512i lo4 = _mm512_set_epi64(11, 10, 9, 8, 3, 2, 1, 0);
-  const __m512i hi4 = _mm512_set_epi64(15, 14, 13, 12, 7, 6, 5, 4);
-  __m512d t[8], u[8];
-  for (int p = 0; p < 4; ++p) {
-    t[2 * p] = _mm512_unpacklo_pd(v[2 * p], v[2 * p + 1]);     /* cols 0 2 4 6 */
-    t[2 * p + 1] = _mm512_unpackhi_pd(v[2 * p], v[2 * p + 1]); /* cols 1 3 5 7 */
-  }
-  for (int h = 0; h < 2; ++h)
-    for (int odd = 0; odd < 2; ++odd) {
-      const __m512d a = t[4 * h + odd], b = t[4 * h + 2 + odd];
-      u[4 * h + odd] = _mm512_permutex2var_pd(a, lo2, b);     /* cols odd, odd + 4 */
-      u[4 * h + 2 + odd] = _mm512_permutex2var_pd(a, hi2, b); /* cols 2 + odd, 6 + odd */
-    }
-  for (int q = 0; q < 4; ++q) {
-    c[q] = _mm512_permutex2var_pd(u[q], lo4, u[4 + q]);
-    c[q + 4] = _mm512_permutex2var_pd(u[q], hi4, u[4 + q]);
-  }
-}
-#endif
-
+""" + TRANSPOSE8_C + r"""
 /* The `used` rows g[l] (n long) into the tile (tile[k * ROWS + l]: row l's entry k; the
    lanes past `used` of the vectors that hold them: copies of the last row, or stale, all
    finite), `columns` with as few vectors as hold them, then row l of the products to
