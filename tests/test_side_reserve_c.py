@@ -9,10 +9,15 @@ from testkit.force_models import AffineForceModel
 from testkit.plant import make_state
 from wbc import ControllerConfig, ForceConfig, MpcController
 from wbc.constraints import SideReserveConstraint
-from wbc.constraints.side_reserve_c import compiled_side_rows
+from wbc.constraints.side_reserve_c import compiled_side_reserve
 
-pytestmark = pytest.mark.skipif(compiled_side_rows(np.zeros(1), np.zeros(1, int), 1) is None,
-                                reason="no C compiler")
+
+def _rows(nodes=(1, 2), pairs=((0, 1),), slack=(3, 3), n=4, n_forces=12):
+    return compiled_side_reserve(np.array(nodes), np.array(pairs), np.array(slack),
+                                 np.ones(len(slack)), n, n_forces, slice(0, 2), 2)
+
+
+pytestmark = pytest.mark.skipif(_rows() is None, reason="no C compiler or numpy's BLAS")
 
 
 @pytest.fixture
@@ -53,9 +58,17 @@ def test_compiled_side_rows_are_numpys_to_the_bit(side_context, reserve):
 
 
 def test_other_shapes_are_refused():
-    rows = compiled_side_rows(np.ones(3), np.array([0, 1, 2]), 4)
+    rows = _rows()
+    ok = (np.zeros((12, 4)), np.zeros(12), np.zeros(2))
+    assert rows.rows(*ok, [1.0], 1.0, 1.0) is not None
     with pytest.raises(ValueError, match="side rows"):
-        rows.rows(np.zeros((3, 5)), np.zeros(3), 1.0)
-    with pytest.raises(ValueError, match="slack column"):
-        compiled_side_rows(np.ones(2), np.array([0, 4]), 4).rows(np.zeros((2, 4)),
-                                                                 np.zeros(2), 1.0)
+        rows.rows(np.zeros((12, 5)), *ok[1:], [1.0], 1.0, 1.0)
+    with pytest.raises(ValueError, match="side rows"):
+        rows.rows(*ok[:2], np.zeros(3), [1.0], 1.0, 1.0)
+    # another layout than one C array: the numpy path's
+    assert rows.rows(np.zeros((12, 8))[:, ::2], *ok[1:], [1.0], 1.0, 1.0) is None
+    assert rows.rows(ok[0], ok[1].astype(np.float32), ok[2], [1.0], 1.0, 1.0) is None
+    for bad in ({"slack": (3, 4)}, {"nodes": (1, 3)}):  # past G's columns, past A's nodes
+        with pytest.raises(ValueError, match="inconsistent"):
+            _rows(**bad).rows(*ok, [1.0], 1.0, 1.0)
+    assert _rows(nodes=(1,)) is None  # one row: numpy's product is a dot

@@ -7,13 +7,12 @@ import numpy as np
 from wbc.constraints.constraint import Constraint, Inequality
 from wbc.constraints.force_rows import check_margins
 from wbc.constraints.horizon_normal_force import HorizonNormalForceConstraint
-from wbc.constraints.side_reserve_c import compiled_side_rows, side_reserve_library
+from wbc.constraints.side_reserve_c import compiled_side_reserve, side_reserve_library
 from wbc.errors import ConfigurationError
 
 __all__ = ["SIDE_PAIRS", "SideReserveConstraint"]
 
 SIDE_PAIRS = np.array([[0, 1], [2, 3]])  # left (FL, RL), right (FR, RR) in the wheel order
-_all = np.logical_and.reduce  # `np.all` of a 1-D array without its Python dispatch
 
 
 class SideReserveConstraint(Constraint):
@@ -48,9 +47,9 @@ class SideReserveConstraint(Constraint):
     Args:
         force_constraint: The per-wheel rows whose predicted forces and thresholds it uses.
         time_constant: T [s].
-        compiled: Make the rows after the product with the nominal plan in C
-            (`wbc.constraints.side_reserve_c`, the same bits); False, or without a C
-            compiler: numpy.
+        compiled: Make the rows in C, the pairs' sums, the product with the nominal plan
+            and the right-hand sides in one call (`wbc.constraints.side_reserve_c`, the
+            same bits); False, or without a C compiler: numpy.
 
     Attributes:
         reserve: ``r`` [N], shape (2,), order left, right; zeros: inactive.
@@ -96,25 +95,26 @@ class SideReserveConstraint(Constraint):
     def compute(self, ctx) -> Inequality | None:
         """The rows of the sides with a reserve, after now; None: inactive."""
         fc = self.force_constraint
-        sides = (self.reserve > 0).nonzero()[0]
-        if (sides.size == 0 or fc.last_forces_map is None or fc.last_in_contact is None
-                or not _all(fc.last_in_contact)):
+        reserve = self.reserve.tolist()
+        flags = fc.last_in_contact
+        if (not (reserve[0] > 0 or reserve[-1] > 0) or fc.last_forces_map is None
+                or flags is None or not all(flags.tolist())):
             return None
         A, b = fc.last_forces_map
-        n_nodes = A.shape[0] // 4
-        nodes, first, second, decay, slack, rows = self._structure(ctx, n_nodes, sides,
-                                                                   A.shape[1])
+        sides, nodes, first, second, decay, slack, rows = self._structure(
+            ctx, A.shape, tuple(r > 0 for r in reserve))
+        if rows is not None:
+            thresholds = fc.thresholds.tolist()
+            needs = [thresholds[i] + thresholds[j] + reserve[s] for i, j, s in rows[1]]
+            lay = ctx.layout
+            made = rows[0].rows(A, b, ctx.nominal_inputs, needs, fc.force_scale,
+                                0.0 if lay.scale is None else ctx.speed_scale)
+            if made is not None:
+                return Inequality(*made)
         # (node, side) rows of each pair's two wheels, node-major: by basic indexing
+        n_nodes = A.shape[0] // 4
         A_3, b_2 = A.reshape(n_nodes, 4, -1), b.reshape(n_nodes, 4)
         A_sum = (A_3[nodes, first] + A_3[nodes, second]).reshape(-1, A.shape[1])
-        if rows is not None:
-            np.add(b_2[nodes, first], b_2[nodes, second], out=rows.b.reshape(-1, sides.size))
-            rows.need.reshape(-1, sides.size)[:] = (  # every node's the same
-                fc.thresholds[first] + fc.thresholds[second] + self.reserve[sides])
-            h = A_sum @ self.nominal(ctx)
-            G = np.divide(A_sum, -fc.force_scale, out=A_sum)
-            rows.rows(G, h, fc.force_scale)
-            return Inequality(G, h)
         b_sum = (b_2[nodes, first] + b_2[nodes, second]).reshape(-1)
         need = np.empty((b_sum.size // sides.size, sides.size))  # every node's the same
         need[:] = fc.thresholds[first] + fc.thresholds[second] + self.reserve[sides]
@@ -125,25 +125,27 @@ class SideReserveConstraint(Constraint):
         G[slack] = -1.0
         return Inequality(G, (b_sum - wanted) / fc.force_scale)
 
-    def _structure(self, ctx, n_nodes: int, sides: np.ndarray, n: int) -> tuple:
+    def _structure(self, ctx, forces_shape: tuple, on: tuple) -> tuple:
         """What the layout, the nodes and the sides fix, kept while they stay the same.
 
+        ``sides``: the sides with a reserve (``on``: per side, whether it has one);
         ``nodes``: the nodes after now (`nodes`), a slice where they follow each other
         (they do: the last ones);
         ``(first, second)``: the pairs' first and second wheels (slices, `SIDE_PAIRS`);
         ``decay``, ``exp(-t_k / T)`` per row; the slack entries of G; the compiled rows
-        (`wbc.constraints.side_reserve_c.CompiledSideRows`, for G's ``n`` columns) or None.
+        (`wbc.constraints.side_reserve_c.CompiledSideReserve` for the forces map of shape
+        ``forces_shape``, and the sides' ``(first wheel, second wheel, side)``) or None.
 
         Raises:
             ConfigurationError: The layout has fewer than 10 slacks.
         """
-        key = (ctx.structure_key, n_nodes, sides.tobytes(), ctx.dt, self.time_constant, n,
-               self.compiled)
+        key = (ctx.structure_key, forces_shape, on, self.time_constant, self.compiled)
         if self._cache is None or self._cache[0] != key:
             lay = ctx.layout
             if lay.slack is None or lay.n_slack < 10:
                 raise ConfigurationError("SideReserveConstraint needs a layout with 10 slacks")
-            nodes, times = self.nodes(ctx, n_nodes)
+            sides = np.flatnonzero(on)
+            nodes, times = self.nodes(ctx, forces_shape[0] // 4)
             pairs = SIDE_PAIRS[sides]  # (m, 2): a side's wheels, the sides' 2 apart
             first, second = (slice(int(pairs[0, w]), int(pairs[-1, w]) + 1, 2) for w in (0, 1))
             at = (slice(int(nodes[0]), int(nodes[-1]) + 1)
@@ -151,6 +153,11 @@ class SideReserveConstraint(Constraint):
             decay = np.repeat(np.exp(-times / self.time_constant), sides.size)
             slack = (np.arange(nodes.size * sides.size),
                      lay.slack.start + 8 + np.tile(sides, nodes.size))
-            rows = compiled_side_rows(decay, slack[1], n) if self.compiled else None
-            self._cache = (key, (at, first, second, decay, slack, rows))
+            rows = None
+            if self.compiled:
+                c = compiled_side_reserve(nodes, pairs, slack[1], decay, forces_shape[1],
+                                          forces_shape[0], lay.accelerations, lay.scale)
+                rows = None if c is None else (c, [(*p, s) for p, s in zip(pairs.tolist(),
+                                                                            sides.tolist())])
+            self._cache = (key, (sides, at, first, second, decay, slack, rows))
         return self._cache[1]

@@ -1,14 +1,17 @@
-"""`SideReserveConstraint`'s rows in C: the right-hand sides and the scaled rows in one call.
+"""`SideReserveConstraint`'s rows in C: the pairs' sums, the product and the rows in one call.
 
-In numpy the right-hand sides after the product with the nominal plan are seven ufunc
-calls on a few dozen rows, then a scatter of the slack entries (~5 us a tick for a few
-hundred flops). `SIDE_RESERVE_C` is
-the same IEEE operations in the same order (numpy's ``maximum`` NaN rule included),
-compiled once with the system compiler (`models.cbuild`, no contraction into fused
-multiply-adds) and called through ctypes on kept buffers: the same bits
-(`tests/test_side_reserve_c.py`). The product ``A_sum x`` stays numpy's (BLAS's sums stay
-BLAS's), and so does the division of the rows by ``-f_s`` (numpy's vectorized loop is
-faster than this one's). Without a compiler the numpy code runs.
+In numpy a tick's rows are the gather of each pair's two wheel rows at the late nodes (two
+fancy-indexed copies and their sum, ~50 kB), the nominal plan's vector, the product with it,
+seven ufunc calls on a few dozen right-hand sides, the division of the rows by ``-f_s`` and a
+scatter of the slack entries: ~17 us a tick in the closed loop for what is one pass over the
+rows. `SIDE_RESERVE_C` is the same IEEE operations in the same order (numpy's ``maximum``
+NaN rule included), compiled once with the system compiler (`models.cbuild`, no contraction
+into fused multiply-adds) and called through ctypes on kept buffers; the product is the call
+numpy's ``@`` makes, numpy's own ``cblas_dgemv`` (`models.numpy_blas`: column-major,
+transposed, ``(102, 112, n, m, 1.0, A, n, x, 1, 0.0, y, 1)``) on a C-contiguous sum like
+numpy's: the same bits (`tests/test_side_reserve_c.py`, `tests/test_side_reserve_ticks.py`).
+Without a compiler, without numpy's BLAS, for a single row (numpy's product is then a dot) or
+for arrays of another layout the numpy code runs.
 """
 
 from __future__ import annotations
@@ -19,85 +22,165 @@ import functools
 import numpy as np
 
 from models.cbuild import address, bind, load_shared
+from models.numpy_blas import numpy_blas
 
-__all__ = ["SIDE_RESERVE_C", "CompiledSideRows", "compiled_side_rows", "side_reserve_library"]
+__all__ = ["SIDE_RESERVE_C", "CompiledSideReserve", "compiled_side_reserve",
+           "side_reserve_library"]
 
 SIDE_RESERVE_C = r"""
 #include <math.h>
+typedef void (*gemv_fn)(int, int, long long, long long, double, const double*, long long,
+                        const double*, long long, double, double*, long long);
+/* Eight doubles at any address: the element-wise sums and quotients in vector registers
+   (the same IEEE operations on each element; -O2 leaves these loops scalar). */
+typedef double v8 __attribute__((vector_size(64), aligned(8)));
 /* numpy's maximum: NaN in either gives NaN; equal values give the first. */
 static double np_max(double a, double b) { return (a >= b || isnan(a)) ? a : b; }
 
-/* in = b (m), need (m), decay (m), then f_s; slack: each row's slack column (m).
-   On entry h holds S = A x (m); on return
-   h = (b - (need - max(need - (S + b), 0) decay)) / f_s and -1 in each row of G (m, n)
-   at its slack column. */
-int side_rows(const double* restrict in, const long* restrict slack, long m, long n,
-              double* restrict G, double* restrict h) {
-  const double *b = in, *need = in + m, *decay = in + 2 * m;
-  const double fs = in[3 * m];
-  long r;
-  if (m < 0 || n < 1) return -1;
-  for (r = 0; r < m; ++r) {
-    if (slack[r] < 0 || slack[r] >= n) return -1;
+/* dims = m_nodes, m_sides, n, rows of A, first input column, inputs, scale column (-1:
+   none); index = the nodes (m_nodes), the pairs' first wheels (m_sides), their second
+   wheels (m_sides), each row's slack column (m = m_nodes m_sides); decay (m); x (n): the
+   nominal plan, zeros outside its inputs and scale (kept). Per tick: A (rows, n), b (rows),
+   the nominal inputs (inputs), the sides' needs, f_s, -f_s and the scale; out G (m, n),
+   h (m) (-f_s an argument: the compiler may not turn a / -f_s into -(a / f_s), which
+   flips a NaN's sign):
+     G = (A[first] + A[second]) / -f_s, with -1 at each row's slack column,
+     h = (b_s - (need - max(need - (S + b_s), 0) decay)) / f_s,  S = (A[first] + A[second]) x,
+   row r = node i, side s: r = i m_sides + s; b_s = b[first] + b[second]. */
+int side_reserve_rows(const long* dims, const long* index, const double* decay,
+                      void* gemv, double* x, const double* A, const double* b,
+                      const double* nominal, double need0, double need1, double fs,
+                      double neg_fs, double scale, double* G, double* h) {
+  const long m_nodes = dims[0], m_sides = dims[1], n = dims[2], n_a = dims[3];
+  const long col0 = dims[4], n_in = dims[5], scale_col = dims[6], m = m_nodes * m_sides;
+  const long *nodes = index, *first = index + m_nodes, *second = first + m_sides;
+  const long* slack = second + m_sides;
+  const double need[2] = {need0, need1};
+  long i, s, j;
+  if (m_sides < 1 || m_sides > 2 || m < 2 || col0 < 0 || col0 + n_in > n || scale_col >= n)
+    return -1;
+  for (i = 0; i < m; ++i)
+    if (slack[i] < 0 || slack[i] >= n) return -1;
+  for (i = 0; i < n_in; ++i) x[col0 + i] = nominal[i];
+  if (scale_col >= 0) x[scale_col] = scale;
+  for (i = 0; i < m_nodes; ++i)
+    for (s = 0; s < m_sides; ++s) {
+      const double* p = A + (4 * nodes[i] + first[s]) * n;
+      const double* q = A + (4 * nodes[i] + second[s]) * n;
+      double* g = G + (i * m_sides + s) * n;
+      if (nodes[i] < 0 || first[s] < 0 || second[s] < 0
+          || 4 * nodes[i] + (first[s] > second[s] ? first[s] : second[s]) >= n_a)
+        return -1;
+      for (j = 0; j + 8 <= n; j += 8) *(v8*)(g + j) = *(const v8*)(p + j) + *(const v8*)(q + j);
+      for (; j < n; ++j) g[j] = p[j] + q[j];
+    }
+  ((gemv_fn)gemv)(102, 112, n, m, 1.0, G, n, x, 1, 0.0, h, 1);
+  for (i = 0; i < m_nodes; ++i)
+    for (s = 0; s < m_sides; ++s) {
+      const long r = i * m_sides + s, k = 4 * nodes[i];
+      const double b_s = b[k + first[s]] + b[k + second[s]];
+      double y = h[r] + b_s;
+      y = need[s] - y;
+      y = np_max(y, 0.0);
+      y = y * decay[r];
+      y = need[s] - y;
+      y = b_s - y;
+      h[r] = y / fs;
+    }
+  {
+    const v8 d = {neg_fs, neg_fs, neg_fs, neg_fs, neg_fs, neg_fs, neg_fs, neg_fs};
+    for (i = 0; i + 8 <= m * n; i += 8) *(v8*)(G + i) = *(v8*)(G + i) / d;
+    for (; i < m * n; ++i) G[i] = G[i] / neg_fs;
   }
-  for (r = 0; r < m; ++r) {
-    double x = h[r] + b[r];
-    x = need[r] - x;
-    x = np_max(x, 0.0);
-    x = x * decay[r];
-    x = need[r] - x;
-    x = b[r] - x;
-    h[r] = x / fs;
-  }
-  for (r = 0; r < m; ++r) G[r * n + slack[r]] = -1.0;
+  for (i = 0; i < m; ++i) G[i * n + slack[i]] = -1.0;
   return 0;
 }
 """
 
 
-class CompiledSideRows:
-    """``side_rows`` on kept buffers for ``m`` rows of ``n`` columns.
+class CompiledSideReserve:
+    """``side_reserve_rows`` on kept buffers, for one structure of the rows.
 
-    ``b`` and ``need`` (m,) are filled by the caller each tick; ``decay`` and the slack
-    columns are fixed. Not shared between threads (each constraint makes its own).
+    Args:
+        lib: `side_reserve_library`.
+        gemv: The address of numpy's ``cblas_dgemv``.
+        nodes: The nodes after now (m_nodes,).
+        pairs: The sides' wheels (m_sides, 2), m_sides 1 or 2.
+        slack_columns: Each row's slack column (m,), node-major.
+        decay: ``exp(-t_k / T)`` per row (m,).
+        n: Columns of G.
+        n_forces: Rows of the forces map (4 per node).
+        inputs: The layout's input columns (a slice of step 1 of the n).
+        scale: The scale's column, or None.
+
+    Not shared between threads (each constraint makes its own).
     """
 
-    def __init__(self, fun, decay: np.ndarray, slack_columns: np.ndarray, n: int):
-        m = decay.size
-        self._in = np.zeros(3 * m + 1)
-        self.b, self.need = self._in[:m], self._in[m:2 * m]
-        self._in[2 * m:3 * m] = decay
-        self._slack = np.ascontiguousarray(slack_columns, dtype=np.int64)
-        self.m, self.n = m, n
-        self._call = bind(fun, self._in, self._slack, m, n)
+    def __init__(self, lib, gemv: int, nodes, pairs, slack_columns, decay, n: int,
+                 n_forces: int, inputs: slice, scale: int | None):
+        nodes, pairs = np.asarray(nodes, int), np.asarray(pairs, int)
+        self.m = nodes.size * pairs.shape[0]
+        self.n, self.n_forces = n, n_forces
+        start, stop, _ = inputs.indices(n)
+        self.n_inputs = stop - start
+        self._dims = np.array([nodes.size, pairs.shape[0], n, n_forces, start,
+                               self.n_inputs, -1 if scale is None else scale], np.int_)
+        self._index = np.concatenate([nodes, pairs[:, 0], pairs[:, 1],
+                                      np.asarray(slack_columns, int)]).astype(np.int_)
+        self._decay = np.array(decay, float)
+        self._x = np.zeros(n)  # the nominal plan: its slacks stay zero
+        self.shape = (self.m, n)
+        self._call = bind(lib.side_reserve_rows, self._dims, self._index, self._decay, gemv,
+                          self._x)
 
-    def rows(self, A_sum: np.ndarray, h: np.ndarray, force_scale: float) -> None:
-        """``h`` (``A_sum x``, m) into the right-hand sides and G's slack entries, in place.
+    def rows(self, A: np.ndarray, b: np.ndarray, nominal_inputs, needs: list,
+             force_scale: float, speed_scale: float) -> tuple | None:
+        """``(G (m, n), h (m,))``, fresh; None: the arrays are not float64 C-contiguous.
 
-        ``A_sum`` (m, n) is G already divided by ``-force_scale``.
+        ``A`` (n_forces, n), ``b`` (n_forces,): the forces map; ``nominal_inputs``: the
+        inputs' ``n_inputs`` entries; ``needs``: ``f_min,a + f_min,b + r_j`` of the sides.
 
         Raises:
-            ValueError: The arrays are not the kept shapes (both are fresh C-contiguous
-                float64 arrays: the caller's sum and product).
+            ValueError: Other shapes than kept (the structure's), or nodes past ``A``.
         """
-        if A_sum.shape != (self.m, self.n) or h.shape != (self.m,):
-            raise ValueError(f"side rows: need ({self.m}, {self.n}) and ({self.m},), got "
-                             f"{A_sum.shape} and {h.shape}")
-        self._in[-1] = force_scale
-        if self._call(address(A_sum), address(h)) != 0:
-            raise ValueError("side rows: a slack column outside the rows")
+        if not (_plain(A) and _plain(b) and _plain(nominal_inputs)):
+            return None
+        if (A.shape != (self.n_forces, self.n) or b.shape != (self.n_forces,)
+                or nominal_inputs.size != self.n_inputs):
+            raise ValueError(f"side rows: need A ({self.n_forces}, {self.n}), b "
+                             f"({self.n_forces},) and {self.n_inputs} inputs, got {A.shape}, "
+                             f"{b.shape} and {nominal_inputs.size}")
+        G, h = np.empty(self.shape), np.empty(self.m)
+        if self._call(address(A), address(b), address(nominal_inputs), needs[0], needs[-1],
+                      force_scale, -force_scale, speed_scale, address(G), address(h)) != 0:
+            raise ValueError(f"side rows: inconsistent structure {self._dims.tolist()}")
+        return G, h
+
+
+_F64 = np.dtype(float)
+
+
+def _plain(a) -> bool:
+    """``a`` is a C-contiguous float64 ndarray (the C reads it as one)."""
+    return type(a) is np.ndarray and a.dtype is _F64 and a.flags.c_contiguous
 
 
 @functools.cache
 def side_reserve_library():
     """`SIDE_RESERVE_C` compiled and loaded (once per process); None without a compiler."""
     return load_shared(SIDE_RESERVE_C, "side_reserve", {
-        "side_rows": ([ctypes.c_void_p] * 2 + [ctypes.c_long] * 2 + [ctypes.c_void_p] * 2,
-                      ctypes.c_int)}, "numpy")
+        "side_reserve_rows": ([ctypes.c_void_p] * 8 + [ctypes.c_double] * 5
+                              + [ctypes.c_void_p] * 2, ctypes.c_int)}, "numpy")
 
 
-def compiled_side_rows(decay, slack_columns, n: int) -> CompiledSideRows | None:
-    """A new `CompiledSideRows`; None without a working C compiler."""
+def compiled_side_reserve(nodes, pairs, slack_columns, decay, n: int, n_forces: int,
+                          inputs, scale) -> CompiledSideReserve | None:
+    """A new `CompiledSideReserve`; None without a C compiler or numpy's BLAS, for fewer
+    than two rows or inputs that are not one slice of columns."""
     lib = side_reserve_library()
-    return None if lib is None else CompiledSideRows(lib.side_rows, np.asarray(decay, float),
-                                                     slack_columns, n)
+    blas = numpy_blas()
+    if (lib is None or blas is None or len(nodes) * len(pairs) < 2
+            or not isinstance(inputs, slice) or inputs.step not in (None, 1)):
+        return None
+    return CompiledSideReserve(lib, blas[0], nodes, pairs, slack_columns, decay, n,
+                               n_forces, inputs, scale)
