@@ -63,7 +63,7 @@ class HorizonEffortLimit(Constraint):
         self.axes = np.asarray(axes, int)
         self._scale = np.maximum(hi, -lo)[self.axes]
         self._structure_cache: tuple | None = None
-        # `last_efforts`' ((E_0, e_0) or the `affine_pair`, u_0), or None
+        # `last_efforts`' ((E_0, e_0) or the `affine_pair`, the nominal inputs), or None
         self._last: tuple | None = None
 
     def _structure(self, ctx) -> tuple:
@@ -116,11 +116,12 @@ class HorizonEffortLimit(Constraint):
                                  or rows.source_lower is not self.lower):
             rows.set_bounds(self.upper, self.lower, self._scale, ax)
         if rows is not None and steps.size == 1:
-            # The numpy path's E, e0 and Eu on kept buffers, of the blended rows alone.
+            # The numpy path's E, e0, Eu and rows in one call, of the blended rows alone.
             pair = self.efforts.affine_pair(ctx.state)
-            G, h = rows.rows_of_pair(pair, ax, ctx.brake_inputs[:N])
-            self._last = (pair, ctx.nominal_inputs[0]) if N else None
-            return Inequality(G, h, diagonal)
+            made = rows.rows_of_pair(pair, ctx.brake_inputs)
+            if made is not None:
+                self._last = (pair, ctx.nominal_inputs) if N else None
+                return Inequality(*made, diagonal)
         maps = []
         for j in steps:
             st = (ctx.state if j == 0 else
@@ -139,7 +140,7 @@ class HorizonEffortLimit(Constraint):
             G, h = rows.rows(E, e0, Eu)
         else:
             G, h = self._rows(E, e0, Eu, g_shape, entries, ax)
-        self._last = (maps[0], ctx.nominal_inputs[0]) if N else None
+        self._last = (maps[0], ctx.nominal_inputs) if N else None
         return Inequality(G, h, diagonal)
 
     @property
@@ -151,9 +152,9 @@ class HorizonEffortLimit(Constraint):
         """
         if self._last is None:
             return None
-        first, u0 = self._last
+        first, inputs = self._last
         E0, e00 = first if len(first) == 2 else ActuatorEfforts.blend(first)
-        return E0 @ u0 + e00
+        return E0 @ inputs[0] + e00
 
     def _rows(self, E, e0, Eu, g_shape, entries, ax) -> tuple[np.ndarray, np.ndarray]:
         """``(G, h)`` in numpy: what `wbc.constraints.limits_c`'s ``effort_rows`` computes.

@@ -21,6 +21,7 @@ import sys
 import numpy as np
 
 from models.cbuild import address, bind, load_shared
+from models.numpy_blas import numpy_blas
 from wbc.axes import N_AXES
 
 __all__ = ["LIMITS_C", "CompiledBounds", "CompiledBrake", "CompiledEffortRows",
@@ -30,6 +31,8 @@ __all__ = ["LIMITS_C", "CompiledBounds", "CompiledBrake", "CompiledEffortRows",
 LIMITS_C = r"""
 #include <math.h>
 enum { NA = 9 };
+typedef void (*gemv_fn)(int, int, long long, long long, double, const double*, long long,
+                        const double*, long long, double, double*, long long);
 /* numpy's maximum and minimum: NaN in either gives NaN; equal values give the first. */
 static double np_max(double a, double b) { return (a >= b || isnan(a)) ? a : b; }
 static double np_min(double a, double b) { return (a <= b || isnan(a)) ? a : b; }
@@ -132,6 +135,39 @@ int effort_rows(const double* const* in, const long* dims, double* G, double* h)
   return 0;
 }
 
+/* `CompiledEffortRows.rows_of_pair`: effort_rows (K = 1) of one node's map blended from
+   the two payload masses' maps, as `ActuatorEfforts.affine` blends them, and of the
+   products with the brake inputs that numpy's matmul makes. in = effort_rows's pointers;
+   axes: the nb rows of the maps bounded; gemv: numpy's cblas_dgemv; E_1 (9, na), e_1 (9),
+   E_2, e_2 the maps; brake (N, na); w the mass's weight. Into in[0] (E, (nb, na)) and
+   in[1] (e0, nb): E_1 + (E_2 - E_1) w row by row, e_1 + (e_2 - e_1) w; into in[2] (Eu,
+   (N, nb)): matmul's call per step, E brake_k. */
+int effort_rows_pair(const double* const* in, const long* dims, const long* axes, void* gemv,
+                     const double* E1, const double* f1, const double* E2, const double* f2,
+                     const double* brake, double w, double* G, double* h) {
+  double *E = (double*)in[0], *e0 = (double*)in[1], *Eu = (double*)in[2];
+  const long K = dims[0], N = dims[1], nb = dims[2], na = dims[3];
+  long k, r, a;
+  if (K != 1 || nb < 1 || na < 1) return -1;
+  for (r = 0; r < nb; ++r) {
+    const long i = axes[r];
+    if (i < 0 || i >= NA) return -1;
+    for (a = 0; a < na; ++a) {
+      double x = E2[i * na + a] - E1[i * na + a];
+      x = x * w;
+      E[r * na + a] = E1[i * na + a] + x;
+    }
+    {
+      double x = f2[i] - f1[i];
+      x = x * w;
+      e0[r] = f1[i] + x;
+    }
+  }
+  for (k = 0; k < N; ++k)
+    ((gemv_fn)gemv)(102, 112, na, nb, 1.0, E, na, brake + k * na, 1, 0.0, Eu + k * nb, 1);
+  return effort_rows(in, dims, G, h);
+}
+
 /* `HorizonLimit.compute`'s h: in = brake (N, NA), free (N, NA), upper (NA), lower (NA);
    h = [max(upper, brake) - free; free - min(lower, brake)], (2, N, NA). */
 int horizon_bounds(const double* in, long N, double* h) {
@@ -202,10 +238,11 @@ class CompiledBrake:
 class CompiledEffortRows:
     """``effort_rows`` on kept input buffers, for one structure (K, N, nb, na, n, col0).
 
-    `set_bounds` keeps the constraint's bounds (`source`: the upper bounds' array they were
-    taken from, `source_lower` the lower); `rows` fills the other buffers, calls, and
-    returns ``(G, h)``; `rows_of_pair` takes one node's map as the payload pair and the
-    brake inputs (K = 1), with the blend and the products written into the kept buffers.
+    `set_bounds` keeps the constraint's bounds and bounded axes (`source`: the upper
+    bounds' array they were taken from, `source_lower` the lower); `rows` fills the other
+    buffers, calls, and returns ``(G, h)``; `rows_of_pair` takes one node's map as the
+    payload pair and the brake inputs (K = 1): the blend, the products and the rows in one
+    call (``effort_rows_pair``).
 
     ``G`` is kept between calls and is the last call's array again when nothing else holds
     it any more (its reference count says so: the builder copies it, then drops it). The C
@@ -213,23 +250,29 @@ class CompiledEffortRows:
     write into a returned ``G`` (as `wbc.qp.QPBuilder` keeps its own). ``h`` is fresh.
     """
 
-    def __init__(self, fun, K: int, N: int, nb: int, na: int, n: int, col0: int):
+    def __init__(self, lib, K: int, N: int, nb: int, na: int, n: int, col0: int,
+                 gemv: int | None):
         self.E, self.e0 = np.zeros((K, nb, na)), np.zeros((K, nb))
         self.Eu = np.zeros((N, nb))
-        self._Eu_column = self.Eu.reshape(N, nb, 1)  # a matmul's (N, nb, 1) output, a view
-        self._first = (self.E[0], self.e0[0])  # the first node's, views (`rows_of_pair`)
         self.bounds = np.zeros((3, nb))  # upper, lower, scale: `set_bounds`
+        self.axes = np.zeros(nb, np.int_)  # the maps' rows bounded: `set_bounds`
         self.source = self.source_lower = None
         self.shape = ((2 * N * nb, n), (N, 2, nb))
+        self.N, self.na = N, na
         self._G: np.ndarray | None = None  # the last G (see the class docstring)
         self._in = np.array([a.ctypes.data for a in (self.E, self.e0, self.Eu, *self.bounds)],
                             np.uintp)
+        self._map_shape = (N_AXES, na)  # `rows_of_pair`'s E_1, E_2
         self._dims = np.array([K, N, nb, na, n, col0], np.int_)
-        self.call = bind(fun, self._in, self._dims)
+        self.call = bind(lib.effort_rows, self._in, self._dims)
+        self._pair_call = (None if gemv is None or K != 1 else
+                           bind(lib.effort_rows_pair, self._in, self._dims, self.axes, gemv))
 
     def set_bounds(self, upper, lower, scale, axes) -> None:
-        """Take the bounds ``upper[axes]``, ``lower[axes]`` (kept as `source`) and scale."""
+        """Take the bounds ``upper[axes]``, ``lower[axes]`` (kept as `source`), the scale and
+        the bounded axes ``axes`` (a slice or an index of the nine)."""
         self.bounds[:] = upper[axes], lower[axes], scale
+        self.axes[:] = np.arange(N_AXES)[axes]
         self.source, self.source_lower = upper, lower
 
     def rows(self, E, e0, Eu) -> tuple[np.ndarray, np.ndarray]:
@@ -237,36 +280,44 @@ class CompiledEffortRows:
         self.E[:] = E
         self.e0[:] = e0
         self.Eu[:] = Eu
-        return self._rows()
+        return self._rows(self.call)
 
-    def rows_of_pair(self, pair: tuple, axes, brake) -> tuple[np.ndarray, np.ndarray]:
+    def rows_of_pair(self, pair: tuple, brake: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
         """`rows` of one node's map ``E = E_1 + w (E_2 - E_1)``, ``e_0 = e_1 + w (e_2 - e_1)``.
 
         ``pair``: `estimators.efforts.ActuatorEfforts.affine_pair`'s ``((E_1, e_1), (E_2,
-        e_2), w)`` (9 x 9, 9); only the rows ``axes`` blended, with `affine`'s operations (a
-        product's operands commute), into the kept ``E``, ``e0`` (K = 1). ``Eu`` is
-        ``E[None] @ brake[:, :, None]`` written into the kept buffer: the very matmul
-        (BLAS's ``dgemv`` per step on the same operands) that
-        `wbc.constraints.HorizonEffortLimit`'s numpy path makes, without its temporaries.
-        ``brake``: (N, na).
-        """
-        (E1, f1), (E2, f2), w = pair
-        E, e0 = self._first
-        for out, a, b in ((E, E1[axes], E2[axes]), (e0, f1[axes], f2[axes])):
-            np.subtract(b, a, out=out)
-            np.multiply(out, w, out=out)
-            np.add(a, out, out=out)
-        np.matmul(self.E, brake[:, :, None], out=self._Eu_column)
-        return self._rows()
+        e_2), w)`` (9 x na, 9); only the rows of the bounded axes (`set_bounds`) blended,
+        with `affine`'s operations (a product's operands commute), into the kept ``E``,
+        ``e0`` (K = 1). ``Eu`` is ``E[None] @ brake[:N, :, None]`` written into the kept
+        buffer: the very matmul (numpy's ``cblas_dgemv`` per step on the same operands,
+        `models.numpy_blas`) that `wbc.constraints.HorizonEffortLimit`'s numpy path makes.
+        ``brake``: (>= N, na).
 
-    def _rows(self) -> tuple[np.ndarray, np.ndarray]:
-        """Call on the filled buffers, into the kept G (if free) and a fresh h."""
+        Returns:
+            ``(G, h)``; None without numpy's BLAS, for K > 1, or for maps or brake inputs
+            that are not C-contiguous float64 arrays of those shapes (the caller's numpy
+            path then makes the rows).
+        """
+        call = self._pair_call
+        (E1, f1), (E2, f2), w = pair
+        if (call is None or not (_plain(E1) and _plain(f1) and _plain(E2) and _plain(f2)
+                                 and _plain(brake))
+                or E1.shape != self._map_shape or E2.shape != self._map_shape
+                or f1.shape != _AXES_SHAPE or f2.shape != _AXES_SHAPE
+                or brake.shape[0] < self.N or brake.shape[1:] != self._map_shape[1:]):
+            return None
+        return self._rows(call, address(E1), address(f1), address(E2), address(f2),
+                          address(brake), w)
+
+    def _rows(self, call, *args) -> tuple[np.ndarray, np.ndarray]:
+        """``call(*args, G, h)`` on the filled buffers, into the kept G (if free) and a
+        fresh h."""
         # References to a free kept G: the attribute and getrefcount's argument.
         if self._G is None or sys.getrefcount(self._G) != 2:
             self._G = np.zeros(self.shape[0])
         G, h = self._G, np.empty(self.shape[1])
-        if self.call(address(G), address(h)) != 0:
-            raise ValueError(f"effort rows: inconsistent sizes {self.shape}")
+        if call(*args, address(G), address(h)) != 0:
+            raise ValueError(f"effort rows: inconsistent sizes or axes {self.shape}")
         return G, h.reshape(-1)
 
 
@@ -301,6 +352,15 @@ class CompiledHorizonBounds:
         return h
 
 
+_F64 = np.dtype(float)
+_AXES_SHAPE = (N_AXES,)
+
+
+def _plain(a) -> bool:
+    """``a`` is a C-contiguous float64 ndarray (the C reads it as one)."""
+    return type(a) is np.ndarray and a.dtype is _F64 and a.flags.c_contiguous
+
+
 def compiled_horizon_bounds(N: int) -> CompiledHorizonBounds | None:
     """A new `CompiledHorizonBounds` of N steps; None without a working C compiler."""
     lib = _library()
@@ -311,7 +371,10 @@ def compiled_effort_rows(K: int, N: int, nb: int, na: int, n: int,
                          col0: int) -> CompiledEffortRows | None:
     """A new `CompiledEffortRows`; None without a working C compiler."""
     lib = _library()
-    return None if lib is None else CompiledEffortRows(lib.effort_rows, K, N, nb, na, n, col0)
+    if lib is None:
+        return None
+    blas = numpy_blas()
+    return CompiledEffortRows(lib, K, N, nb, na, n, col0, None if blas is None else blas[0])
 
 
 def compiled_brake(steps, n: int) -> CompiledBrake | None:
@@ -341,5 +404,7 @@ def _library():
         "brake_inputs": ([ctypes.c_void_p] * 3 + [ctypes.c_long] * 2 + [ctypes.c_void_p],
                          ctypes.c_int),
         "effort_rows": ([ctypes.c_void_p] * 4, ctypes.c_int),
+        "effort_rows_pair": ([ctypes.c_void_p] * 9 + [ctypes.c_double] + [ctypes.c_void_p] * 2,
+                             ctypes.c_int),
         "horizon_bounds": ([ctypes.c_void_p, ctypes.c_long, ctypes.c_void_p], ctypes.c_int)},
         "numpy")
