@@ -12,8 +12,8 @@ from wbc.constraints import SideReserveConstraint
 from wbc.constraints.side_reserve_c import compiled_side_reserve
 
 
-def _rows(nodes=(1, 2), pairs=((0, 1),), slack=(3, 3), n=4, n_forces=12):
-    return compiled_side_reserve(np.array(nodes), np.array(pairs), np.array(slack),
+def _rows(nodes=(1, 2), sides=(0,), slack=(3, 3), n=4, n_forces=12):
+    return compiled_side_reserve(np.array(nodes), np.array(sides), np.array(slack),
                                  np.ones(len(slack)), n, n_forces, slice(0, 2), 2)
 
 
@@ -60,15 +60,15 @@ def test_compiled_side_rows_are_numpys_to_the_bit(side_context, reserve):
 def test_other_shapes_are_refused():
     rows = _rows()
     ok = (np.zeros((12, 4)), np.zeros(12), np.zeros(2))
-    assert rows.rows(*ok, [1.0], 1.0, 1.0) is not None
+    assert rows.rows(*ok, 1.0, 2.0, 1.0, 1.0) is not None
     with pytest.raises(ValueError, match="side rows"):
-        rows.rows(np.zeros((12, 5)), *ok[1:], [1.0], 1.0, 1.0)
+        rows.rows(np.zeros((12, 5)), *ok[1:], 1.0, 2.0, 1.0, 1.0)
     with pytest.raises(ValueError, match="side rows"):
-        rows.rows(*ok[:2], np.zeros(3), [1.0], 1.0, 1.0)
+        rows.rows(*ok[:2], np.zeros(3), 1.0, 2.0, 1.0, 1.0)
     # another layout than one C array: the numpy path's
-    assert rows.rows(np.zeros((12, 8))[:, ::2], *ok[1:], [1.0], 1.0, 1.0) is None
-    assert rows.rows(ok[0], ok[1].astype(np.float32), ok[2], [1.0], 1.0, 1.0) is None
+    assert rows.rows(np.zeros((12, 8))[:, ::2], *ok[1:], 1.0, 2.0, 1.0, 1.0) is None
+    assert rows.rows(ok[0], ok[1].astype(np.float32), ok[2], 1.0, 2.0, 1.0, 1.0) is None
     for bad in ({"slack": (3, 4)}, {"nodes": (1, 3)}):  # past G's columns, past A's nodes
         with pytest.raises(ValueError, match="inconsistent"):
-            _rows(**bad).rows(*ok, [1.0], 1.0, 1.0)
+            _rows(**bad).rows(*ok, 1.0, 2.0, 1.0, 1.0)
     assert _rows(nodes=(1,)) is None  # one row: numpy's product is a dot

@@ -26,7 +26,7 @@ from wbc.axes import N_AXES
 
 __all__ = ["LIMITS_C", "CompiledBounds", "CompiledBrake", "CompiledEffortRows",
            "CompiledHorizonBounds", "compiled_bounds", "compiled_brake", "compiled_effort_rows",
-           "compiled_horizon_bounds"]
+           "compiled_horizon_bounds", "plain_address"]
 
 LIMITS_C = r"""
 #include <math.h>
@@ -300,14 +300,15 @@ class CompiledEffortRows:
         """
         call = self._pair_call
         (E1, f1), (E2, f2), w = pair
-        if (call is None or not (_plain(E1) and _plain(f1) and _plain(E2) and _plain(f2)
-                                 and _plain(brake))
-                or E1.shape != self._map_shape or E2.shape != self._map_shape
+        if (call is None or E1.shape != self._map_shape or E2.shape != self._map_shape
                 or f1.shape != _AXES_SHAPE or f2.shape != _AXES_SHAPE
                 or brake.shape[0] < self.N or brake.shape[1:] != self._map_shape[1:]):
             return None
-        return self._rows(call, address(E1), address(f1), address(E2), address(f2),
-                          address(brake), w)
+        pointers = (plain_address(E1), plain_address(f1), plain_address(E2),
+                    plain_address(f2), plain_address(brake))
+        if None in pointers:
+            return None
+        return self._rows(call, *pointers, w)
 
     def _rows(self, call, *args) -> tuple[np.ndarray, np.ndarray]:
         """``call(*args, G, h)`` on the filled buffers, into the kept G (if free) and a
@@ -354,11 +355,21 @@ class CompiledHorizonBounds:
 
 _F64 = np.dtype(float)
 _AXES_SHAPE = (N_AXES,)
+_char_view = ctypes.c_char.from_buffer
 
 
-def _plain(a) -> bool:
-    """``a`` is a C-contiguous float64 ndarray (the C reads it as one)."""
-    return type(a) is np.ndarray and a.dtype is _F64 and a.flags.c_contiguous
+def plain_address(a) -> int | None:
+    """The data's address of a C-contiguous float64 ndarray (the C reads it as one), else None.
+
+    The check and `models.cbuild.address` in one: a writable C-contiguous array's buffer
+    gives its address (0.2 us); a read-only one takes ``a.ctypes.data``.
+    """
+    if type(a) is not np.ndarray or a.dtype is not _F64:
+        return None
+    try:
+        return ctypes.addressof(_char_view(a))
+    except (TypeError, ValueError, BufferError):
+        return a.ctypes.data if a.flags.c_contiguous else None
 
 
 def compiled_horizon_bounds(N: int) -> CompiledHorizonBounds | None:

@@ -7,12 +7,16 @@ import numpy as np
 from wbc.constraints.constraint import Constraint, Inequality
 from wbc.constraints.force_rows import check_margins
 from wbc.constraints.horizon_normal_force import HorizonNormalForceConstraint
-from wbc.constraints.side_reserve_c import compiled_side_reserve, side_reserve_library
+from wbc.constraints.side_reserve_c import (
+    SIDE_PAIRS,
+    compiled_side_reserve,
+    side_reserve_library,
+)
 from wbc.errors import ConfigurationError
 
 __all__ = ["SIDE_PAIRS", "SideReserveConstraint"]
 
-SIDE_PAIRS = np.array([[0, 1], [2, 3]])  # left (FL, RL), right (FR, RR) in the wheel order
+(_FL, _RL), (_FR, _RR) = SIDE_PAIRS.tolist()  # the pairs' wheels, as indices
 
 
 class SideReserveConstraint(Constraint):
@@ -65,7 +69,7 @@ class SideReserveConstraint(Constraint):
         if self.compiled:
             side_reserve_library()  # compiled (or loaded) now, not in a control loop
         self.reserve = np.zeros(2)
-        self._cache: tuple | None = None  # (key, `_structure`)
+        self._cache: tuple | None = None  # (key, `_structure`): see `compute`
 
     def set_reserve(self, reserve) -> None:
         """Set ``r`` [N] (2,), order left, right.
@@ -95,20 +99,23 @@ class SideReserveConstraint(Constraint):
     def compute(self, ctx) -> Inequality | None:
         """The rows of the sides with a reserve, after now; None: inactive."""
         fc = self.force_constraint
-        reserve = self.reserve.tolist()
-        flags = fc.last_in_contact
-        if (not (reserve[0] > 0 or reserve[-1] > 0) or fc.last_forces_map is None
-                or flags is None or not all(flags.tolist())):
+        left, right = self.reserve.tolist()
+        flags, forces = fc.last_in_contact, fc.last_forces_map
+        if (not (left > 0 or right > 0) or forces is None or flags is None
+                or not all(flags.tolist())):
             return None
-        A, b = fc.last_forces_map
-        sides, nodes, first, second, decay, slack, rows = self._structure(
-            ctx, A.shape, tuple(r > 0 for r in reserve))
+        A, b = forces
+        key = (ctx.structure_key, A.shape, left > 0, right > 0, self.time_constant,
+               self.compiled)
+        kept = self._cache
+        if kept is None or kept[0] != key:
+            kept = self._cache = (key, self._structure(ctx, A.shape, key[2:4]))
+        sides, nodes, first, second, decay, slack, rows = kept[1]
         if rows is not None:
-            thresholds = fc.thresholds.tolist()
-            needs = [thresholds[i] + thresholds[j] + reserve[s] for i, j, s in rows[1]]
-            lay = ctx.layout
-            made = rows[0].rows(A, b, ctx.nominal_inputs, needs, fc.force_scale,
-                                0.0 if lay.scale is None else ctx.speed_scale)
+            f = fc.thresholds.tolist()
+            made = rows.rows(A, b, ctx.nominal_inputs,
+                             f[_FL] + f[_RL] + left, f[_FR] + f[_RR] + right, fc.force_scale,
+                             0.0 if ctx.layout.scale is None else ctx.speed_scale)
             if made is not None:
                 return Inequality(*made)
         # (node, side) rows of each pair's two wheels, node-major: by basic indexing
@@ -126,7 +133,7 @@ class SideReserveConstraint(Constraint):
         return Inequality(G, (b_sum - wanted) / fc.force_scale)
 
     def _structure(self, ctx, forces_shape: tuple, on: tuple) -> tuple:
-        """What the layout, the nodes and the sides fix, kept while they stay the same.
+        """What the layout, the nodes and the sides fix (`compute` keeps it while they stay).
 
         ``sides``: the sides with a reserve (``on``: per side, whether it has one);
         ``nodes``: the nodes after now (`nodes`), a slice where they follow each other
@@ -134,30 +141,24 @@ class SideReserveConstraint(Constraint):
         ``(first, second)``: the pairs' first and second wheels (slices, `SIDE_PAIRS`);
         ``decay``, ``exp(-t_k / T)`` per row; the slack entries of G; the compiled rows
         (`wbc.constraints.side_reserve_c.CompiledSideReserve` for the forces map of shape
-        ``forces_shape``, and the sides' ``(first wheel, second wheel, side)``) or None.
+        ``forces_shape``) or None.
 
         Raises:
             ConfigurationError: The layout has fewer than 10 slacks.
         """
-        key = (ctx.structure_key, forces_shape, on, self.time_constant, self.compiled)
-        if self._cache is None or self._cache[0] != key:
-            lay = ctx.layout
-            if lay.slack is None or lay.n_slack < 10:
-                raise ConfigurationError("SideReserveConstraint needs a layout with 10 slacks")
-            sides = np.flatnonzero(on)
-            nodes, times = self.nodes(ctx, forces_shape[0] // 4)
-            pairs = SIDE_PAIRS[sides]  # (m, 2): a side's wheels, the sides' 2 apart
-            first, second = (slice(int(pairs[0, w]), int(pairs[-1, w]) + 1, 2) for w in (0, 1))
-            at = (slice(int(nodes[0]), int(nodes[-1]) + 1)
-                  if nodes.size and nodes[-1] - nodes[0] == nodes.size - 1 else nodes)
-            decay = np.repeat(np.exp(-times / self.time_constant), sides.size)
-            slack = (np.arange(nodes.size * sides.size),
-                     lay.slack.start + 8 + np.tile(sides, nodes.size))
-            rows = None
-            if self.compiled:
-                c = compiled_side_reserve(nodes, pairs, slack[1], decay, forces_shape[1],
-                                          forces_shape[0], lay.accelerations, lay.scale)
-                rows = None if c is None else (c, [(*p, s) for p, s in zip(pairs.tolist(),
-                                                                            sides.tolist())])
-            self._cache = (key, (sides, at, first, second, decay, slack, rows))
-        return self._cache[1]
+        lay = ctx.layout
+        if lay.slack is None or lay.n_slack < 10:
+            raise ConfigurationError("SideReserveConstraint needs a layout with 10 slacks")
+        sides = np.flatnonzero(on)
+        nodes, times = self.nodes(ctx, forces_shape[0] // 4)
+        pairs = SIDE_PAIRS[sides]  # (m, 2): a side's wheels, the sides' 2 apart
+        first, second = (slice(int(pairs[0, w]), int(pairs[-1, w]) + 1, 2) for w in (0, 1))
+        at = (slice(int(nodes[0]), int(nodes[-1]) + 1)
+              if nodes.size and nodes[-1] - nodes[0] == nodes.size - 1 else nodes)
+        decay = np.repeat(np.exp(-times / self.time_constant), sides.size)
+        slack = (np.arange(nodes.size * sides.size),
+                 lay.slack.start + 8 + np.tile(sides, nodes.size))
+        rows = (compiled_side_reserve(nodes, sides, slack[1], decay, forces_shape[1],
+                                      forces_shape[0], lay.accelerations, lay.scale)
+                if self.compiled else None)
+        return sides, at, first, second, decay, slack, rows

@@ -23,8 +23,11 @@ import numpy as np
 
 from models.cbuild import address, bind, load_shared
 from models.numpy_blas import numpy_blas
+from wbc.constraints.limits_c import plain_address
 
-__all__ = ["SIDE_RESERVE_C", "CompiledSideReserve", "compiled_side_reserve",
+SIDE_PAIRS = np.array([[0, 1], [2, 3]])  # left (FL, RL), right (FR, RR) in the wheel order
+
+__all__ = ["SIDE_PAIRS", "SIDE_RESERVE_C", "CompiledSideReserve", "compiled_side_reserve",
            "side_reserve_library"]
 
 SIDE_RESERVE_C = r"""
@@ -38,10 +41,11 @@ typedef double v8 __attribute__((vector_size(64), aligned(8)));
 static double np_max(double a, double b) { return (a >= b || isnan(a)) ? a : b; }
 
 /* dims = m_nodes, m_sides, n, rows of A, first input column, inputs, scale column (-1:
-   none); index = the nodes (m_nodes), the pairs' first wheels (m_sides), their second
-   wheels (m_sides), each row's slack column (m = m_nodes m_sides); decay (m); x (n): the
-   nominal plan, zeros outside its inputs and scale (kept). Per tick: A (rows, n), b (rows),
-   the nominal inputs (inputs), the sides' needs, f_s, -f_s and the scale; out G (m, n),
+   none); index = the nodes (m_nodes), the sides (m_sides: 0 left, 1 right), their pairs'
+   first wheels (m_sides), second wheels (m_sides), each row's slack column (m = m_nodes
+   m_sides); decay (m); x (n): the nominal plan, zeros outside its inputs and scale (kept).
+   Per tick: A (rows, n), b (rows), the nominal inputs (inputs), the left and right sides'
+   needs, f_s, -f_s and the scale; out G (m, n),
    h (m) (-f_s an argument: the compiler may not turn a / -f_s into -(a / f_s), which
    flips a NaN's sign):
      G = (A[first] + A[second]) / -f_s, with -1 at each row's slack column,
@@ -53,14 +57,16 @@ int side_reserve_rows(const long* dims, const long* index, const double* decay,
                       double neg_fs, double scale, double* G, double* h) {
   const long m_nodes = dims[0], m_sides = dims[1], n = dims[2], n_a = dims[3];
   const long col0 = dims[4], n_in = dims[5], scale_col = dims[6], m = m_nodes * m_sides;
-  const long *nodes = index, *first = index + m_nodes, *second = first + m_sides;
-  const long* slack = second + m_sides;
-  const double need[2] = {need0, need1};
+  const long *nodes = index, *side = index + m_nodes, *first = side + m_sides;
+  const long *second = first + m_sides, *slack = second + m_sides;
+  const double needs[2] = {need0, need1};
   long i, s, j;
   if (m_sides < 1 || m_sides > 2 || m < 2 || col0 < 0 || col0 + n_in > n || scale_col >= n)
     return -1;
   for (i = 0; i < m; ++i)
     if (slack[i] < 0 || slack[i] >= n) return -1;
+  for (s = 0; s < m_sides; ++s)
+    if (side[s] < 0 || side[s] > 1) return -1;
   for (i = 0; i < n_in; ++i) x[col0 + i] = nominal[i];
   if (scale_col >= 0) x[scale_col] = scale;
   for (i = 0; i < m_nodes; ++i)
@@ -78,12 +84,12 @@ int side_reserve_rows(const long* dims, const long* index, const double* decay,
   for (i = 0; i < m_nodes; ++i)
     for (s = 0; s < m_sides; ++s) {
       const long r = i * m_sides + s, k = 4 * nodes[i];
-      const double b_s = b[k + first[s]] + b[k + second[s]];
+      const double b_s = b[k + first[s]] + b[k + second[s]], need = needs[side[s]];
       double y = h[r] + b_s;
-      y = need[s] - y;
+      y = need - y;
       y = np_max(y, 0.0);
       y = y * decay[r];
-      y = need[s] - y;
+      y = need - y;
       y = b_s - y;
       h[r] = y / fs;
     }
@@ -105,7 +111,7 @@ class CompiledSideReserve:
         lib: `side_reserve_library`.
         gemv: The address of numpy's ``cblas_dgemv``.
         nodes: The nodes after now (m_nodes,).
-        pairs: The sides' wheels (m_sides, 2), m_sides 1 or 2.
+        sides: The sides with rows (m_sides,), 0 left, 1 right (`SIDE_PAIRS`' order).
         slack_columns: Each row's slack column (m,), node-major.
         decay: ``exp(-t_k / T)`` per row (m,).
         n: Columns of G.
@@ -116,16 +122,17 @@ class CompiledSideReserve:
     Not shared between threads (each constraint makes its own).
     """
 
-    def __init__(self, lib, gemv: int, nodes, pairs, slack_columns, decay, n: int,
+    def __init__(self, lib, gemv: int, nodes, sides, slack_columns, decay, n: int,
                  n_forces: int, inputs: slice, scale: int | None):
-        nodes, pairs = np.asarray(nodes, int), np.asarray(pairs, int)
-        self.m = nodes.size * pairs.shape[0]
+        nodes, sides = np.asarray(nodes, int), np.asarray(sides, int)
+        pairs = SIDE_PAIRS[sides]
+        self.m = nodes.size * sides.size
         self.n, self.n_forces = n, n_forces
         start, stop, _ = inputs.indices(n)
         self.n_inputs = stop - start
         self._dims = np.array([nodes.size, pairs.shape[0], n, n_forces, start,
                                self.n_inputs, -1 if scale is None else scale], np.int_)
-        self._index = np.concatenate([nodes, pairs[:, 0], pairs[:, 1],
+        self._index = np.concatenate([nodes, sides, pairs[:, 0], pairs[:, 1],
                                       np.asarray(slack_columns, int)]).astype(np.int_)
         self._decay = np.array(decay, float)
         self._x = np.zeros(n)  # the nominal plan: its slacks stay zero
@@ -133,17 +140,19 @@ class CompiledSideReserve:
         self._call = bind(lib.side_reserve_rows, self._dims, self._index, self._decay, gemv,
                           self._x)
 
-    def rows(self, A: np.ndarray, b: np.ndarray, nominal_inputs, needs: list,
-             force_scale: float, speed_scale: float) -> tuple | None:
+    def rows(self, A: np.ndarray, b: np.ndarray, nominal_inputs, need_left: float,
+             need_right: float, force_scale: float, speed_scale: float) -> tuple | None:
         """``(G (m, n), h (m,))``, fresh; None: the arrays are not float64 C-contiguous.
 
         ``A`` (n_forces, n), ``b`` (n_forces,): the forces map; ``nominal_inputs``: the
-        inputs' ``n_inputs`` entries; ``needs``: ``f_min,a + f_min,b + r_j`` of the sides.
+        inputs' ``n_inputs`` entries; ``need_left``, ``need_right``: ``f_min,a + f_min,b +
+        r_j`` of the sides.
 
         Raises:
             ValueError: Other shapes than kept (the structure's), or nodes past ``A``.
         """
-        if not (_plain(A) and _plain(b) and _plain(nominal_inputs)):
+        pointers = (plain_address(A), plain_address(b), plain_address(nominal_inputs))
+        if None in pointers:
             return None
         if (A.shape != (self.n_forces, self.n) or b.shape != (self.n_forces,)
                 or nominal_inputs.size != self.n_inputs):
@@ -151,18 +160,10 @@ class CompiledSideReserve:
                              f"({self.n_forces},) and {self.n_inputs} inputs, got {A.shape}, "
                              f"{b.shape} and {nominal_inputs.size}")
         G, h = np.empty(self.shape), np.empty(self.m)
-        if self._call(address(A), address(b), address(nominal_inputs), needs[0], needs[-1],
-                      force_scale, -force_scale, speed_scale, address(G), address(h)) != 0:
+        if self._call(*pointers, need_left, need_right, force_scale, -force_scale, speed_scale,
+                      address(G), address(h)) != 0:
             raise ValueError(f"side rows: inconsistent structure {self._dims.tolist()}")
         return G, h
-
-
-_F64 = np.dtype(float)
-
-
-def _plain(a) -> bool:
-    """``a`` is a C-contiguous float64 ndarray (the C reads it as one)."""
-    return type(a) is np.ndarray and a.dtype is _F64 and a.flags.c_contiguous
 
 
 @functools.cache
@@ -173,14 +174,14 @@ def side_reserve_library():
                               + [ctypes.c_void_p] * 2, ctypes.c_int)}, "numpy")
 
 
-def compiled_side_reserve(nodes, pairs, slack_columns, decay, n: int, n_forces: int,
+def compiled_side_reserve(nodes, sides, slack_columns, decay, n: int, n_forces: int,
                           inputs, scale) -> CompiledSideReserve | None:
     """A new `CompiledSideReserve`; None without a C compiler or numpy's BLAS, for fewer
     than two rows or inputs that are not one slice of columns."""
     lib = side_reserve_library()
     blas = numpy_blas()
-    if (lib is None or blas is None or len(nodes) * len(pairs) < 2
+    if (lib is None or blas is None or len(nodes) * len(sides) < 2
             or not isinstance(inputs, slice) or inputs.step not in (None, 1)):
         return None
-    return CompiledSideReserve(lib, blas[0], nodes, pairs, slack_columns, decay, n,
+    return CompiledSideReserve(lib, blas[0], nodes, sides, slack_columns, decay, n,
                                n_forces, inputs, scale)
