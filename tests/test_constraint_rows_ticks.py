@@ -13,8 +13,8 @@ import copy
 
 import pytest
 
-from scenarios.closed_loop import DEFAULT_SCENARIO, run_closed_loop
 from models.numpy_blas import numpy_blas
+from scenarios.closed_loop import DEFAULT_SCENARIO, run_closed_loop
 from wbc.constraints import (
     HorizonEffortLimit,
     HorizonPositionLimit,

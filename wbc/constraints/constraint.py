@@ -27,7 +27,7 @@ class DiagonalBlocks:
     n_blocks: int
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, init=False)
 class Inequality:
     """``G x <= h``: G shape (m, n), h shape (m,).
 
@@ -38,6 +38,15 @@ class Inequality:
     G: np.ndarray
     h: np.ndarray
     diagonal: DiagonalBlocks | None = None
+
+    def __init__(self, G: np.ndarray, h: np.ndarray, diagonal: DiagonalBlocks | None = None):
+        # The fields written into the instance's dict: the frozen dataclass's own __init__
+        # sets each through object.__setattr__, twice the time, and every constraint makes
+        # one of these every tick. Still frozen for anyone else.
+        fields = self.__dict__
+        fields["G"] = G
+        fields["h"] = h
+        fields["diagonal"] = diagonal
 
 
 @dataclass(frozen=True)

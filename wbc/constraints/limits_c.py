@@ -9,8 +9,9 @@ multiply-adds) and called through ctypes on kept buffers: the same bits
 (`tests/test_limits_c.py`). Without a compiler the numpy code runs. The MPC's brake-to-rest
 inputs (`CondensedPrediction.brake_trajectory`, a loop over the steps of a few ufuncs each)
 are the same loop in C, the same bits; so are `HorizonEffortLimit`'s rows (a dozen ufuncs
-and a strided scatter, ~15 us a tick), from the products with the brake inputs that numpy
-makes (BLAS's sums stay BLAS's), and `HorizonLimit`'s right-hand sides.
+and a strided scatter, ~15 us a tick) with the payload blend and the products with the
+brake inputs (numpy's own ``cblas_dgemv``, as its matmul calls it), and `HorizonLimit`'s
+right-hand sides.
 """
 
 from __future__ import annotations
@@ -269,8 +270,10 @@ class CompiledEffortRows:
                            bind(lib.effort_rows_pair, self._in, self._dims, self.axes, gemv))
 
     def set_bounds(self, upper, lower, scale, axes) -> None:
-        """Take the bounds ``upper[axes]``, ``lower[axes]`` (kept as `source`), the scale and
-        the bounded axes ``axes`` (a slice or an index of the nine)."""
+        """Take the bounds ``upper[axes]``, ``lower[axes]`` (kept as `source`), the scale.
+
+        And the bounded axes ``axes`` (a slice or an index of the nine: `rows_of_pair`).
+        """
         self.bounds[:] = upper[axes], lower[axes], scale
         self.axes[:] = np.arange(N_AXES)[axes]
         self.source, self.source_lower = upper, lower
@@ -311,8 +314,7 @@ class CompiledEffortRows:
         return self._rows(call, *pointers, w)
 
     def _rows(self, call, *args) -> tuple[np.ndarray, np.ndarray]:
-        """``call(*args, G, h)`` on the filled buffers, into the kept G (if free) and a
-        fresh h."""
+        """``call(*args, G, h)`` on the filled buffers: the kept G (if free), a fresh h."""
         # References to a free kept G: the attribute and getrefcount's argument.
         if self._G is None or sys.getrefcount(self._G) != 2:
             self._G = np.zeros(self.shape[0])

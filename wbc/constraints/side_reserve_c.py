@@ -176,8 +176,11 @@ def side_reserve_library():
 
 def compiled_side_reserve(nodes, sides, slack_columns, decay, n: int, n_forces: int,
                           inputs, scale) -> CompiledSideReserve | None:
-    """A new `CompiledSideReserve`; None without a C compiler or numpy's BLAS, for fewer
-    than two rows or inputs that are not one slice of columns."""
+    """A new `CompiledSideReserve`, or None.
+
+    None without a C compiler or numpy's BLAS, for fewer than two rows (numpy's product is
+    then a dot) or inputs that are not one slice of columns.
+    """
     lib = side_reserve_library()
     blas = numpy_blas()
     if (lib is None or blas is None or len(nodes) * len(sides) < 2
