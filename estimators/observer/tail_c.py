@@ -1,11 +1,13 @@
-"""The observer's tick after its filters, in two C calls (`_tail.TailPass`).
+"""The observer's tick after its filters, in one C call (`_tail.TailPass`).
 
 Between the filters' pass (`_tick`) and the `ObserverEstimate` the observer runs the link
-accelerometers' fit, the payload regression, the sliding crane cylinders' accelerations, the
-contact points and the flags' four-wheel forces: five compiled kernels and a dozen small C
-and BLAS calls, glued by ~50 us of Python (states, contacts, arrays). ``tail_head`` (before
-the payload filter, which stays Python) and ``tail_end`` (after it) run that glue on the
-state's buffer and call the compiled parts by address:
+accelerometers' fit, the payload regression and its filter, the sliding crane cylinders'
+accelerations, the contact points and the flags' four-wheel forces: five compiled kernels
+and a dozen small C and BLAS calls, glued by ~50 us of Python (states, contacts, arrays).
+``tail_head`` (up to the payload filter), the filter (`payload_rls.PayloadRLS.update` on
+its state array, ~10 us of Python in a closed loop) and ``tail_end`` (after it) run that
+glue on the state's buffer, in one call, ``tail_run``, and call the compiled parts by
+address:
 
 * the estimator's and the efforts' CasADi kernels (`estimators._kernel_calls.Compiled`,
   each on buffers of its own), the link fit and the contacts' C (`fusion_c`, `contacts_c`);
@@ -28,12 +30,14 @@ import ctypes
 from estimators._symbolic import LAYOUT
 from estimators.batch import SINGULAR_CONDITION
 from estimators.efforts_kernel import INPUTS
+from estimators.observer import payload_rls as rls
 from estimators.observer._states import STATE_SIZE
 from models.cbuild import load_shared
 from models.numpy_blas import numpy_blas
 from models.sensing import PRESSURE_CYLINDERS
 
-__all__ = ["HEAD_CODES", "POINTERS", "SCALARS", "TAIL_C", "compiled_tail", "numpy_blas"]
+__all__ = ["HEAD_CODES", "POINTERS", "RUN_CODES", "SCALARS", "TAIL_C", "compiled_tail",
+           "numpy_blas"]
 
 # The pointer table both calls read (`void** p`), in this order.
 POINTERS = (
@@ -47,7 +51,8 @@ POINTERS = (
     "selectors", "payload", "bound_index", "bound_lo", "bound_hi",
     "c_k", "c_touching", "c_above", "c_drive", "c_acc", "c_prev", "c_out", "c_four",
     "fn_contact_points", "fn_contact_flags", "drive_samples", "tick_sc",
-    "fn_gemv", "fn_ddot", "fn_gesv")
+    "fn_gemv", "fn_ddot", "fn_gesv",
+    "rls", "rls_ring")  # the payload filter's state (`payload_rls.RLS_STATE`) and ring
 # The scalars' places in ``s`` (in: set by the caller; out: written by the calls).
 SCALARS = (
     "dt", "link_n", "link_m", "link_ok",  # link_ok out: the fit was taken
@@ -55,9 +60,13 @@ SCALARS = (
     "z0", "z1", "z2", "z3", "z4", "z5", "band0", "band1",  # out: the filtered regression
     "filter_time", "sliding_speed", "m1", "m2",
     "mass", "crane", "sliding",  # crane: 1 to take the pressures' accelerations; sliding out
-    "n_bounds", "flags_finite")  # flags_finite out
+    "n_bounds", "flags_finite",  # flags_finite out
+    "time", "lam", "max_mass", "rls_cap")  # `tail_run`'s: the tick, `payload_rls.forgetting`
+# ``tail_run``'s returns besides those: the payload filter's update (5: its ring is full)
+# or the mass's setting (6: outside the estimator's range) in Python, then ``tail_end``.
 # ``tail_head``'s and ``tail_end``'s returns: where the Python steps take over.
 HEAD_CODES = {0: "done", 1: "buffer", 2: "links", 3: "payload", 4: "contacts"}
+RUN_CODES = {5: "payload filter", 6: "payload mass"}
 
 _LIFT_PRESS = PRESSURE_CYLINDERS.index("lift")
 _TILT_PRESS = PRESSURE_CYLINDERS.index("tilt")
@@ -260,6 +269,133 @@ int tail_end(void* const* p) {
       D(c_k), D(c_above), D(c_touching), drive, D(c_acc), D(c_four), cout);
   return 0;
 }
+
+/* payload_rls._sign: np.sign of a float (NaN stays NaN) */
+static double sign_of(double x) {
+  return x > 0 ? 1.0 : (x < 0 ? -1.0 : (x != x ? x * 0.0 : 0.0));
+}
+
+/* payload_rls._gain: solve([[y0 y0 p + r0, yy + 0], [yy + 0, y1 y1 p + r1]], rhs) by
+   numpy's dgesv (the matrix is symmetric: its column-major copy is itself); NaN if
+   singular, as the Python solve gives. */
+static void rls_gain(void* const* p, double y0, double y1, double pp, double r0, double r1,
+                     const double* rhs, double* x) {
+  double yy = y0 * y1 * pp;
+  double a[4];
+  long long n = 2, one = 1, ipiv[2], info = 0;
+  a[0] = y0 * y0 * pp + r0;
+  a[1] = yy + 0.0;
+  a[2] = yy + 0.0;
+  a[3] = y1 * y1 * pp + r1;
+  x[0] = rhs[0];
+  x[1] = rhs[1];
+  ((gesv_fn)p[P_fn_gesv])(&n, &one, a, &n, ipiv, x, &n, &info);
+  if (info != 0) x[0] = x[1] = NAN;
+}
+
+/* PayloadRLS.update(time, dt, z[0:2], z[2:4], z[4:6], band z[6:8]) on its state and ring
+   (times, then masses, cap each), lam = forgetting(dt): the Python steps' operations in
+   their order. Returns 0, or 5 with nothing changed: the ring is full (Python grows it).
+   Of the table p only fn_gesv is read. */
+int rls_update(void* const* p, double* st, double* ring, long cap, double time, double lam,
+               const double* z) {
+  const double y0 = z[4], y1 = z[5], m0 = z[0], m1 = z[1], f00 = z[2], f01 = z[3];
+  double mass, nu[2], r[2], x[2], k[2], yv[2], pp, chi2, new_mass, new_p;
+  long head = (long)st[R_head], count = (long)st[R_count], ticks, at;
+  int in0, in1, moved, event;
+  if (count >= cap) return 5;
+  st[R_event] = 0.0;
+  st[R_y0] = y0;
+  st[R_y1] = y1;
+  if ((fabs(y0) < MIN_SENSITIVITY && fabs(y1) < MIN_SENSITIVITY)
+      || !(isfinite(m0) && isfinite(m1)))
+    return 0;
+  if (!(isfinite(f00) && isfinite(f01))) return 0;
+  mass = st[R_mass];
+  nu[0] = m0 - f00 - y0 * mass;
+  nu[1] = m1 - f01 - y1 * mass;
+  r[0] = st[R_R0];
+  r[1] = st[R_R1];
+  in0 = fabs(nu[0]) <= z[6];
+  in1 = fabs(nu[1]) <= z[7];
+  if (in0 && in1) {
+    st[R_run] = 0.0;
+    return 0;
+  }
+  if (in0) { nu[0] = 0.0; r[0] = UNUSED_VARIANCE; } else nu[0] = nu[0] - sign_of(nu[0]) * z[6];
+  if (in1) { nu[1] = 0.0; r[1] = UNUSED_VARIANCE; } else nu[1] = nu[1] - sign_of(nu[1]) * z[7];
+  pp = st[R_P] / lam;
+  rls_gain(p, y0, y1, pp, r[0] * st[R_event_variance_scale],
+           r[1] * st[R_event_variance_scale], nu, x);
+  chi2 = nu[0] * x[0] + nu[1] * x[1];
+  st[R_run] = chi2 > EVENT_CHI2 ? st[R_run] + 1.0 : 0.0;
+  ticks = EVENT_TICKS;
+  if (time > st[R_expect_until])
+    st[R_expect_until] = -INFINITY;
+  else if (y0 * x[0] + y1 * x[1] > 0)
+    ticks = (long)st[R_expected_pick_ticks];
+  /* PayloadRLS._moved */
+  if (time < st[R_settle_until]) {
+    head = 0;
+    count = 0;
+  } else {
+    while (count && ring[head] < time - EVENT_WINDOW) {
+      head = (head + 1) % cap;
+      --count;
+    }
+  }
+  at = (head + count) % cap;
+  ring[at] = time;
+  ring[cap + at] = mass;
+  st[R_head] = (double)head;
+  st[R_count] = (double)(count + 1);
+  moved = time < st[R_settle_until] ? 0 : fabs(mass - ring[cap + head]) > EVENT_MASS_CHANGE;
+  event = st[R_run] >= (double)ticks || moved;
+  if (event) {
+    pp = RESET_VARIANCE;
+    st[R_run] = 0.0;
+  }
+  yv[0] = y0;
+  yv[1] = y1;
+  rls_gain(p, y0, y1, pp, r[0], r[1], yv, k);
+  k[0] = pp * k[0];
+  k[1] = pp * k[1];
+  new_mass = mass + (k[0] * nu[0] + k[1] * nu[1]);
+  new_p = pp - pp * (k[0] * y0 + k[1] * y1);
+  if (!(new_p > 0) && pp > 0) new_p = 1.0 / (1.0 / pp + y0 * y0 / r[0] + y1 * y1 / r[1]);
+  if (!(isfinite(new_mass) && isfinite(new_p))) {
+    st[R_run] = 0.0;
+    return 0;
+  }
+  st[R_mass] = new_mass;
+  st[R_P] = new_p;
+  if (event) {
+    st[R_event] = new_mass > ring[cap + head] ? 1.0 : 2.0;  /* pick, release */
+    st[R_event_time] = time;
+    st[R_settle_until] = time + EVENT_WINDOW;
+    if (st[R_event] == 1.0) st[R_expect_until] = -INFINITY;
+  }
+  return 0;
+}
+
+/* The tick after the filters in one call: tail_head, the payload filter (rls_update), the
+   mass min(max(m, 0), 1e4) set as the estimator's (check_payload_mass's range), tail_end.
+   Returns tail_head's code, 5 or 6 (RUN_CODES), or tail_end's. */
+int tail_run(void* const* p) {
+  double *s = D(s), m;
+  int code = tail_head(p);
+  if (code) return code;
+  code = rls_update(p, D(rls), D(rls_ring), (long)s[S_rls_cap], s[S_time], s[S_lam],
+                    s + S_z0);
+  if (code) return code;
+  m = D(rls)[R_mass];
+  if (0.0 > m) m = 0.0;
+  if (1e4 < m) m = 1e4;
+  s[S_mass] = m;
+  if (!(isfinite(m) && 0.0 <= m && m <= s[S_max_mass])) return 6;
+  D(payload)[0] = m;
+  return tail_end(p);
+}
 """
 
 
@@ -276,6 +412,14 @@ def _source() -> str:
         "NF_X": lay.out_x.start, "SINGULAR": repr(float(SINGULAR_CONDITION))}
     lines = [f"#define P_{n} {i}" for i, n in enumerate(POINTERS)]
     lines += [f"#define S_{n} {i}" for i, n in enumerate(SCALARS)]
+    lines += [f"#define R_{n} {i}" for i, n in enumerate(rls.RLS_STATE)]
+    names.update(
+        MIN_SENSITIVITY=repr(float(rls._MIN_SENSITIVITY)),
+        UNUSED_VARIANCE=repr(float(rls._UNUSED_VARIANCE)),
+        EVENT_CHI2=repr(float(rls.EVENT_CHI2)), EVENT_TICKS=int(rls.EVENT_TICKS),
+        EVENT_WINDOW=repr(float(rls.EVENT_WINDOW)),
+        EVENT_MASS_CHANGE=repr(float(rls.EVENT_MASS_CHANGE)),
+        RESET_VARIANCE=repr(float(rls._RESET_STD ** 2)))
     lines += [f"#define {k} {v}" for k, v in names.items()]
     return _TEMPLATE.replace("@DEFINES@", "\n".join(lines))
 
@@ -293,11 +437,15 @@ def _layout_fits() -> bool:
 
 
 def compiled_tail():
-    """The loaded `TAIL_C` (``tail_head``, ``tail_end``), or None without a compiler."""
+    """The loaded `TAIL_C` (``tail_head``, ``tail_end``, ``tail_run``), or None (no compiler)."""
     if not _layout_fits():
         return None
     return load_shared(TAIL_C, "observer_tail", {
         "tail_head": ([ctypes.c_void_p], ctypes.c_int),
-        "tail_end": ([ctypes.c_void_p], ctypes.c_int)}, "Python")
+        "tail_end": ([ctypes.c_void_p], ctypes.c_int),
+        "tail_run": ([ctypes.c_void_p], ctypes.c_int),
+        "rls_update": ([ctypes.c_void_p] * 3 + [ctypes.c_long, ctypes.c_double,
+                                                ctypes.c_double, ctypes.c_void_p],
+                       ctypes.c_int)}, "Python")
 
 
