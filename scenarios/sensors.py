@@ -46,7 +46,6 @@ from models.sensing import (
     SensorSpec,
     cylinder_areas,
 )
-from models.state import N_SERVO_AXES, frozen_array
 from scenarios.errors import SimulatorError
 from scenarios.listeners_c import N_STREAMS, compiled_delivery, compiled_sensors, sensors_hooks
 from scenarios.simulator import Simulator
@@ -423,8 +422,7 @@ class SensorSimulator:
         positions = Samples.trusted(lin_t[:n], np.concatenate((lin_y[:n], ang_y[:n]), axis=1))
         return SensorReadings.trusted(
             tick, wrap(*acc), wrap(*gyro), positions, wrap(*press), wrap(*wheels),
-            wrap(*drive), frozen_array("servo_setpoint", self.sim.servo_setpoint,
-                                       (N_SERVO_AXES,)),
+            wrap(*drive), self.sim.frozen_servo_setpoint(),
             wrap(*link[0]) if link else None)
 
     def readings(self, tick: float) -> SensorReadings:

@@ -43,7 +43,7 @@ from models.mujoco import (
     home_keyframe,
     servo_specs,
 )
-from models.state import MachineState, WheelContacts
+from models.state import N_SERVO_AXES, MachineState, WheelContacts, frozen_array
 from models.terrain import Terrain
 from scenarios.commands import ActuatorCommand, rates_by_name
 from scenarios.errors import CommandError, SimulationError, SimulatorError
@@ -130,6 +130,8 @@ class Simulator:
         self._command = ActuatorCommand.zero()
         self._wheel_qpos = self.index.independent_qpos[9:13]
         self._wheel_ctrl = self.index.wheel_actuators
+        self._wheel_ctrl_list = [int(i) for i in self._wheel_ctrl]  # `apply`'s, as ints
+        self._wheel_range_lists = self._wheel_range.tolist()  # lo (4,), hi (4,)
         self._hold: np.ndarray | None = None  # wheel angles held at a zero drive command
         self._snapshot = (self.data.qpos.copy(), self.data.qvel.copy(), 0.0)
         self._snapshot_setpoint = self._setpoint.copy()
@@ -172,9 +174,12 @@ class Simulator:
         lo, hi = self._rate_range
         np.minimum(np.maximum(command.servo_rates, lo), hi, out=self._rates)  # C reads it
         left, right = command.wheel_speeds.tolist()
-        lo, hi = self._wheel_range
-        self.data.ctrl[self._wheel_ctrl] = np.minimum(np.maximum(
-            np.array((left, left, right, right)), lo), hi)  # FL, RL, FR, RR
+        # np.minimum(np.maximum(x, lo), hi) of four finite floats (a command's): the same
+        # choices (x >= lo keeps x, then x <= hi keeps it), without three arrays
+        ctrl = self.data.ctrl
+        for i, v, lo_i, hi_i in zip(self._wheel_ctrl_list, (left, left, right, right),
+                                    *self._wheel_range_lists):  # FL, RL, FR, RR
+            ctrl[i] = min(max(v, lo_i), hi_i)
         if left == 0.0 and right == 0.0:
             if self._hold is None:
                 self._hold = self.data.qpos[self._wheel_qpos].copy()
@@ -395,10 +400,27 @@ class Simulator:
         qpos, qvel, t = self._snapshot
         return qpos.copy(), qvel.copy(), t
 
+    def measured_arrays(self) -> tuple[np.ndarray, np.ndarray, float, np.ndarray]:
+        """`measured_instant` and `servo_setpoint` as the simulator holds them (no copies).
+
+        For a reader that only reads them before the next step (`truth_log.TruthColumns`:
+        a compiled row a tick): they must not be written or kept.
+        """
+        qpos, qvel, t = self._snapshot
+        return qpos, qvel, t, self._snapshot_setpoint
+
     @property
     def servo_setpoint(self) -> np.ndarray:
         """The nine axis servos' setpoints at the measured instant [m, rad], (9,) (a copy)."""
         return self._snapshot_setpoint.copy()
+
+    def frozen_servo_setpoint(self) -> np.ndarray:
+        """`servo_setpoint` read-only and checked finite (one copy: a sensor reading's).
+
+        Raises:
+            StateError: A setpoint is not finite, or not nine (`models.state.frozen_array`).
+        """
+        return frozen_array("servo_setpoint", self._snapshot_setpoint, (N_SERVO_AXES,))
 
     def closure_violation(self) -> float:
         """Largest distance between the two points of a loop closure [m], measured instant."""

@@ -1,0 +1,97 @@
+"""The closed loop's per-tick parts outside the controller, made cheaper: the same values.
+
+The simulator's wheel command clipped on Python floats (numpy's ``minimum(maximum(...))``
+choices), its setpoint handed to a reading with one copy, its measured arrays read in place
+by the truth's row; the margin pass's uncertainty copied only when it is new."""
+
+from dataclasses import replace
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from estimators.payload import PayloadEstimator
+from estimators.uncertainty import (
+    StateUncertainty,
+    _compiled_margin,
+    _margin_pass,
+    closure_margin,
+    force_margin,
+    normal_force_std,
+    suspension_sensitivity,
+)
+from models import StateError, build_reference_machine
+from models import terrain as T
+from scenarios.commands import ActuatorCommand
+from scenarios.simulator import Simulator
+from testkit.estimator_states import random_state
+
+MACHINE = build_reference_machine()
+
+
+@pytest.fixture(scope="module")
+def sim():
+    return Simulator(MACHINE, T.flat())
+
+
+def test_the_wheel_command_is_numpys_clip(sim):
+    lo, hi = sim._wheel_range
+    edges = [0.0, -0.0, lo[0], hi[0], np.nextafter(hi[0], 0.0), np.nextafter(lo[0], 0.0),
+             2.0 * hi[0], 2.0 * lo[0], 0.3, -0.7]
+    for left in edges:
+        for right in edges[::-1]:
+            sim.apply(ActuatorCommand(np.zeros(6), np.zeros(3), [left, right]))
+            got = sim.data.ctrl[sim._wheel_ctrl]
+            want = np.minimum(np.maximum(np.array((left, left, right, right)), lo), hi)
+            assert got.tobytes() == want.tobytes(), (left, right)
+
+
+def test_the_setpoint_and_the_measured_arrays_are_the_simulators(sim):
+    sim.apply(ActuatorCommand([0.0, 0.0, 0.1, 0.02, -0.02, 0.01], np.zeros(3), [0.5, 0.5]))
+    sim.step(5)
+    frozen = sim.frozen_servo_setpoint()
+    assert not frozen.flags.writeable and frozen.tobytes() == sim.servo_setpoint.tobytes()
+    qpos, qvel, t, setpoint = sim.measured_arrays()
+    q2, v2, t2 = sim.measured_instant
+    assert (qpos.tobytes(), qvel.tobytes(), t, setpoint.tobytes()) == (
+        q2.tobytes(), v2.tobytes(), t2, sim.servo_setpoint.tobytes())
+    kept = sim._snapshot_setpoint
+    sim._snapshot_setpoint = np.full(9, np.nan)
+    try:
+        with pytest.raises(StateError):
+            sim.frozen_servo_setpoint()
+    finally:
+        sim._snapshot_setpoint = kept
+
+
+def _numpy_margin(closure, model, state, unc, confidence):
+    lin = closure.linearize(state)
+    if model is not closure:
+        lin = replace(lin, G=lin.G - model.linearize(state).G)
+    return force_margin(normal_force_std(lin, unc, suspension_sensitivity(closure, state),
+                                         closure.payload_sensitivity(state)), confidence)
+
+
+@pytest.mark.skipif(_compiled_margin() is None, reason="no C compiler")
+def test_the_margin_pass_copies_a_new_uncertainty_only():
+    """The same uncertainty object tick after tick (the observer's arrays), another one
+    between, and arrays that can change (writable, written between calls): numpy's bits."""
+    closure = PayloadEstimator(MACHINE, fourth="cylinder-force", strokes="clip")
+    model = PayloadEstimator(MACHINE, fourth="d-beta", strokes="clip")
+    rng = np.random.default_rng(5)
+    kept = StateUncertainty(rng.uniform(0.0, 0.1, 19), rng.uniform(0.0, 0.02, 13),
+                            rng.uniform(0.0, 500.0, 2), 20.0)
+    loose = SimpleNamespace(acceleration=rng.uniform(0.0, 0.1, 19),
+                            qd=rng.uniform(0.0, 0.02, 13),
+                            suspension_force=rng.uniform(0.0, 500.0, 2), payload_mass=5.0)
+    for k in range(12):
+        s = replace(random_state(MACHINE, rng, max_tilt=0.3, speed=0.5),
+                    suspension_force=rng.uniform(2e4, 6e4, 2))
+        unc = loose if k % 4 == 3 else (kept if k % 4 else kept.with_payload_mass(30.0 + k))
+        loose.acceleration *= 1.5  # written in place: must be read again
+        loose.suspension_force[k % 2] += 10.0
+        fast = closure_margin(closure, model, s, unc, 0.99)
+        ref = unc if unc is not loose else StateUncertainty(
+            loose.acceleration, loose.qd, loose.suspension_force, loose.payload_mass)
+        assert fast.tobytes() == _numpy_margin(closure, model, s, ref, 0.99).tobytes(), k
+    assert _margin_pass()._sigmas is None  # the last one (loose) is not kept
