@@ -270,7 +270,8 @@ def run_closed_loop(scenario: ClosedLoopScenario | str, out_dir: Path | None = N
                 t = float(truth_time[k])
                 obs = sensing.observe(t)
                 state = obs.state
-                readiness.set_payload(obs.payload_mass)
+                if readiness.time is None:  # once ready its estimator is not asked again
+                    readiness.set_payload(obs.payload_mass)
                 ready = readiness.update(state)
                 tau = t - readiness.offset  # the scenario's clock
                 if ready and tau >= duration - 1e-9:

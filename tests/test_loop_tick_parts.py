@@ -95,3 +95,32 @@ def test_the_margin_pass_copies_a_new_uncertainty_only():
             loose.acceleration, loose.qd, loose.suspension_force, loose.payload_mass)
         assert fast.tobytes() == _numpy_margin(closure, model, s, ref, 0.99).tobytes(), k
     assert _margin_pass()._sigmas is None  # the last one (loose) is not kept
+
+
+def test_the_damping_parts_are_the_full_ones():
+    """The simulator's damping update (`DampingSchedule`): each chain's ``(k1, k2)`` alone
+    are `driven_terms`' (in the range, past it, at a flat triangle's division by zero),
+    and the wrapper-free inverse's free inertia is `free_inertia`'s, or its error."""
+    import warnings
+
+    from models.mujoco.servos import _free_inertia, free_inertia
+
+    coords = MACHINE.coordinates
+    for i in coords.chain_indices:
+        chain = coords.binding(i).chain
+        lo, hi = chain.stroke_range
+        la, lb = chain.side_lengths
+        flat = abs(la - lb) - chain._consts["lx0"]  # lx = |la - lb|: sin(q) = 0
+        for x in [*np.linspace(lo, hi, 23), lo - 0.3, hi + 0.3, flat, np.float64(hi)]:
+            with np.errstate(divide="ignore", invalid="ignore"):
+                got, want = chain.driven_rates(x), chain.driven_terms(x)[2:4]
+            assert repr(got) == repr(want), (chain.name, x)
+    rng = np.random.default_rng(2)
+    for _ in range(20):
+        a = rng.standard_normal((19, 19)) * 10.0 ** rng.uniform(-2, 3, (19, 19))
+        a = a @ a.T + np.eye(19)
+        assert _free_inertia(a).tobytes() == free_inertia(a).tobytes()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        with pytest.raises(np.linalg.LinAlgError):
+            _free_inertia(np.zeros((19, 19)))
