@@ -30,7 +30,8 @@ __all__ = ["TailPass", "tail_pass"]
 
 _S = {name: i for i, name in enumerate(tail_c.SCALARS)}
 _Z = slice(_S["z0"], _S["band1"] + 1)
-_TIME, _LAM, _CRANE, _MASS = _S["time"], _S["lam"], _S["crane"], _S["mass"]
+_TIME, _LAM, _CRANE, _MASS, _STD, _SLIDING, _FLAGS_FINITE = (
+    _S[n] for n in ("time", "lam", "crane", "mass", "std", "sliding", "flags_finite"))
 _ALL_IN = np.ones(4, bool)
 
 
@@ -98,6 +99,7 @@ class TailPass:
         bounds = self._est._bounds
         s[_S["n_bounds"]] = len(bounds)
         s[_S["max_mass"]] = MAX_PAYLOAD_MASS  # `check_payload_mass`'s range
+        s[_S["b0"]], s[_S["b1"]] = obs.payload.bias_std  # fixed (`PayloadRLS.std`)
         self._bounds = tuple(np.array([b[j] for b in bounds] or [0.0], float)
                              for j in range(3))
         self._row = np.zeros(ek._efforts.n_in)
@@ -197,6 +199,7 @@ class TailPass:
             links.std = links._io[9:].copy()
         if code in (1, 2, 3):
             return self._python(code, r, dt, stale)
+        std = None  # `PayloadRLS.std`: the C's, or asked of the filter
         if code in (5, 6):  # the filter's update (5) or the mass's setting (6) in Python
             if code == 5:
                 z = s[_Z].tolist()
@@ -206,21 +209,20 @@ class TailPass:
             s[_MASS] = mass
             code = self._end()
         else:
-            mass = float(s[_MASS])
-        if s[_S["sliding"]]:
+            mass, std = float(s[_MASS]), float(s[_STD])
+        if s[_SLIDING]:
             obs.efforts.payload_mass = mass  # as `CranePressures.accelerations` sets it
         if code:
             return self._python(code, r, dt, stale, mass)
-        out = self._out.copy()
-        contacts = wheel_contacts(obs.contacts._touching != 0.0, out[0:12].reshape(4, 3),
-                                  out[12:24].reshape(4, 3), out[24:36].reshape(4, 3),
-                                  s[_S["flags_finite"]] != 0.0)
+        out = self._out.copy().reshape(3, 4, 3)  # the contacts: force | points | normals
+        contacts = wheel_contacts(obs.contacts._touching != 0.0, out[0], out[1], out[2],
+                                  s[_FLAGS_FINITE] != 0.0)
         four = self._four.copy()
         obs._previous_four[:] = four
         buf = tick._out.copy()
         self._share_efforts(buf)
         return obs._estimate(trusted_state(buf, t, r.servo_setpoint, contacts), mass, four,
-                             t, stale)
+                             t, stale, std)
 
     def _select(self, est) -> None:
         """The packed selectors of four wheels in contact at the estimator's D and beta."""

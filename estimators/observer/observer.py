@@ -333,12 +333,14 @@ class Observer:
         return self._estimate(with_fields(state, contacts=contacts), mass, four, r.time, stale)
 
     def _estimate(self, state: MachineState, mass: float, four: np.ndarray, t: float,
-                  stale: bool) -> ObserverEstimate:
+                  stale: bool, std: float | None = None) -> ObserverEstimate:
         """The tick's `ObserverEstimate`, kept as the last.
 
         Its fields are valid: made without the frozen dataclass's per-field setting.
+        ``std``: the payload filter's `PayloadRLS.std` if known (`_tail`'s C), else asked.
         """
-        std = self.payload.std
+        if std is None:
+            std = self.payload.std
         est = object.__new__(ObserverEstimate)
         est.__dict__.update(state=state, payload_mass=mass, payload_std=std,
                             payload_event=self.payload.event,

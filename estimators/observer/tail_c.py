@@ -61,7 +61,8 @@ SCALARS = (
     "filter_time", "sliding_speed", "m1", "m2",
     "mass", "crane", "sliding",  # crane: 1 to take the pressures' accelerations; sliding out
     "n_bounds", "flags_finite",  # flags_finite out
-    "time", "lam", "max_mass", "rls_cap")  # `tail_run`'s: the tick, `payload_rls.forgetting`
+    "time", "lam", "max_mass", "rls_cap",  # `tail_run`'s: the tick, `payload_rls.forgetting`
+    "std", "b0", "b1")  # std out: `PayloadRLS.std` after the update; b0, b1 its bias_std
 # ``tail_run``'s returns besides those: the payload filter's update (5: its ring is full)
 # or the mass's setting (6: outside the estimator's range) in Python, then ``tail_end``.
 # ``tail_head``'s and ``tail_end``'s returns: where the Python steps take over.
@@ -378,8 +379,21 @@ int rls_update(void* const* p, double* st, double* ring, long cap, double time, 
   return 0;
 }
 
-/* The tick after the filters in one call: tail_head, the payload filter (rls_update), the
-   mass min(max(m, 0), 1e4) set as the estimator's (check_payload_mass's range), tail_end.
+/* PayloadRLS.std: the covariance and the offsets' floor, the same operations (Python's
+   floor ** 2: pow(floor, 2), correctly rounded, as floor * floor is). */
+static double rls_std(const double* st, double b0, double b1) {
+  const double y0 = st[R_y0], y1 = st[R_y1];
+  double floor = 0.0;
+  if (y0 == y0 && y1 == y1 && !(fabs(y0) < MIN_SENSITIVITY && fabs(y1) < MIN_SENSITIVITY)) {
+    double w0 = y0 / st[R_R0], w1 = y1 / st[R_R1], a0 = w0 * b0, a1 = w1 * b1;
+    floor = sqrt(a0 * a0 + a1 * a1) / (w0 * y0 + w1 * y1);
+  }
+  return sqrt(st[R_P] + floor * floor);
+}
+
+/* The tick after the filters in one call: tail_head, the payload filter (rls_update) and
+   its std, the mass min(max(m, 0), 1e4) set as the estimator's (check_payload_mass's
+   range), tail_end.
    Returns tail_head's code, 5 or 6 (RUN_CODES), or tail_end's. */
 int tail_run(void* const* p) {
   double *s = D(s), m;
@@ -388,6 +402,7 @@ int tail_run(void* const* p) {
   code = rls_update(p, D(rls), D(rls_ring), (long)s[S_rls_cap], s[S_time], s[S_lam],
                     s + S_z0);
   if (code) return code;
+  s[S_std] = rls_std(D(rls), s[S_b0], s[S_b1]);
   m = D(rls)[R_mass];
   if (0.0 > m) m = 0.0;
   if (1e4 < m) m = 1e4;
