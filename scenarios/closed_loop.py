@@ -259,6 +259,7 @@ def run_closed_loop(scenario: ClosedLoopScenario | str, out_dir: Path | None = N
     reserve = (PickReserve(machine, thr) if pick_reserve and mpc and grapple_at is not None
                else None)
     interrupted = False
+    ready, offset = False, 0.0  # `readiness`'s answer and clock offset, fixed once ready
     with Progress(duration, f"{scenario.name}/{controller}",
                   enabled=None if progress else False) as bar, frozen_heap():
         # The loop's clock starts after the heap's freeze (a full collection, 50-60 ms once
@@ -269,11 +270,11 @@ def run_closed_loop(scenario: ClosedLoopScenario | str, out_dir: Path | None = N
                 truth.record(k)
                 t = float(truth_time[k])
                 obs = sensing.observe(t)
-                state = obs.state
-                if readiness.time is None:  # once ready its estimator is not asked again
+                if not ready:  # once ready, it stays (`Readiness.update`): not asked again
                     readiness.set_payload(obs.payload_mass)
-                ready = readiness.update(state)
-                tau = t - readiness.offset  # the scenario's clock
+                    ready = readiness.update(obs.state)
+                    offset = readiness.offset
+                tau = t - offset  # the scenario's clock
                 if ready and tau >= duration - 1e-9:
                     break
                 if not ready:
