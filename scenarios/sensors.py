@@ -46,6 +46,7 @@ from models.sensing import (
     SensorSpec,
     cylinder_areas,
 )
+from models.state import N_SERVO_AXES, frozen_array
 from scenarios.errors import SimulatorError
 from scenarios.listeners_c import N_STREAMS, compiled_delivery, compiled_sensors, sensors_hooks
 from scenarios.simulator import Simulator
@@ -399,9 +400,8 @@ class SensorSimulator:
 
         The streams in the order `_bind_delivery` draws them (the linear and the angular
         positions first, then acceleration, angular rate, pressure, wheel speed, drive
-        torque, link accelerometers), their times and values in one new array (times
-        first), made read-only, that each stream's `Samples` views; the two positions'
-        streams joined.
+        torque, link accelerometers), their times and values in one new read-only array
+        (times first) that each stream's `Samples` views; the two positions' joined.
         """
         count, count_tail, fill, rng, k, order, widths = self._delivery
         z = rng.standard_normal(count(tick, *count_tail))
@@ -421,12 +421,11 @@ class SensorSimulator:
             first, first_y = last, last_y
         (lin_t, lin_y), (ang_t, ang_y), acc, gyro, press, wheels, drive, *link = got
         n = min(lin_t.shape[0], ang_t.shape[0])
-        joined = np.concatenate((lin_y[:n], ang_y[:n]), axis=1)
-        joined.flags.writeable = False
-        positions = wrap(lin_t[:n], joined)
+        positions = Samples.trusted(lin_t[:n], np.concatenate((lin_y[:n], ang_y[:n]), axis=1))
         return SensorReadings.trusted(
             tick, wrap(*acc), wrap(*gyro), positions, wrap(*press), wrap(*wheels),
-            wrap(*drive), self.sim.frozen_servo_setpoint(),
+            wrap(*drive), frozen_array("servo_setpoint", self.sim.measured_arrays()[3],
+                                       (N_SERVO_AXES,)),  # one copy
             wrap(*link[0]) if link else None)
 
     def readings(self, tick: float) -> SensorReadings:

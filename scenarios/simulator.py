@@ -43,7 +43,7 @@ from models.mujoco import (
     home_keyframe,
     servo_specs,
 )
-from models.state import N_SERVO_AXES, MachineState, WheelContacts, frozen_array
+from models.state import MachineState, WheelContacts
 from models.terrain import Terrain
 from scenarios.commands import ActuatorCommand, rates_by_name
 from scenarios.errors import CommandError, SimulationError, SimulatorError
@@ -174,9 +174,7 @@ class Simulator:
         lo, hi = self._rate_range
         np.minimum(np.maximum(command.servo_rates, lo), hi, out=self._rates)  # C reads it
         left, right = command.wheel_speeds.tolist()
-        # np.minimum(np.maximum(x, lo), hi) of four finite floats (a command's): the same
-        # choices (x >= lo keeps x, then x <= hi keeps it), without three arrays
-        ctrl = self.data.ctrl
+        ctrl = self.data.ctrl  # np.minimum(np.maximum(...)) of finite floats: its choices
         for i, v, lo_i, hi_i in zip(self._wheel_ctrl_list, (left, left, right, right),
                                     *self._wheel_range_lists):  # FL, RL, FR, RR
             ctrl[i] = min(max(v, lo_i), hi_i)
@@ -401,26 +399,13 @@ class Simulator:
         return qpos.copy(), qvel.copy(), t
 
     def measured_arrays(self) -> tuple[np.ndarray, np.ndarray, float, np.ndarray]:
-        """`measured_instant` and `servo_setpoint` as the simulator holds them (no copies).
-
-        For a reader that only reads them before the next step (`truth_log.TruthColumns`:
-        a compiled row a tick): they must not be written or kept.
-        """
-        qpos, qvel, t = self._snapshot
-        return qpos, qvel, t, self._snapshot_setpoint
+        """`measured_instant` and `servo_setpoint`, the simulator's own: read, not kept."""
+        return (*self._snapshot, self._snapshot_setpoint)
 
     @property
     def servo_setpoint(self) -> np.ndarray:
         """The nine axis servos' setpoints at the measured instant [m, rad], (9,) (a copy)."""
         return self._snapshot_setpoint.copy()
-
-    def frozen_servo_setpoint(self) -> np.ndarray:
-        """`servo_setpoint` read-only and checked finite (one copy: a sensor reading's).
-
-        Raises:
-            StateError: A setpoint is not finite, or not nine (`models.state.frozen_array`).
-        """
-        return frozen_array("servo_setpoint", self._snapshot_setpoint, (N_SERVO_AXES,))
 
     def closure_violation(self) -> float:
         """Largest distance between the two points of a loop closure [m], measured instant."""

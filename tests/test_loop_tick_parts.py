@@ -22,7 +22,9 @@ from estimators.uncertainty import (
 )
 from models import StateError, build_reference_machine
 from models import terrain as T
+from models.sensor_suites import sensor_suite
 from scenarios.commands import ActuatorCommand
+from scenarios.sensors import SensorSimulator
 from scenarios.simulator import Simulator
 from testkit.estimator_states import random_state
 
@@ -49,19 +51,23 @@ def test_the_wheel_command_is_numpys_clip(sim):
 def test_the_setpoint_and_the_measured_arrays_are_the_simulators(sim):
     sim.apply(ActuatorCommand([0.0, 0.0, 0.1, 0.02, -0.02, 0.01], np.zeros(3), [0.5, 0.5]))
     sim.step(5)
-    frozen = sim.frozen_servo_setpoint()
-    assert not frozen.flags.writeable and frozen.tobytes() == sim.servo_setpoint.tobytes()
     qpos, qvel, t, setpoint = sim.measured_arrays()
     q2, v2, t2 = sim.measured_instant
     assert (qpos.tobytes(), qvel.tobytes(), t, setpoint.tobytes()) == (
         q2.tobytes(), v2.tobytes(), t2, sim.servo_setpoint.tobytes())
+    sensors = SensorSimulator(sim, sensor_suite("realistic", 1))
+    sim.step(5)
+    r = sensors.readings(sim.time)
+    assert not r.servo_setpoint.flags.writeable
+    assert r.servo_setpoint.tobytes() == sim.servo_setpoint.tobytes()
     kept = sim._snapshot_setpoint
     sim._snapshot_setpoint = np.full(9, np.nan)
     try:
         with pytest.raises(StateError):
-            sim.frozen_servo_setpoint()
+            sensors.readings(sim.time + 0.01)
     finally:
         sim._snapshot_setpoint = kept
+        sensors.close()
 
 
 def _numpy_margin(closure, model, state, unc, confidence):
