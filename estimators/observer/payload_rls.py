@@ -122,12 +122,13 @@ class PayloadRLS:
         self.mass = float(initial_mass)
         self.P = float(initial_std) ** 2
         self._state[_R0:_R0 + 2] = np.asarray(force_std, float) ** 2
-        # fixed at construction (read-only): `std` keeps them as floats, the C reads R
-        self.R = self._state[_R0:_R0 + 2]
-        self.R.flags.writeable = False
-        self.bias_std = np.array(bias_std, float)
-        self.bias_std.flags.writeable = False
-        self._noise = (*self.R.tolist(), *self.bias_std.tolist())
+        # fixed at construction (read-only properties): `std` keeps them as floats, the C
+        # reads R in the state
+        self._r = self._state[_R0:_R0 + 2]
+        self._r.flags.writeable = False
+        self._bias_std = np.array(bias_std, float)
+        self._bias_std.flags.writeable = False
+        self._noise = (*self._r.tolist(), *self._bias_std.tolist())
         self._run = 0
         self._y = (0.0, 0.0)
         self.event = None
@@ -135,6 +136,16 @@ class PayloadRLS:
         self._expect_until = -math.inf
         self._settle_until = -math.inf
         self._ring = np.zeros((2, _RING))  # (time, mass) of the window, from ``head``
+
+    @property
+    def R(self) -> np.ndarray:
+        """The two cylinders' force variances [N^2], (2,), read-only."""
+        return self._r
+
+    @property
+    def bias_std(self) -> np.ndarray:
+        """Std of each cylinder force's constant offset [N], (2,), read-only."""
+        return self._bias_std
 
     @property
     def _y(self) -> tuple[float, float]:
