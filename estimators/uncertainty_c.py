@@ -108,6 +108,26 @@ class MarginPass:
         self._call = {True: bind(fun, self.g_closure, self.g_model, *tail),
                       False: bind(fun, self.g_closure, None, *tail)}
         self._d_payload, self._in_contact = address(self.d_payload), address(self.in_contact)
+        self._sigmas = None  # the uncertainty's arrays last copied, if they cannot change
+
+    def _copy_sigmas(self, uncertainty) -> None:
+        """The uncertainty's three arrays into the buffers, unless they are there already.
+
+        The observer hands the same read-only arrays every tick (only the payload's std
+        changes): arrays that own their read-only data cannot change, so the last ones
+        copied, kept here, need no copy again.
+        """
+        a, qd, s = uncertainty.acceleration, uncertainty.qd, uncertainty.suspension_force
+        kept = self._sigmas
+        if kept is not None and a is kept[0] and qd is kept[1] and s is kept[2]:
+            return
+        sigmas = (a, qd, s)
+        np.copyto(self.sigma_a, sigmas[0])
+        np.copyto(self.sigma_qd, sigmas[1])
+        np.copyto(self.sigma_s, sigmas[2])
+        fixed = all(type(a) is np.ndarray and a.base is None and not a.flags.writeable
+                    for a in sigmas)
+        self._sigmas = sigmas if fixed else None
 
     def __call__(self, g_closure, g_model, d_qd, stepped, d_payload, in_contact,
                  uncertainty, z: float) -> np.ndarray | None:
@@ -126,11 +146,9 @@ class MarginPass:
         np.copyto(self.g_closure, g_closure)
         if g_model is not None:
             np.copyto(self.g_model, g_model)
-        np.copyto(self.sigma_a, uncertainty.acceleration)
+        self._copy_sigmas(uncertainty)
         np.copyto(self.d_qd, d_qd)
-        np.copyto(self.sigma_qd, uncertainty.qd)
         np.copyto(self.stepped, stepped)
-        np.copyto(self.sigma_s, uncertainty.suspension_force)
         if d_payload is not None:
             np.copyto(self.d_payload, d_payload)
         np.copyto(self.in_contact, in_contact)

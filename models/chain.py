@@ -213,6 +213,32 @@ class CylinderChain:
         return (k["psi"] + sigma * q, k["psi_b"] - sigma * q1, sigma * dq, -sigma * dq1,
                 sigma * ddq, -sigma * ddq1)
 
+    def driven_rates(self, x: float) -> tuple[float, float]:
+        """``(k1, k2)`` of `driven_terms` at stroke ``x``, unchecked, without the rest.
+
+        The simulator's damping asks for these alone at every pose update
+        (`models.mujoco.servos.DampingSchedule`): `_cosines`' first two cosines and
+        derivatives and `_angles`' first derivatives, the same expressions, hence the same
+        numbers (and the same division by zero, which runs on numpy's scalar).
+        """
+        try:
+            return self._driven_rates(float(x))
+        except ZeroDivisionError:
+            return self._driven_rates(np.float64(x))
+
+    def _driven_rates(self, x: float) -> tuple[float, float]:
+        k = self._consts
+        la, lb = k["la"], k["lb"]
+        lx = k["lx0"] + x
+        c = (la * la + lb * lb - lx * lx) / (2 * la * lb)
+        c1 = (la * la + lx * lx - lb * lb) / (2 * la * lx)
+        d = -lx / (la * lb)
+        d1 = -(la * la - lb * lb) / (2 * la * lx * lx) + 1 / (2 * la)
+        dq = -d / math.sin(-math.acos(min(max(c, -1.0), 1.0)))
+        dq1 = -d1 / math.sin(-math.acos(min(max(c1, -1.0), 1.0)))
+        sigma = self.sigma
+        return sigma * dq, -sigma * dq1
+
     def angles(self, x: float, check: bool = True) -> tuple[float, float]:
         """(theta, theta_barrel) at stroke ``x`` [rad]: `state`'s two angles alone.
 

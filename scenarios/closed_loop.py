@@ -70,6 +70,8 @@ __all__ = ["DEFAULT_SCENARIO", "FORCE_CONFIDENCE", "SCENARIOS", "run_closed_loop
 FORCE_CONFIDENCE = 0.99  # one-sided: z = 2.33 standard deviations of each wheel's force
 _NO_FORCES = np.full(4, np.nan)  # the log's measured forces of a controller without them
 _NO_FORCES.flags.writeable = False
+_NO_MARGIN = np.zeros(4)  # the force margin of a controller without one [N]
+_NO_MARGIN.flags.writeable = False
 # The loop's own columns of the log (beside the truth's, `scenarios.truth_log`), in the
 # order `ScenarioLog.append` wrote them: name, row shape, dtype.
 _LOOP_COLUMNS = (("command", (11,), float), ("tcp_error", (), float), ("goal_index", (), int),
@@ -242,6 +244,10 @@ def run_closed_loop(scenario: ClosedLoopScenario | str, out_dir: Path | None = N
     n_max = n_ticks + int(round(READY_TIMEOUT_SECONDS / CONTROL_PERIOD))
     truth = TruthColumns(sim, n_max)  # the log's rows, filled in place
     rows = {name: np.zeros((n_max, *shape), dtype) for name, shape, dtype in _LOOP_COLUMNS}
+    # the columns by name once, not by a dict look-up per write
+    (row_command, row_tcp_error, row_goal_index, row_last_goal_given, row_distance,
+     row_speed_scale, row_fallback, row_step_ms, row_measured_forces, row_payload_now,
+     row_payload_estimate, row_force_margin, row_observer_ms) = rows.values()
     truth_time, truth_position, true_q = truth.columns["time"], \
         truth.columns["base_position"], truth.true_q
     n_done = 0
@@ -253,6 +259,7 @@ def run_closed_loop(scenario: ClosedLoopScenario | str, out_dir: Path | None = N
     reserve = (PickReserve(machine, thr) if pick_reserve and mpc and grapple_at is not None
                else None)
     interrupted = False
+    ready, offset = False, 0.0  # `readiness`'s answer and clock offset, fixed once ready
     with Progress(duration, f"{scenario.name}/{controller}",
                   enabled=None if progress else False) as bar, frozen_heap():
         # The loop's clock starts after the heap's freeze (a full collection, 50-60 ms once
@@ -263,10 +270,11 @@ def run_closed_loop(scenario: ClosedLoopScenario | str, out_dir: Path | None = N
                 truth.record(k)
                 t = float(truth_time[k])
                 obs = sensing.observe(t)
-                state = obs.state
-                readiness.set_payload(obs.payload_mass)
-                ready = readiness.update(state)
-                tau = t - readiness.offset  # the scenario's clock
+                if not ready:  # once ready, it stays (`Readiness.update`): not asked again
+                    readiness.set_payload(obs.payload_mass)
+                    ready = readiness.update(obs.state)
+                    offset = readiness.offset
+                tau = t - offset  # the scenario's clock
                 if ready and tau >= duration - 1e-9:
                     break
                 if not ready:
@@ -296,7 +304,7 @@ def run_closed_loop(scenario: ClosedLoopScenario | str, out_dir: Path | None = N
                 history.append(obs)
                 t0 = time.perf_counter()
                 seen = history[0]
-                margin = np.zeros(4)
+                margin = _NO_MARGIN
                 if mpc:
                     ctrl.set_payload_mass(seen.payload_mass)
                     margin = uncertainty_margin(ctrl, seen, confidence)
@@ -313,17 +321,18 @@ def run_closed_loop(scenario: ClosedLoopScenario | str, out_dir: Path | None = N
                     else 0.0
                 wheels = cmd.wheel_speeds(w, w)
                 sim.apply(ActuatorCommand.of_servo_rates(cmd.rates, wheels))
-                rows["command"][k, :9], rows["command"][k, 9:] = cmd.rates, wheels
-                rows["tcp_error"][k], rows["goal_index"][k] = tcp_err, goals.index
-                rows["last_goal_given"][k] = goals.last_given
-                rows["distance"][k] = float((truth_position[k] - x0) @ heading)
-                rows["speed_scale"][k], rows["fallback"][k] = cmd.wheel_speed_scale, cmd.fallback
-                rows["step_ms"][k] = 1e3 * step_s[k]
-                rows["measured_forces"][k] = cmd.info.get("measured_forces", _NO_FORCES)
-                rows["payload_now"][k] = (scenario.payload_event[1] if scenario.payload_event
-                                          and payload_done else scenario.payload_mass)
-                rows["payload_estimate"][k], rows["force_margin"][k] = obs.payload_mass, margin
-                rows["observer_ms"][k] = 1e3 * obs.observer_seconds
+                command_row = row_command[k]
+                command_row[:9], command_row[9:] = cmd.rates, wheels
+                row_tcp_error[k], row_goal_index[k] = tcp_err, goals.index
+                row_last_goal_given[k] = goals.last_given
+                row_distance[k] = float((truth_position[k] - x0) @ heading)
+                row_speed_scale[k], row_fallback[k] = cmd.wheel_speed_scale, cmd.fallback
+                row_step_ms[k] = 1e3 * step_s[k]
+                row_measured_forces[k] = cmd.info.get("measured_forces", _NO_FORCES)
+                row_payload_now[k] = (scenario.payload_event[1] if scenario.payload_event
+                                      and payload_done else scenario.payload_mass)
+                row_payload_estimate[k], row_force_margin[k] = obs.payload_mass, margin
+                row_observer_ms[k] = 1e3 * obs.observer_seconds
                 n_done = k + 1  # the tick's row is complete
                 sim.step(n_sub)
                 if k % 50 == 0:
@@ -396,8 +405,9 @@ def uncertainty_margin(ctrl: MpcController, seen, confidence: float) -> np.ndarr
     sensitivities (`estimators.uncertainty.normal_force_std`).
     """
     unc = seen.uncertainty
-    if not (unc.acceleration.any() or unc.qd.any() or unc.suspension_force.any()
-            or unc.payload_mass):
+    # the payload's std first: the observer's is never zero, and the arrays' tests cost more
+    if not (unc.payload_mass or unc.acceleration.any() or unc.qd.any()
+            or unc.suspension_force.any()):
         return np.zeros(4)
     return closure_margin(_closure(ctrl), ctrl.force_model, seen.state, unc, confidence)
 

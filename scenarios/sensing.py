@@ -105,8 +105,13 @@ class Sensing:
         readings = self.sensors.readings(tick)
         t0 = time.perf_counter()
         est = self.observer.update(readings)
-        return Observation(est.state, est.uncertainty, est.payload_mass, est.payload_std,
-                           est.payload_event, time.perf_counter() - t0)
+        seconds = time.perf_counter() - t0
+        # the observer's fields, valid: without the frozen dataclass's per-field setting
+        obs = object.__new__(Observation)
+        obs.__dict__.update(state=est.state, uncertainty=est.uncertainty,
+                            payload_mass=est.payload_mass, payload_std=est.payload_std,
+                            payload_event=est.payload_event, observer_seconds=seconds)
+        return obs
 
     def close(self) -> None:
         """Detach the sensors from the simulator."""

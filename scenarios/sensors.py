@@ -400,18 +400,19 @@ class SensorSimulator:
 
         The streams in the order `_bind_delivery` draws them (the linear and the angular
         positions first, then acceleration, angular rate, pressure, wheel speed, drive
-        torque, link accelerometers), their times and values in two new arrays, made
-        read-only, that each stream's `Samples` views; the two positions' streams joined.
+        torque, link accelerometers), their times and values in one new read-only array
+        (times first) that each stream's `Samples` views; the two positions' joined.
         """
         count, count_tail, fill, rng, k, order, widths = self._delivery
         z = rng.standard_normal(count(tick, *count_tail))
         ks = k.tolist()
         sizes = [ks[i] for i in order]
-        out_t = np.empty(sum(sizes))
-        out_y = np.empty(sum(map(operator.mul, sizes, widths)))
-        fill(address(z), address(out_t), address(out_y))
-        out_t.flags.writeable = False
-        out_y.flags.writeable = False
+        n_t = sum(sizes)
+        out = np.empty(n_t + sum(map(operator.mul, sizes, widths)))  # times, then values
+        at = address(out)
+        fill(address(z), at, at + 8 * n_t)
+        out.flags.writeable = False  # the views below are read-only too
+        out_t, out_y = out[:n_t], out[n_t:]
         wrap = Samples.of_read_only
         got, first, first_y = [], 0, 0
         for kk, n in zip(sizes, widths):
@@ -423,8 +424,8 @@ class SensorSimulator:
         positions = Samples.trusted(lin_t[:n], np.concatenate((lin_y[:n], ang_y[:n]), axis=1))
         return SensorReadings.trusted(
             tick, wrap(*acc), wrap(*gyro), positions, wrap(*press), wrap(*wheels),
-            wrap(*drive), frozen_array("servo_setpoint", self.sim.servo_setpoint,
-                                       (N_SERVO_AXES,)),
+            wrap(*drive), frozen_array("servo_setpoint", self.sim.measured_arrays()[3],
+                                       (N_SERVO_AXES,)),  # one copy
             wrap(*link[0]) if link else None)
 
     def readings(self, tick: float) -> SensorReadings:

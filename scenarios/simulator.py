@@ -130,6 +130,8 @@ class Simulator:
         self._command = ActuatorCommand.zero()
         self._wheel_qpos = self.index.independent_qpos[9:13]
         self._wheel_ctrl = self.index.wheel_actuators
+        self._wheel_ctrl_list = [int(i) for i in self._wheel_ctrl]  # `apply`'s, as ints
+        self._wheel_range_lists = self._wheel_range.tolist()  # lo (4,), hi (4,)
         self._hold: np.ndarray | None = None  # wheel angles held at a zero drive command
         self._snapshot = (self.data.qpos.copy(), self.data.qvel.copy(), 0.0)
         self._snapshot_setpoint = self._setpoint.copy()
@@ -172,9 +174,10 @@ class Simulator:
         lo, hi = self._rate_range
         np.minimum(np.maximum(command.servo_rates, lo), hi, out=self._rates)  # C reads it
         left, right = command.wheel_speeds.tolist()
-        lo, hi = self._wheel_range
-        self.data.ctrl[self._wheel_ctrl] = np.minimum(np.maximum(
-            np.array((left, left, right, right)), lo), hi)  # FL, RL, FR, RR
+        ctrl = self.data.ctrl  # np.minimum(np.maximum(...)) of finite floats: its choices
+        for i, v, lo_i, hi_i in zip(self._wheel_ctrl_list, (left, left, right, right),
+                                    *self._wheel_range_lists):  # FL, RL, FR, RR
+            ctrl[i] = min(max(v, lo_i), hi_i)
         if left == 0.0 and right == 0.0:
             if self._hold is None:
                 self._hold = self.data.qpos[self._wheel_qpos].copy()
@@ -394,6 +397,10 @@ class Simulator:
         """
         qpos, qvel, t = self._snapshot
         return qpos.copy(), qvel.copy(), t
+
+    def measured_arrays(self) -> tuple[np.ndarray, np.ndarray, float, np.ndarray]:
+        """`measured_instant` and `servo_setpoint`, the simulator's own: read, not kept."""
+        return (*self._snapshot, self._snapshot_setpoint)
 
     @property
     def servo_setpoint(self) -> np.ndarray:

@@ -201,6 +201,7 @@ class CompiledStep:
         self._n_servo, self._nq, self._nv = len(floats["lo"]), m.nq, m.nv
         self._call = fun
         self._fixed = (m._address, data._address, ctypes.addressof(self._setup))
+        self._setpoint_at = (None, 0)  # `run`'s last setpoint and its address (kept alive)
 
     def run(self, chunk: int, snap: int, setpoint: np.ndarray, hold: np.ndarray | None):
         """One chunk of `chunk` steps; the snapshot taken before step ``snap`` (if in it).
@@ -220,7 +221,10 @@ class CompiledStep:
             raise SimulatorError(f"a compiled chunk has 1 to {MAX_CHUNK} steps, got {chunk}")
         taken = 0 <= snap < chunk
         buffer = np.empty(self._nq + self._nv + self._n_servo + 1) if taken else None
-        args = (*self._fixed, chunk, snap if taken else -1, _read(setpoint),
+        kept = self._setpoint_at
+        if setpoint is not kept[0]:  # the simulator's setpoint, checked once an array
+            kept = self._setpoint_at = (setpoint, _read(setpoint))
+        args = (*self._fixed, chunk, snap if taken else -1, kept[1],
                 None if hold is None else _read(hold), None if buffer is None else address(buffer))
         code = self._call(*args)
         while -100 < code < 0:  # a hook's buffers are full: grow them, then step

@@ -101,12 +101,12 @@ class TruthColumns:
     def record(self, k: int) -> None:
         """Row ``k`` of every column from the simulator's measured instant."""
         sim = self._sim
-        qpos, qvel, t = sim.measured_instant
         if self._row is not None:
             fun, fixed = self._row
-            setpoint = sim.servo_setpoint
+            qpos, qvel, t, setpoint = sim.measured_arrays()  # read only, here
             if fun(*fixed, k, address(qpos), address(qvel), t, address(setpoint)) == 0:
                 return
+        qpos, qvel, _ = sim.measured_instant
         self._record_python(k, qpos, qvel)
 
     def _record_python(self, k: int, qpos: np.ndarray, qvel: np.ndarray) -> None:

@@ -1,13 +1,14 @@
-"""The observer's tick after the filters' pass in two C calls (`tail_c`), and its outputs.
+"""The observer's tick after the filters' pass in one C call (`tail_c`), and its outputs.
 
 `Observer._update` runs, after `_tick.TickPass`, the link fit, the payload regression and
 filter, the crane's accelerations from the pressures, the contact points and the flags
 (`Observer._from_links` and the steps it hands on to): ~50 us of Python around ~10 us of
 compiled work, three intermediate states and two contact sets. `TailPass` runs the same
-steps on the state's buffer in ``tail_head`` (up to the payload filter, which stays
-Python: `payload_rls.PayloadRLS`) and ``tail_end`` (after it), then makes the one
-`MachineState` and `ObserverEstimate`. Where its C hands back (`tail_c.HEAD_CODES`), the
-Python steps finish the tick from there. The same bits (`tests/test_observer_tail_c.py`).
+steps on the state's buffer in ``tail_run`` (``tail_head`` up to the payload filter, the
+filter on `payload_rls.PayloadRLS`'s state array, ``tail_end`` after it), then makes the
+one `MachineState` and `ObserverEstimate`. Where its C hands back (`tail_c.HEAD_CODES`,
+`tail_c.RUN_CODES`), the Python steps finish the tick from there. The same bits
+(`tests/test_observer_tail_c.py`, `tests/test_payload_rls_c.py`).
 """
 
 from __future__ import annotations
@@ -21,12 +22,16 @@ from estimators.efforts_kernel import ANCHORS
 from estimators.observer import contacts_c, fusion_c, tail_c
 from estimators.observer._states import StateBuffer, trusted_state, wheel_contacts
 from estimators.observer.crane_pressures import SLIDING_SPEED
+from estimators.observer.payload_rls import forgetting
 from models.cbuild import address
+from models.reference_machine import MAX_PAYLOAD_MASS
 
 __all__ = ["TailPass", "tail_pass"]
 
 _S = {name: i for i, name in enumerate(tail_c.SCALARS)}
 _Z = slice(_S["z0"], _S["band1"] + 1)
+_TIME, _LAM, _CRANE, _MASS, _STD, _SLIDING, _FLAGS_FINITE = (
+    _S[n] for n in ("time", "lam", "crane", "mass", "std", "sliding", "flags_finite"))
 _ALL_IN = np.ones(4, bool)
 
 
@@ -72,7 +77,7 @@ def tail_pass(observer) -> TailPass | None:
 
 
 class TailPass:
-    """`tail_c`'s two calls bound to an observer's buffers (module docstring).
+    """`tail_c`'s calls bound to an observer's buffers (module docstring).
 
     Args:
         observer: The `Observer` (its filters' pass, links, efforts, contacts, force model).
@@ -93,6 +98,8 @@ class TailPass:
         s[_S["m1"]], s[_S["m2"]] = ANCHORS
         bounds = self._est._bounds
         s[_S["n_bounds"]] = len(bounds)
+        s[_S["max_mass"]] = MAX_PAYLOAD_MASS  # `check_payload_mass`'s range
+        s[_S["b0"]], s[_S["b1"]] = obs.payload.bias_std  # fixed (`PayloadRLS.std`)
         self._bounds = tuple(np.array([b[j] for b in bounds] or [0.0], float)
                              for j in range(3))
         self._row = np.zeros(ek._efforts.n_in)
@@ -116,7 +123,7 @@ class TailPass:
         self._bind()
 
     def _bind(self) -> None:
-        """The pointer table (`tail_c.POINTERS`) and the two calls bound to it."""
+        """The pointer table (`tail_c.POINTERS`) and the calls bound to it."""
         obs, tick, c = self._obs, self._tick, self._obs.contacts
         links = obs.links
         ptr = {"buf": tick._out, "s": self._s, "forces": tick.forces, "seal": obs._seal,
@@ -127,7 +134,7 @@ class TailPass:
                "c_above": c._above_c, "c_drive": c._drive, "c_acc": tick.wheels[8:],
                "c_prev": obs._previous_four, "c_out": self._out, "c_four": self._four,
                "drive_samples": tick._samples[5], "tick_sc": tick._sc,
-               "nk_in": self._nk_in}
+               "nk_in": self._nk_in, "rls": obs.payload._state, "rls_ring": obs.payload._ring}
         if links is not None:
             ptr.update(link_samples=links._samples, link_mean=links._mean, link_w=links._w,
                        link_prior=links._prior_diag, link_io=links._io)
@@ -145,6 +152,9 @@ class TailPass:
         at = ctypes.addressof(self._table)
         self._head = functools.partial(self._lib.tail_head, at)
         self._end = functools.partial(self._lib.tail_end, at)
+        self._run = functools.partial(self._lib.tail_run, at)
+        self._ring = obs.payload._ring
+        self._s[_S["rls_cap"]] = self._ring.shape[1]
         self._tick_rows = tick._rows
         self._link_rows = 0 if links is None else links._samples.shape[0]
         self._keep = ptr
@@ -172,41 +182,47 @@ class TailPass:
                 if n != links._w_of:
                     links._w[:] = links._weights(n)[0]
                     links._w_of = n
-        if tick._rows != self._tick_rows or n > self._link_rows:
-            self._bind()  # a samples buffer grew
+        payload = obs.payload
+        if tick._rows != self._tick_rows or n > self._link_rows or payload._ring is not \
+                self._ring:
+            self._bind()  # a samples buffer or the payload filter's ring grew
         if r.servo_setpoint.flags.writeable or not obs.base.rotation_valid:
             return self._python(1, r, dt, stale)
-        s[0:2] = dt, n  # dt, link_n
-        code = self._head()
-        if s[3]:  # link_ok: the fit was taken
-            links.std = links._io[9:].copy()
-        if code:
-            return self._python(code, r, dt, stale)
-        z = s[_Z].tolist()
-        payload = obs.payload
-        payload.update(t, dt, z[0:2], z[2:4], z[4:6], z[6:8])
-        mass = min(max(payload.mass, 0.0), 1e4)
         est = self._est
-        est.payload_mass = mass
         if (est.D, est.beta) != self._db:
             self._select(est)
-        s[_S["mass"]] = mass
-        s[_S["crane"]] = 1.0 if obs.crane_from_pressures else 0.0
-        code = self._end()
-        if s[_S["sliding"]]:
+        s[0:2] = dt, n  # dt, link_n
+        s[_TIME], s[_LAM] = t, forgetting(dt)
+        s[_CRANE] = 1.0 if obs.crane_from_pressures else 0.0
+        code = self._run()  # the head, the payload filter, the mass, the end
+        if s[3]:  # link_ok: the fit was taken
+            links.std = links._io[9:].copy()
+        if code in (1, 2, 3):
+            return self._python(code, r, dt, stale)
+        std = None  # `PayloadRLS.std`: the C's, or asked of the filter
+        if code in (5, 6):  # the filter's update (5) or the mass's setting (6) in Python
+            if code == 5:
+                z = s[_Z].tolist()
+                payload.update(t, dt, z[0:2], z[2:4], z[4:6], z[6:8])
+            mass = min(max(payload.mass, 0.0), 1e4)
+            est.payload_mass = mass
+            s[_MASS] = mass
+            code = self._end()
+        else:
+            mass, std = float(s[_MASS]), float(s[_STD])
+        if s[_SLIDING]:
             obs.efforts.payload_mass = mass  # as `CranePressures.accelerations` sets it
         if code:
             return self._python(code, r, dt, stale, mass)
-        out = self._out.copy()
-        contacts = wheel_contacts(obs.contacts._touching != 0.0, out[0:12].reshape(4, 3),
-                                  out[12:24].reshape(4, 3), out[24:36].reshape(4, 3),
-                                  s[_S["flags_finite"]] != 0.0)
+        out = self._out.copy().reshape(3, 4, 3)  # the contacts: force | points | normals
+        contacts = wheel_contacts(obs.contacts._touching != 0.0, out[0], out[1], out[2],
+                                  s[_FLAGS_FINITE] != 0.0)
         four = self._four.copy()
         obs._previous_four[:] = four
         buf = tick._out.copy()
         self._share_efforts(buf)
         return obs._estimate(trusted_state(buf, t, r.servo_setpoint, contacts), mass, four,
-                             t, stale)
+                             t, stale, std)
 
     def _select(self, est) -> None:
         """The packed selectors of four wheels in contact at the estimator's D and beta."""

@@ -122,9 +122,9 @@ class Observer:
         initial_payload_std: Its std [kg].
         compiled: Run the filters', the fit's and the contacts' arithmetic in C
             (`filters_c`, `fusion_c`, `contacts_c`: the same results to round-off; the
-            state's first part in one call, `_tick`; the rest of the tick in two more,
-            `_tail`, the Python steps' bits) when a C compiler is there; False: Python and
-            numpy.
+            state's first part in one call, `_tick`; the rest of the tick, the payload
+            filter too, in one more, `_tail`, the Python steps' bits) when a C compiler is
+            there; False: Python and numpy.
     """
 
     crane_from_pressures = True  # `crane_pressures`; False: the encoders' alone
@@ -219,7 +219,7 @@ class Observer:
         base_std = float(np.hypot(accel_std[0], link_fusion.LINK_LEVER * accel_std[3]))
         self.links = (link_fusion.LinkFusion(self.efforts, spec.link_accelerometers, base_std,
                                              qdd_std, compiled) if has_links else None)
-        # The tick after the filters' pass in two C calls, where it applies (`_tail`).
+        # The tick after the filters' pass in one C call, where it applies (`_tail`).
         self._tail = _tail.tail_pass(self) if compiled else None
 
     # ------------------------------------------------------------------ uncertainty
@@ -274,7 +274,7 @@ class Observer:
         t = r.time
         dt = 0.0 if self._last_time is None else t - self._last_time
         stale = r.positions.value.shape[0] == 0 or r.pressures.value.shape[0] == 0
-        if self._tail is not None:  # the rest of the tick in two C calls (`_tail`)
+        if self._tail is not None:  # the rest of the tick in one C call (`_tail`)
             return self._tail.update(r, dt, stale)
         if self._tick is not None:
             buf = StateBuffer(self._tick.run(r, dt))
@@ -333,12 +333,14 @@ class Observer:
         return self._estimate(with_fields(state, contacts=contacts), mass, four, r.time, stale)
 
     def _estimate(self, state: MachineState, mass: float, four: np.ndarray, t: float,
-                  stale: bool) -> ObserverEstimate:
+                  stale: bool, std: float | None = None) -> ObserverEstimate:
         """The tick's `ObserverEstimate`, kept as the last.
 
         Its fields are valid: made without the frozen dataclass's per-field setting.
+        ``std``: the payload filter's `PayloadRLS.std` if known (`_tail`'s C), else asked.
         """
-        std = self.payload.std
+        if std is None:
+            std = self.payload.std
         est = object.__new__(ObserverEstimate)
         est.__dict__.update(state=state, payload_mass=mass, payload_std=std,
                             payload_event=self.payload.event,

@@ -32,16 +32,16 @@ Its standard deviation: the RLS covariance and a floor for what averaging does n
 
 from __future__ import annotations
 
-import collections
 import math
 
 import numpy as np
 
 from estimators.observer._linalg import solve
+from models.cbuild import BufferSlot
 
 __all__ = ["EVENT_CHI2", "EVENT_MASS_CHANGE", "EVENT_TICKS", "EVENT_WINDOW",
-           "EXPECTED_PICK_SECONDS", "EXPECTED_PICK_TICKS",
-           "FORGETTING_TIME", "PayloadRLS", "without_seal_friction"]
+           "EXPECTED_PICK_SECONDS", "EXPECTED_PICK_TICKS", "FORGETTING_TIME", "PayloadRLS",
+           "RLS_STATE", "forgetting", "without_seal_friction"]
 
 FORGETTING_TIME = 2.0  # [s]
 EVENT_CHI2 = 25.0  # normalised innovation (5 sigma)
@@ -56,7 +56,17 @@ _UNUSED_VARIANCE = 1e18  # [N^2] a cylinder inside its dead band this tick
 
 # Two cylinders, once per control tick: the arithmetic is on Python floats in the order of
 # the numpy expressions it replaced (the same results, bit for bit, ~1 us less per operation);
-# the 2x2 solves stay LAPACK's.
+# the 2x2 solves stay LAPACK's. The observer's compiled tick runs the same update in C
+# (`tail_c`) on the state below, kept in one array (`RLS_STATE`, the places), and the
+# window's estimates in a ring of two rows (times, masses) from its ``head``.
+RLS_STATE = ("mass", "P", "run", "y0", "y1", "event", "event_time", "expect_until",
+             "settle_until", "head", "count", "R0", "R1", "event_variance_scale",
+             "expected_pick_ticks")
+_EVENTS = (None, "pick", "release")  # `PayloadRLS.event` by its code in the state
+_MASS, _P, _Y0, _EVENT, _EVENT_TIME, _HEAD, _COUNT, _R0 = (
+    RLS_STATE.index(n) for n in ("mass", "P", "y0", "event", "event_time", "head", "count",
+                                 "R0"))
+_RING = 64  # the window's first capacity (a 10 ms tick fills 51 of it); it grows when full
 
 
 def _gain(y0: float, y1: float, p, r0: float, r1: float, rhs) -> np.ndarray:
@@ -69,6 +79,15 @@ def _gain(y0: float, y1: float, p, r0: float, r1: float, rhs) -> np.ndarray:
 def _sign(x: float) -> float:
     """``np.sign`` of a float (NaN stays NaN)."""
     return 1.0 if x > 0 else -1.0 if x < 0 else x * 0.0 if x != x else 0.0
+
+
+def forgetting(dt: float) -> float:
+    """The forgetting factor ``lambda = exp(-dt / T)`` of a tick of ``dt`` [s] (1 if dt <= 0)."""
+    return np.exp(-dt / FORGETTING_TIME) if dt > 0 else 1.0
+
+
+def _slot(name: str, kind: type = float) -> BufferSlot:
+    return BufferSlot("_state", RLS_STATE.index(name), kind)
 
 
 class PayloadRLS:
@@ -86,22 +105,76 @@ class PayloadRLS:
             one is expected (`EXPECTED_PICK_TICKS`).
     """
 
+    mass = _slot("mass")
+    P = _slot("P")
+    _run = _slot("run", int)
+    _expect_until = _slot("expect_until")
+    _settle_until = _slot("settle_until")  # an event's estimate converges until then
+    event_variance_scale = _slot("event_variance_scale")
+    expected_pick_ticks = _slot("expected_pick_ticks", int)
+
     def __init__(self, initial_mass: float, initial_std: float, force_std, bias_std,
                  event_variance_scale: float = 1.0,
                  expected_pick_ticks: int = EXPECTED_PICK_TICKS):
+        self._state = np.zeros(len(RLS_STATE))
         self.event_variance_scale = float(event_variance_scale)
         self.expected_pick_ticks = int(expected_pick_ticks)
         self.mass = float(initial_mass)
         self.P = float(initial_std) ** 2
-        self.R = np.asarray(force_std, float) ** 2
-        self.bias_std = np.asarray(bias_std, float)
+        self._state[_R0:_R0 + 2] = np.asarray(force_std, float) ** 2
+        # fixed at construction (read-only properties): `std` keeps them as floats, the C
+        # reads R in the state
+        self._r = self._state[_R0:_R0 + 2]
+        self._r.flags.writeable = False
+        self._bias_std = np.array(bias_std, float)
+        self._bias_std.flags.writeable = False
+        self._noise = (*self._r.tolist(), *self._bias_std.tolist())
         self._run = 0
         self._y = (0.0, 0.0)
-        self.event: str | None = None
-        self.event_time: float | None = None
+        self.event = None
+        self.event_time = None
         self._expect_until = -math.inf
-        self._recent: collections.deque = collections.deque()  # (time, mass) of the window
-        self._settle_until = -math.inf  # an event's estimate converges until then
+        self._settle_until = -math.inf
+        self._ring = np.zeros((2, _RING))  # (time, mass) of the window, from ``head``
+
+    @property
+    def R(self) -> np.ndarray:
+        """The two cylinders' force variances [N^2], (2,), read-only."""
+        return self._r
+
+    @property
+    def bias_std(self) -> np.ndarray:
+        """Std of each cylinder force's constant offset [N], (2,), read-only."""
+        return self._bias_std
+
+    @property
+    def _y(self) -> tuple[float, float]:
+        """The last tick's ``Y`` of the two cylinders (`std`)."""
+        y = self._state[_Y0:_Y0 + 2].tolist()
+        return y[0], y[1]
+
+    @_y.setter
+    def _y(self, value) -> None:
+        self._state[_Y0:_Y0 + 2] = value
+
+    @property
+    def event(self) -> str | None:
+        """``pick`` or ``release`` when the last update detected one, else None."""
+        return _EVENTS[int(self._state[_EVENT])]
+
+    @event.setter
+    def event(self, value: str | None) -> None:
+        self._state[_EVENT] = _EVENTS.index(value)
+
+    @property
+    def event_time(self) -> float | None:
+        """When the last event was detected [s], None before any."""
+        t = float(self._state[_EVENT_TIME])
+        return None if math.isnan(t) else t
+
+    @event_time.setter
+    def event_time(self, value: float | None) -> None:
+        self._state[_EVENT_TIME] = math.nan if value is None else value
 
     def expect_pick(self, time: float) -> None:
         """The operator closed the grapple at ``time`` [s]: a pick may come (module docstring)."""
@@ -138,7 +211,7 @@ class PayloadRLS:
                 return
             nu = [0.0 if i else n - _sign(n) * b for i, n, b in zip(inside, nu, _floats(band))]
             r = [_UNUSED_VARIANCE if i else ri for i, ri in zip(inside, r)]
-        lam = np.exp(-dt / FORGETTING_TIME) if dt > 0 else 1.0
+        lam = forgetting(dt)
         p = self.P / lam
         scale = self.event_variance_scale
         x = _gain(y0, y1, p, r[0] * scale, r[1] * scale, nu).tolist()
@@ -165,7 +238,7 @@ class PayloadRLS:
             return
         self.mass, self.P = new_mass, new_p
         if event:
-            self.event = "pick" if self.mass > self._recent[0][1] else "release"
+            self.event = "pick" if self.mass > self._ring[1, self._head] else "release"
             self.event_time = time
             self._settle_until = time + EVENT_WINDOW
             if self.event == "pick":
@@ -177,27 +250,40 @@ class PayloadRLS:
         The window restarts after each event's `EVENT_WINDOW` (the estimate converges to the
         new load then: not a second event).
         """
-        recent = self._recent
+        state, ring = self._state, self._ring
+        head, count = int(state[_HEAD]), int(state[_COUNT])
         if time < self._settle_until:
-            recent.clear()
-            recent.append((time, mass))
+            head, count = 0, 0
+        else:
+            while count and ring[0, head] < time - EVENT_WINDOW:
+                head, count = (head + 1) % ring.shape[1], count - 1
+        if count == ring.shape[1]:  # full: the window in order, in a ring twice the size
+            ring = self._ring = np.concatenate((np.roll(ring, -head, axis=1),
+                                                np.zeros_like(ring)), axis=1)
+            head = 0
+        at = (head + count) % ring.shape[1]
+        ring[0, at], ring[1, at] = time, mass
+        state[_HEAD], state[_COUNT] = head, count + 1
+        if time < self._settle_until:
             return False
-        while recent and recent[0][0] < time - EVENT_WINDOW:
-            recent.popleft()
-        recent.append((time, mass))
-        return abs(mass - recent[0][1]) > EVENT_MASS_CHANGE
+        return abs(mass - ring[1, head]) > EVENT_MASS_CHANGE
+
+    @property
+    def _head(self) -> int:
+        """Where the window's oldest estimate is in the ring."""
+        return int(self._state[_HEAD])
 
     @property
     def std(self) -> float:
         """Std of the mass [kg]: the covariance and the offsets' floor."""
-        y0, y1 = self._y
+        _, p, _, y0, y1 = self._state[:_Y0 + 2].tolist()
         floor = 0.0
         if y0 == y0 and y1 == y1 and not _insensitive(y0, y1):
-            (r0, r1), (b0, b1) = self.R.tolist(), self.bias_std.tolist()
+            r0, r1, b0, b1 = self._noise
             w0, w1 = y0 / r0, y1 / r1
             a0, a1 = w0 * b0, w1 * b1
             floor = float(math.sqrt(a0 * a0 + a1 * a1) / (w0 * y0 + w1 * y1))
-        return float(math.sqrt(self.P + floor ** 2))
+        return float(math.sqrt(p + floor ** 2))
 
 
 def without_seal_friction(forces, speeds, seals, sliding_speed: float) -> tuple[list, list]:

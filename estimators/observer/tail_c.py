@@ -1,11 +1,13 @@
-"""The observer's tick after its filters, in two C calls (`_tail.TailPass`).
+"""The observer's tick after its filters, in one C call (`_tail.TailPass`).
 
 Between the filters' pass (`_tick`) and the `ObserverEstimate` the observer runs the link
-accelerometers' fit, the payload regression, the sliding crane cylinders' accelerations, the
-contact points and the flags' four-wheel forces: five compiled kernels and a dozen small C
-and BLAS calls, glued by ~50 us of Python (states, contacts, arrays). ``tail_head`` (before
-the payload filter, which stays Python) and ``tail_end`` (after it) run that glue on the
-state's buffer and call the compiled parts by address:
+accelerometers' fit, the payload regression and its filter, the sliding crane cylinders'
+accelerations, the contact points and the flags' four-wheel forces: five compiled kernels
+and a dozen small C and BLAS calls, glued by ~50 us of Python (states, contacts, arrays).
+``tail_head`` (up to the payload filter), the filter (`payload_rls.PayloadRLS.update` on
+its state array, ~10 us of Python in a closed loop: `payload_rls_c`) and ``tail_end`` run that
+glue on the state's buffer, in one call, ``tail_run``, and call the compiled parts by
+address:
 
 * the estimator's and the efforts' CasADi kernels (`estimators._kernel_calls.Compiled`,
   each on buffers of its own), the link fit and the contacts' C (`fusion_c`, `contacts_c`);
@@ -29,11 +31,13 @@ from estimators._symbolic import LAYOUT
 from estimators.batch import SINGULAR_CONDITION
 from estimators.efforts_kernel import INPUTS
 from estimators.observer._states import STATE_SIZE
+from estimators.observer.payload_rls_c import RLS_C
 from models.cbuild import load_shared
 from models.numpy_blas import numpy_blas
 from models.sensing import PRESSURE_CYLINDERS
 
-__all__ = ["HEAD_CODES", "POINTERS", "SCALARS", "TAIL_C", "compiled_tail", "numpy_blas"]
+__all__ = ["HEAD_CODES", "POINTERS", "RUN_CODES", "SCALARS", "TAIL_C", "compiled_tail",
+           "numpy_blas"]
 
 # The pointer table both calls read (`void** p`), in this order.
 POINTERS = (
@@ -47,7 +51,8 @@ POINTERS = (
     "selectors", "payload", "bound_index", "bound_lo", "bound_hi",
     "c_k", "c_touching", "c_above", "c_drive", "c_acc", "c_prev", "c_out", "c_four",
     "fn_contact_points", "fn_contact_flags", "drive_samples", "tick_sc",
-    "fn_gemv", "fn_ddot", "fn_gesv")
+    "fn_gemv", "fn_ddot", "fn_gesv",
+    "rls", "rls_ring")  # the payload filter's state (`payload_rls.RLS_STATE`) and ring
 # The scalars' places in ``s`` (in: set by the caller; out: written by the calls).
 SCALARS = (
     "dt", "link_n", "link_m", "link_ok",  # link_ok out: the fit was taken
@@ -55,9 +60,14 @@ SCALARS = (
     "z0", "z1", "z2", "z3", "z4", "z5", "band0", "band1",  # out: the filtered regression
     "filter_time", "sliding_speed", "m1", "m2",
     "mass", "crane", "sliding",  # crane: 1 to take the pressures' accelerations; sliding out
-    "n_bounds", "flags_finite")  # flags_finite out
+    "n_bounds", "flags_finite",  # flags_finite out
+    "time", "lam", "max_mass", "rls_cap",  # `tail_run`'s: the tick, `payload_rls.forgetting`
+    "std", "b0", "b1")  # std out: `PayloadRLS.std` after the update; b0, b1 its bias_std
+# ``tail_run``'s returns besides those: the payload filter's update (5: its ring is full)
+# or the mass's setting (6: outside the estimator's range) in Python, then ``tail_end``.
 # ``tail_head``'s and ``tail_end``'s returns: where the Python steps take over.
 HEAD_CODES = {0: "done", 1: "buffer", 2: "links", 3: "payload", 4: "contacts"}
+RUN_CODES = {5: "payload filter", 6: "payload mass"}
 
 _LIFT_PRESS = PRESSURE_CYLINDERS.index("lift")
 _TILT_PRESS = PRESSURE_CYLINDERS.index("tilt")
@@ -260,6 +270,28 @@ int tail_end(void* const* p) {
       D(c_k), D(c_above), D(c_touching), drive, D(c_acc), D(c_four), cout);
   return 0;
 }
+
+@RLS_C@
+/* The tick after the filters in one call: tail_head, the payload filter (rls_update) and
+   its std, the mass min(max(m, 0), 1e4) set as the estimator's (check_payload_mass's
+   range), tail_end.
+   Returns tail_head's code, 5 or 6 (RUN_CODES), or tail_end's. */
+int tail_run(void* const* p) {
+  double *s = D(s), m;
+  int code = tail_head(p);
+  if (code) return code;
+  code = rls_update(p, D(rls), D(rls_ring), (long)s[S_rls_cap], s[S_time], s[S_lam],
+                    s + S_z0);
+  if (code) return code;
+  s[S_std] = rls_std(D(rls), s[S_b0], s[S_b1]);
+  m = D(rls)[R_mass];
+  if (0.0 > m) m = 0.0;
+  if (1e4 < m) m = 1e4;
+  s[S_mass] = m;
+  if (!(isfinite(m) && 0.0 <= m && m <= s[S_max_mass])) return 6;
+  D(payload)[0] = m;
+  return tail_end(p);
+}
 """
 
 
@@ -277,7 +309,7 @@ def _source() -> str:
     lines = [f"#define P_{n} {i}" for i, n in enumerate(POINTERS)]
     lines += [f"#define S_{n} {i}" for i, n in enumerate(SCALARS)]
     lines += [f"#define {k} {v}" for k, v in names.items()]
-    return _TEMPLATE.replace("@DEFINES@", "\n".join(lines))
+    return _TEMPLATE.replace("@DEFINES@", "\n".join(lines)).replace("@RLS_C@", RLS_C)
 
 
 TAIL_C = _source()
@@ -293,11 +325,15 @@ def _layout_fits() -> bool:
 
 
 def compiled_tail():
-    """The loaded `TAIL_C` (``tail_head``, ``tail_end``), or None without a compiler."""
+    """The loaded `TAIL_C` (``tail_head``, ``tail_end``, ``tail_run``), or None (no compiler)."""
     if not _layout_fits():
         return None
     return load_shared(TAIL_C, "observer_tail", {
         "tail_head": ([ctypes.c_void_p], ctypes.c_int),
-        "tail_end": ([ctypes.c_void_p], ctypes.c_int)}, "Python")
+        "tail_end": ([ctypes.c_void_p], ctypes.c_int),
+        "tail_run": ([ctypes.c_void_p], ctypes.c_int),
+        "rls_update": ([ctypes.c_void_p] * 3 + [ctypes.c_long, ctypes.c_double,
+                                                ctypes.c_double, ctypes.c_void_p],
+                       ctypes.c_int)}, "Python")
 
 

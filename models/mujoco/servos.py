@@ -8,11 +8,17 @@ the pose the machine is in (`DampingSchedule`).
 from __future__ import annotations
 
 import functools
+import math
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass
 
 import mujoco
 import numpy as np
+
+try:
+    from numpy.linalg import _umath_linalg
+except ImportError:  # pragma: no cover - a numpy that moved it
+    _umath_linalg = None
 
 from models.coordinates import N_INDEPENDENT
 from models.description import Machine
@@ -95,6 +101,22 @@ def reflected_inertia(machine: Machine, q_ind=None) -> tuple[np.ndarray, np.ndar
 def free_inertia(reduced: np.ndarray) -> np.ndarray:
     """``1 / (M_r^-1)[i, i]`` of each independent coordinate of a (19, 19) reduced inertia."""
     return 1.0 / np.diag(np.linalg.inv(reduced))[6:]
+
+
+def _free_inertia(reduced: np.ndarray) -> np.ndarray:
+    """`free_inertia` by the gufunc `np.linalg.inv` ends in, without its wrapper (~2.5 us).
+
+    The same LAPACK call on the same data, so the same bits; the simulator's damping asks
+    every few steps. A diagonal that does not sum to a finite number (NaN: a singular or
+    non-finite matrix, not a mass matrix's) takes `free_inertia`, which raises numpy's
+    `LinAlgError` as before (after the gufunc's RuntimeWarning) or gives the same numbers.
+    """
+    if _umath_linalg is None:  # pragma: no cover - a numpy that moved it
+        return free_inertia(reduced)
+    diagonal = np.diag(_umath_linalg.inv(reduced, signature="d->d"))
+    if not math.isfinite(diagonal.sum()):
+        return free_inertia(reduced)
+    return 1.0 / diagonal[6:]
 
 
 def gravity_loads(machine: Machine, q_ind=None, base_rotation=None) -> np.ndarray:
@@ -322,9 +344,9 @@ class DampingSchedule:
             self._coordinates.jacobian(q)  # raises, naming the coordinate
         strokes, jac = q.tolist(), self._jac
         for i, chain, driven, barrel, column in self._chain_entries:
-            _, _, jac[driven, column], jac[barrel, column], _, _ = chain.driven_terms(strokes[i])
+            jac[driven, column], jac[barrel, column] = chain.driven_rates(strokes[i])
         mujoco.mj_fullM(self._model, data, self._mass)
-        free = free_inertia(self._jac.T @ self._mass @ self._jac)[:self._n]
+        free = _free_inertia(self._jac.T @ self._mass @ self._jac)[:self._n]
         return np.minimum(self._kv, self._limit * free)
 
     def lead(self, data: mujoco.MjData, q_ind) -> np.ndarray:
