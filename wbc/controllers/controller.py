@@ -346,7 +346,10 @@ class Controller(abc.ABC):
         return self._command(state, qdd, scale, info, fallback=False)
 
     def _rate_basis(self, state: MachineState) -> np.ndarray:
-        """Axis velocities the accelerations are added to, (9,): the measured ones."""
+        """Axis velocities the accelerations are added to, (9,): the measured ones.
+
+        Read, never written (`_command` and `fallback_command` make new arrays of them).
+        """
         return state.qd[:N_AXES]
 
     def _commanded(self, rates: np.ndarray) -> None:

@@ -53,6 +53,20 @@ from wbc.tasks import (
 __all__ = ["MpcController"]
 
 
+def _margins_valid(m0: float, m1: float, m2: float, m3: float) -> bool:
+    """`check_margins`' test of four margins as Python floats: finite and >= 0 each.
+
+    ``0 <= m < inf`` is false for a NaN, an infinity and a negative, true for -0.0 (as
+    ``m < 0`` is false there): the same answers as numpy's ``isfinite`` and ``< 0``,
+    without four ufunc calls every tick.
+    """
+    return (0.0 <= m0 < _INF and 0.0 <= m1 < _INF and 0.0 <= m2 < _INF
+            and 0.0 <= m3 < _INF)
+
+
+_INF = float("inf")
+
+
 class MpcController(Controller):
     r"""Receding-horizon QP with the wheel normal-force constraint at every step.
 
@@ -147,8 +161,11 @@ class MpcController(Controller):
         self.last_plan: MpcPlan | None = None
         self.force_margin = np.zeros(4)
         ranges = machine.coordinates  # the setpoints may use the full ranges (no margin)
+        pred = self.planner.prediction
         self.servo = (ServoState(cfg.dt, mc.deflection_time_constant, ranges.lower[:N_AXES],
-                                 ranges.upper[:N_AXES], times=self.planner.prediction.times)
+                                 ranges.upper[:N_AXES], times=pred.times,
+                                 brake=(pred.Lq, pred.Lv, pred.step_lengths,
+                                        self.planner.limits.acceleration))
                       if mc.setpoint_state else None)
 
     @property
@@ -199,7 +216,9 @@ class MpcController(Controller):
         Raises:
             ConfigurationError: Not four finite margins >= 0.
         """
-        m = check_margins(margin, 4, "force margin")
+        m = np.asarray(margin, float)
+        if m.shape != (4,) or not _margins_valid(*m.tolist()):  # the error's message
+            m = check_margins(margin, 4, "force margin")
         self.force_constraint.thresholds = self.force_thresholds + self.config.force.margin + m
         self.force_margin = m
 
@@ -258,10 +277,14 @@ class MpcController(Controller):
             self.side_reserve.set_reserve(np.zeros(2))
 
     def _rate_basis(self, state: MachineState) -> np.ndarray:
-        """The rates commanded last tick (with `MpcConfig.setpoint_state`), else measured."""
+        """The rates commanded last tick (with `MpcConfig.setpoint_state`), else measured.
+
+        The servo's own array, not a copy: the base class reads it before `_commanded`
+        writes it (and makes new arrays of it).
+        """
         if self.servo is not None and self.servo.setpoint is not None:
-            return self.servo.rates.copy()
-        return state.qd[:N_AXES].copy()
+            return self.servo.rates
+        return state.qd[:N_AXES]
 
     def _commanded(self, rates: np.ndarray) -> None:
         if self.servo is not None:
@@ -285,10 +308,13 @@ class MpcController(Controller):
 
     def context(self, state: MachineState) -> HorizonContext:
         """The horizon context of ``state`` (measures the load split, see the class)."""
-        ref = self.reference_at(self.planner.node_times)
-        free = None
-        if self.servo is not None:  # with the free response of (q, qd), in one pass
-            q, qd, *free = self.servo.observe_free(state, self.planner.prediction)
+        planner = self.planner
+        ref = self.reference_at(planner.node_times)
+        free = brake = None
+        if self.servo is not None:  # with the free response and the brake, in one pass
+            q, qd, *free, ub, qb, vb = self.servo.observe_brake(
+                state, planner.prediction, planner.limits.acceleration)
+            brake = (ub, qb, vb)
         else:
             q, qd = state.q[:N_AXES].copy(), state.qd[:N_AXES].copy()
         fb = None
@@ -300,9 +326,9 @@ class MpcController(Controller):
                     else self._chained_feedback(measured, state, q))
             fb, offset, drift = (self._feedback_steps(measured, state, q) if done is None
                                  else done)
-        return self.planner.context(state, ref, self._last_qdd, self._speed_scale, q=q,
-                                    qd=qd, free=free, feedback=fb, warp=self.warp,
-                                    leveling_offset=offset, warp_drift=drift)
+        return planner.context(state, ref, self._last_qdd, self._speed_scale, q=q, qd=qd,
+                               free=free, brake=brake, feedback=fb, warp=self.warp,
+                               leveling_offset=offset, warp_drift=drift)
 
     def _feedback_steps(self, measured: ForceFeedback, state: MachineState,
                         q: np.ndarray) -> tuple[ForceFeedback, float, np.ndarray | None]:

@@ -16,8 +16,10 @@ import ctypes
 import numpy as np
 
 from models.cbuild import address, bind, load_shared
+from models.numpy_blas import numpy_gemm
+from wbc.constraints.limits_c import LIMITS_C
 
-__all__ = ["SERVO_C", "ServoPass"]
+__all__ = ["SERVO_BRAKE_C", "SERVO_C", "ServoPass"]
 
 # One `ServoState.observe` after the first (the setpoint known): the setpoint reset to the
 # measured one (measured NULL: none) where they differ by more than resync + delay |rate|,
@@ -52,13 +54,50 @@ int servo_observe(double* setpoint, double* deflection, const double* rates,
 }
 """
 
+# `servo_observe`, then the brake-and-hold trajectory of its (q, qd) at the same m node
+# times (`CondensedPrediction.brake_trajectory`): out continues with the inputs u,
+# positions and velocities, (m, n) each. The inputs are `LIMITS_C`'s ``brake_inputs`` of qd
+# at the limits acc over the steps h (m); the nodes numpy's ``qf + Lq @ u`` and
+# ``vf + Lv @ u``: matmul's ``cblas_dgemm`` (`models.numpy_blas.numpy_gemm`, with numpy's
+# arguments: row-major, no transposes, the C-ordered operands' row lengths, alpha 1, beta
+# 0), then the sums. -1: more axes than ``brake_inputs`` takes.
+SERVO_BRAKE_C = SERVO_C + LIMITS_C + r"""
+typedef void (*gemm_fn)(int, int, int, long long, long long, long long, double,
+                        const double*, long long, const double*, long long, double, double*,
+                        long long);
+
+int servo_observe_brake(void* gemm, const double* h, const double* acc, const double* Lq,
+                        const double* Lv, double* setpoint, double* deflection,
+                        const double* rates, const double* q_meas, const double* measured,
+                        long n, long s0, long s1, const double* times, long m,
+                        double resync, double delay, double a, double* out) {
+  const double *qd = out + n, *qf = out + 2 * n, *vf = out + 2 * n + m * n;
+  double *u = out + 2 * n * (m + 1), *qb = u + m * n, *vb = qb + m * n;
+  long i;
+  servo_observe(setpoint, deflection, rates, q_meas, measured, n, s0, s1, times, m, resync,
+                delay, a, out);
+  if (brake_inputs(qd, acc, h, m, n, u) != 0) return -1;
+  ((gemm_fn)gemm)(101, 111, 111, m, n, m, 1.0, Lq, m, u, n, 0.0, qb, n);
+  for (i = 0; i < m * n; ++i) qb[i] = qf[i] + qb[i];
+  ((gemm_fn)gemm)(101, 111, 111, m, n, m, 1.0, Lv, m, u, n, 0.0, vb, n);
+  for (i = 0; i < m * n; ++i) vb[i] = vf[i] + vb[i];
+  return 0;
+}
+"""
+
 _P, _L, _D = ctypes.c_void_p, ctypes.c_long, ctypes.c_double
+_OBSERVE = [_P] * 5 + [_L] * 3 + [_P, _L] + [_D] * 3 + [_P]
 
 
 def _library():
     return load_shared(SERVO_C, "servo_state", {
-        "servo_observe": ([_P] * 5 + [_L] * 3 + [_P, _L] + [_D] * 3 + [_P], ctypes.c_int)},
-        "the servo state's numpy")
+        "servo_observe": (_OBSERVE, ctypes.c_int)}, "the servo state's numpy")
+
+
+def _brake_library():
+    return load_shared(SERVO_BRAKE_C, "servo_state_brake", {
+        "servo_observe_brake": ([_P] * 5 + _OBSERVE, ctypes.c_int)},
+        "the servo state's and the brake's numpy")
 
 
 class ServoPass:
@@ -68,15 +107,19 @@ class ServoPass:
         setpoint, deflection, rates: The servo state's arrays (9,) (`ServoState` keeps its
             state here).
         q_meas, measured: A call's measured positions and servo setpoints, copied in.
+        braking: Whether `observe_brake` runs (the pass was made with a brake).
 
     Args:
         lib: `_library`'s library.
         n: The number of axes.
         suspension: The axes whose deflection is zero, a slice.
         times: The free response's times [s] (m,), kept.
+        brake: ``(brake library, gemm address, Lq, Lv, step lengths, acceleration limits)``
+            of the prediction at ``times`` (`make`), kept as copies; None: no brake.
     """
 
-    def __init__(self, lib, n: int, suspension: slice, times: np.ndarray):
+    def __init__(self, lib, n: int, suspension: slice, times: np.ndarray,
+                 brake: tuple | None = None):
         self._lib, self._suspension = lib, suspension
         self.setpoint, self.deflection, self.rates = np.zeros(n), np.zeros(n), np.zeros(n)
         self.q_meas, self.measured = np.zeros(n), np.zeros(n)
@@ -86,12 +129,38 @@ class ServoPass:
         tail = (n, suspension.start, suspension.stop, self.times, self.m)
         self._call = {True: bind(lib.servo_observe, *head, self.measured, *tail),
                       False: bind(lib.servo_observe, *head, None, *tail)}
+        self.braking = brake is not None
+        self._brake = None
+        if brake is not None:
+            blib, gemm, *parts = brake
+            self._brake = (blib, gemm, *(np.array(a, float, order="C") for a in parts))
+            Lq, Lv, h, acc = self._brake[2:]
+            front = (blib.servo_observe_brake, gemm, h, acc, Lq, Lv)
+            self._call_brake = {
+                True: bind(*front, *head, self.measured, *tail),
+                False: bind(*front, *head, None, *tail)}
 
     @classmethod
-    def make(cls, n: int, suspension: slice, times: np.ndarray) -> ServoPass | None:
-        """A pass, or None without a compiler."""
+    def make(cls, n: int, suspension: slice, times: np.ndarray,
+             brake: tuple | None = None) -> ServoPass | None:
+        """A pass, or None without a compiler.
+
+        ``brake``: ``(Lq, Lv, step lengths, acceleration limits)`` of the prediction at
+        ``times`` for `observe_brake`; without numpy's BLAS, with other shapes, or with one
+        step or one axis (numpy's products are matrix-vector ones then) the pass has no
+        brake.
+        """
         lib = _library()
-        return None if lib is None else cls(lib, n, suspension, times)
+        if lib is None:
+            return None
+        if brake is not None:
+            m = np.size(times)
+            shapes = [np.shape(a) for a in brake]
+            fits = shapes == [(m, m), (m, m), (m,), (n,)] and m > 1 and n > 1
+            gemm = numpy_gemm() if fits else None
+            blib = None if gemm is None else _brake_library()
+            brake = None if blib is None else (blib, gemm, *brake)
+        return cls(lib, n, suspension, times, brake)
 
     def __deepcopy__(self, memo) -> ServoPass:
         """A pass of its own (its call bound to its own buffers), the buffers' values copied.
@@ -99,13 +168,18 @@ class ServoPass:
         The copied buffers are entered in ``memo``: a servo state copied with its pass keeps
         its state in the new pass's buffers.
         """
-        new = ServoPass(self._lib, self.n, self._suspension, self.times)
+        new = ServoPass(self._lib, self.n, self._suspension, self.times, self._brake)
         memo[id(self)] = new
         for name in ("setpoint", "deflection", "rates", "q_meas", "measured", "times"):
             old = getattr(self, name)
             getattr(new, name)[:] = old
             memo[id(old)] = getattr(new, name)
         return new
+
+    def _inputs(self, q_meas, measured) -> None:
+        np.copyto(self.q_meas, q_meas)
+        if measured is not None:
+            np.copyto(self.measured, measured)
 
     def observe(self, q_meas, measured, resync: float, delay: float, a: float
                 ) -> tuple[np.ndarray, ...]:
@@ -114,11 +188,27 @@ class ServoPass:
         Views of one new array. ``measured``: the servo setpoints (n,), or None;
         ``delay``: the allowance per unit of rate [s]; ``a``: the filter's gain.
         """
-        n, m = self.n, self.m
-        np.copyto(self.q_meas, q_meas)
-        if measured is not None:
-            np.copyto(self.measured, measured)
-        out = np.empty(2 * n * (m + 1))
+        self._inputs(q_meas, measured)
+        out = np.empty((2 * (self.m + 1), self.n))
         self._call[measured is not None](resync, delay, a, address(out))
-        return (out[:n], out[n:2 * n], out[2 * n:(m + 2) * n].reshape(m, n),
-                out[(m + 2) * n:].reshape(m, n))
+        m = self.m
+        return out[0], out[1], out[2:m + 2], out[m + 2:]
+
+    def observe_brake(self, q_meas, measured, resync: float, delay: float, a: float
+                      ) -> tuple[np.ndarray, ...]:
+        """`observe` and the brake trajectory of its (q, qd) at the limits (`make`).
+
+        Returns:
+            (q, qd, qf, vf, brake inputs, positions, velocities): views of one new array,
+            the last three (m, n).
+
+        Raises:
+            ValueError: The brake's call refused the axes (more than 64).
+        """
+        self._inputs(q_meas, measured)
+        m = self.m
+        out = np.empty((5 * m + 2, self.n))
+        if self._call_brake[measured is not None](resync, delay, a, address(out)) != 0:
+            raise ValueError(f"brake inputs: {self.n} axes, at most 64")
+        return (out[0], out[1], out[2:m + 2], out[m + 2:2 * m + 2], out[2 * m + 2:3 * m + 2],
+                out[3 * m + 2:4 * m + 2], out[4 * m + 2:])

@@ -57,7 +57,9 @@ class HorizonContext(ControlContext):
         """``HorizonContext(*values, **optional)`` without the dataclass's per-field setattr.
 
         The fields are set as the frozen dataclass's ``__init__`` sets them (it has no
-        ``__post_init__``), each with ``object.__setattr__``: 20 of them every tick.
+        ``__post_init__``), each with ``object.__setattr__``: 20 of them every tick. The
+        instance's dictionary is a copy of one made with every field (the defaults in
+        place), then the values written: no resizing while it fills.
 
         Raises:
             TypeError: Not every field without a default given, or an unknown one.
@@ -67,10 +69,10 @@ class HorizonContext(ControlContext):
                             f"optional {sorted(_OPTIONAL)}; got {len(values)} and "
                             f"{sorted(optional)}")
         ctx = object.__new__(cls)
-        d = ctx.__dict__
+        d = _TEMPLATE.copy()
         d.update(zip(_REQUIRED, values))
-        d.update(_OPTIONAL)
         d.update(optional)
+        object.__setattr__(ctx, "__dict__", d)
         return ctx
 
     @property
@@ -93,3 +95,4 @@ class HorizonContext(ControlContext):
 
 _REQUIRED = tuple(f.name for f in fields(HorizonContext) if f.default is MISSING)
 _OPTIONAL = {f.name: f.default for f in fields(HorizonContext) if f.default is not MISSING}
+_TEMPLATE = {**dict.fromkeys(_REQUIRED), **_OPTIONAL}  # `assemble`'s fields, in their order

@@ -1,0 +1,267 @@
+"""The MPC context's servo state and brake trajectory in one compiled call
+(`ServoState.observe_brake`, `wbc.controllers.servo_state_c.SERVO_BRAKE_C`): numpy's bits on
+the closed loop's ticks and on odd ones; the plan's nodes made on first access; the glue
+around the planner's context and solve that the loop runs every tick."""
+
+import copy
+import dataclasses
+
+import numpy as np
+import pytest
+
+from scenarios.closed_loop import DEFAULT_SCENARIO, run_closed_loop
+from testkit.plant import make_state
+from wbc import load_estimator, make_controller
+from wbc.axes import N_AXES
+from wbc.controllers.mpc import MpcController
+from wbc.controllers.servo_state import ServoState
+from wbc.controllers.servo_state_c import ServoPass
+from wbc.errors import ConfigurationError
+from wbc.layout import VariableLayout
+from wbc.mpc.planner import MpcPlanner
+from wbc.mpc.prediction import CondensedPrediction
+
+DT = 0.01
+PREDICTION = CondensedPrediction(VariableLayout(N_AXES, 12), [DT] + [0.1] * 11)
+LO, HI = np.full(N_AXES, -0.5), np.full(N_AXES, 0.8)
+ACCELERATION = np.linspace(0.3, 2.0, N_AXES)
+ACCELERATION.setflags(write=False)
+BRAKE = (PREDICTION.Lq, PREDICTION.Lv, PREDICTION.step_lengths, ACCELERATION)
+
+
+def _braking(time_constant: float = 0.1) -> ServoState:
+    return ServoState(DT, time_constant, LO, HI, times=PREDICTION.times, brake=BRAKE)
+
+
+pytestmark = pytest.mark.skipif(_braking()._brake_of is None,
+                                reason="no C compiler or not numpy's OpenBLAS")
+
+
+def _pair(time_constant: float = 0.1):
+    fast = _braking(time_constant)
+    slow = ServoState(DT, time_constant, LO, HI, times=PREDICTION.times, compiled=False)
+    assert fast._c.braking and slow._c is None
+    return fast, slow
+
+
+def _bits(*arrays) -> bytes:
+    return b"".join(np.asarray(a, float).tobytes() for a in arrays)
+
+
+def _state_bits(servo: ServoState) -> bytes:
+    return _bits(servo.setpoint, servo.deflection, servo.rates)
+
+
+def _want(slow: ServoState, state, prediction=PREDICTION, acceleration=ACCELERATION):
+    """The numpy reference: `observe_free`, then the prediction's brake trajectory."""
+    q, qd, qf, vf = slow.observe_free(state, prediction)
+    return (q, qd, qf, vf, *prediction.brake_trajectory(q, qd, acceleration, (qf, vf)))
+
+
+def _step(fast, slow, state, rates) -> None:
+    """One tick on both: observe_brake (compared to the bit), then the commanded rates."""
+    got, want = fast.observe_brake(state, PREDICTION, ACCELERATION), _want(slow, state)
+    assert [g.shape for g in got] == [w.shape for w in want]
+    assert _bits(*got) == _bits(*want)
+    assert _state_bits(fast) == _state_bits(slow)
+    with np.errstate(all="ignore"):
+        fast.commanded(rates)
+        slow.commanded(rates)
+    assert _state_bits(fast) == _state_bits(slow)
+
+
+@pytest.fixture(scope="module")
+def loop_ticks():
+    """(state, commanded rates) of the MPC's ticks in 2 s of the default closed loop."""
+    ticks = []
+    observe_brake, commanded = ServoState.observe_brake, ServoState.commanded
+    passes = []
+
+    def record_observe(self, state, prediction, acceleration):
+        ticks.append([state, None])
+        return observe_brake(self, state, prediction, acceleration)
+
+    def record_commanded(self, rates):
+        ticks[-1][1] = np.array(rates, float)
+        return commanded(self, rates)
+
+    def record_pass(self, *args, _f=ServoPass.observe_brake):
+        passes.append(self)
+        return _f(self, *args)
+
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(ServoState, "observe_brake", record_observe)
+        mp.setattr(ServoState, "commanded", record_commanded)
+        mp.setattr(ServoPass, "observe_brake", record_pass)
+        run_closed_loop(DEFAULT_SCENARIO, None, "mpc-full", duration=2.0)
+    assert len(ticks) > 150 and all(r is not None for _, r in ticks)
+    assert len(passes) == len(ticks) - 1  # the loop's own ticks ran compiled (not the first)
+    return ticks
+
+
+def test_closed_loop_ticks_are_the_numpy_paths_bits(loop_ticks):
+    """The loop's states and commands, as they came and with setpoints to resync to."""
+    for time_constant in (0.1, 0.0):
+        fast, slow = _pair(time_constant)
+        for k, (state, rates) in enumerate(loop_ticks):
+            if k % 37 == 36:  # a wound-down servo: its setpoint far from the integrated one
+                state = dataclasses.replace(state, servo_setpoint=state.servo_setpoint - 0.01)
+            _step(fast, slow, state, rates)
+
+
+def test_odd_ticks_are_the_numpy_paths_bits(machine):
+    """No measured setpoint, time standing or going back, odd and huge rates (braked at
+    the limit over several steps, or at rest at once), a reset."""
+    rng = np.random.default_rng(7)
+    fast, slow = _pair()
+    base = make_state(machine)
+    t = 0.0
+    for k in range(2000):
+        if k % 500 == 499:
+            fast.reset(), slow.reset()
+        t += float(rng.choice([DT, DT, 0.0, -0.02, 0.3]))
+        q = base.q.copy()
+        q[:N_AXES] += rng.normal(0.0, 0.02, N_AXES)
+        state = make_state(machine, q=q, time=t)
+        if k % 4:
+            near = q[:N_AXES] + rng.choice([0.0, 2e-3, -2e-3, 0.05, -0.0], N_AXES)
+            state = dataclasses.replace(state, servo_setpoint=near)
+        rates = rng.normal(0.0, rng.choice([0.0, 0.1, 3.0]), N_AXES)
+        if k % 13 == 0:
+            rates[rng.integers(N_AXES)] = rng.choice([np.nan, np.inf, -np.inf, 0.0, -0.0])
+        _step(fast, slow, state, rates)
+
+
+def test_other_arrays_take_numpy(machine, monkeypatch):
+    """Another prediction or other limits: `observe_free` and numpy's brake, their bits."""
+    fast, slow = _pair()
+    calls = []
+    monkeypatch.setattr(ServoPass, "observe_brake",
+                        lambda self, *a, _f=ServoPass.observe_brake: calls.append(self)
+                        or _f(self, *a))
+    state = make_state(machine)
+    _step(fast, slow, state, np.full(N_AXES, 0.05))  # the first observe: numpy's anyway
+    other = CondensedPrediction(VariableLayout(N_AXES, 5), 0.2)
+    twice = ACCELERATION * 2.0
+    for k in range(1, 4):
+        later = dataclasses.replace(state, time=state.time + k * DT)
+        prediction, limits = (other, ACCELERATION) if k == 1 else (PREDICTION, twice)
+        if k == 3:
+            prediction, limits = PREDICTION, np.array(ACCELERATION)  # equal, not the same
+        got = fast.observe_brake(later, prediction, limits)
+        assert _bits(*got) == _bits(*_want(slow, later, prediction, limits))
+    assert calls == []
+    later = dataclasses.replace(state, time=state.time + 5 * DT)
+    assert _bits(*fast.observe_brake(later, PREDICTION, ACCELERATION)) == _bits(
+        *_want(slow, later))
+    assert calls == [fast._c]
+
+
+def test_a_pass_without_the_shapes_has_no_brake():
+    """Factors of another horizon, limits of other axes, a single step: no brake."""
+    times = PREDICTION.times
+    for brake in ((PREDICTION.Lq[:5, :5], PREDICTION.Lv, PREDICTION.step_lengths,
+                   ACCELERATION),
+                  (PREDICTION.Lq, PREDICTION.Lv, PREDICTION.step_lengths, ACCELERATION[:4])):
+        assert not ServoPass.make(N_AXES, slice(7, 9), times, brake).braking
+    one = CondensedPrediction(VariableLayout(N_AXES, 1), DT)
+    assert not ServoPass.make(N_AXES, slice(7, 9), one.times,
+                              (one.Lq, one.Lv, one.step_lengths, ACCELERATION)).braking
+
+
+def test_a_deep_copy_brakes_on_buffers_of_its_own(machine):
+    """The copy's pass: its own buffers and kept limits; both numpy's bits afterwards."""
+    fast, slow = _pair()
+    state = make_state(machine)
+    _step(fast, slow, state, np.full(N_AXES, 0.05))
+    twin, twin_slow = copy.deepcopy(fast), copy.deepcopy(slow)
+    assert twin._c is not fast._c and twin._c.braking
+    assert twin._c._brake[5] is not fast._c._brake[5]
+    later = dataclasses.replace(state, time=state.time + DT)
+    want = _want(slow, later)
+    assert _bits(*fast.observe_brake(later, PREDICTION, ACCELERATION)) == _bits(*want)
+    got = twin.observe_brake(later, PREDICTION, ACCELERATION)  # other `kept` arrays: numpy's
+    assert _bits(*got) == _bits(*_want(twin_slow, later))
+
+
+@pytest.fixture(scope="module")
+def loop_plans():
+    """(controller's context, plan, solution's inputs) of 60 ticks of the closed loop."""
+    plans = []
+    solve = MpcController._solve
+
+    def record(self, state):
+        out = solve(self, state)
+        plan = self.last_plan
+        plans.append((plan, np.array(plan.inputs), self.planner.prediction))
+        return out
+
+    contexts = []
+    context = MpcPlanner.context
+
+    def record_context(self, *args, **kwargs):
+        contexts.append(context(self, *args, **kwargs))
+        return contexts[-1]
+
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(MpcController, "_solve", record)
+        mp.setattr(MpcPlanner, "context", record_context)
+        run_closed_loop(DEFAULT_SCENARIO, None, "mpc-full", duration=1.6)
+    assert len(plans) == len(contexts) > 60
+    return [(c, *p) for c, p in zip(contexts, plans)][-60:]
+
+
+def test_plan_nodes_are_the_trajectory_of_the_solution(loop_plans):
+    """The nodes made on first access: the prediction of the context's start under the
+    solution's inputs, as the planner made them every tick before."""
+    for ctx, plan, inputs, prediction in loop_plans:
+        want = prediction.trajectory(ctx.q, ctx.qd, inputs,
+                                     (ctx.free_positions, ctx.free_velocities))
+        assert _bits(plan.positions, plan.velocities) == _bits(*want)
+        assert plan.positions is plan.positions  # made once
+
+
+def test_context_brake_is_the_planners_own(loop_plans):
+    """The brake the servo's pass gave the planner: the planner's own of the same start."""
+    for ctx, *_ in loop_plans:
+        want = ctx.prediction.brake_trajectory(ctx.q, ctx.qd, ctx.limits.acceleration,
+                                               (ctx.free_positions, ctx.free_velocities))
+        assert _bits(ctx.brake_inputs, ctx.brake_positions, ctx.brake_velocities) == _bits(
+            *want)
+
+
+def test_nominal_inputs_are_the_shifted_rows(loop_plans):
+    """`nominal_inputs`: the previous plan's rows at the shifted steps (numpy's indexing)."""
+    for ctx, *_ in loop_plans[1:]:
+        assert ctx.nominal_inputs.flags.owndata
+    ctx, plan, inputs, prediction = loop_plans[-1]
+    mp = MpcPlanner.__new__(MpcPlanner)
+    mp.layout, mp.prediction, mp._shift = ctx.layout, prediction, None
+    mp._plan, mp._plan_time = inputs, 1.0
+    starts = prediction.start_times
+    for elapsed in (0.0, DT, 0.05, 0.1, 0.35, 5.0):
+        idx = np.clip(np.searchsorted(starts, starts + elapsed + 1e-9, side="right") - 1, 0,
+                      len(starts) - 1)
+        assert mp.nominal_inputs(1.0 + elapsed).tobytes() == inputs[idx].tobytes()
+
+
+@pytest.mark.parametrize("bad", [[1.0, 2.0, np.nan, 0.0], [1.0, np.inf, 0.0, 0.0],
+                                 [0.0, 0.0, -1e-300, 0.0], [1.0, 2.0, 3.0],
+                                 [[1.0, 2.0, 3.0, 4.0]]])
+def test_force_margin_refuses_what_check_margins_refuses(mpc_controller, bad):
+    with pytest.raises(ConfigurationError, match="force margin must be 4 finite forces"):
+        mpc_controller.set_force_margin(bad)
+
+
+def test_force_margin_sets_the_thresholds(mpc_controller):
+    c = mpc_controller
+    for m in ([0.0, -0.0, 1.5, 2e3], np.array([3.0, 0.0, 0.25, 1e-300])):
+        c.set_force_margin(m)
+        want = c.force_thresholds + c.config.force.margin + np.asarray(m, float)
+        assert c.force_constraint.thresholds.tobytes() == want.tobytes()
+        assert c.force_margin.tobytes() == np.asarray(m, float).tobytes()
+
+
+@pytest.fixture
+def mpc_controller(machine):
+    return make_controller("mpc-full", machine, force_model=load_estimator(machine, "full"))
