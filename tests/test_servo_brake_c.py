@@ -27,6 +27,11 @@ LO, HI = np.full(N_AXES, -0.5), np.full(N_AXES, 0.8)
 ACCELERATION = np.linspace(0.3, 2.0, N_AXES)
 ACCELERATION.setflags(write=False)
 BRAKE = (PREDICTION.Lq, PREDICTION.Lv, PREDICTION.step_lengths, ACCELERATION)
+# the axis limits' kind of arrays: read-only, owning their data
+VELOCITY_LOWER = np.array(np.linspace(-0.4, -0.1, N_AXES))
+VELOCITY_UPPER = np.array(np.linspace(0.1, 0.5, N_AXES))
+VELOCITY_LOWER.setflags(write=False)
+VELOCITY_UPPER.setflags(write=False)
 
 
 def _braking(time_constant: float = 0.1) -> ServoState:
@@ -58,15 +63,20 @@ def _want(slow: ServoState, state, prediction=PREDICTION, acceleration=ACCELERAT
     return (q, qd, qf, vf, *prediction.brake_trajectory(q, qd, acceleration, (qf, vf)))
 
 
-def _step(fast, slow, state, rates) -> None:
-    """One tick on both: observe_brake (compared to the bit), then the commanded rates."""
+def _step(fast, slow, state, rates, qdd=None) -> None:
+    """One tick on both: observe_brake (compared to the bit), then the commanded rates, or
+    the rates `command` makes of the accelerations ``qdd`` (compared to the bit)."""
     got, want = fast.observe_brake(state, PREDICTION, ACCELERATION), _want(slow, state)
     assert [g.shape for g in got] == [w.shape for w in want]
     assert _bits(*got) == _bits(*want)
     assert _state_bits(fast) == _state_bits(slow)
     with np.errstate(all="ignore"):
-        fast.commanded(rates)
-        slow.commanded(rates)
+        if qdd is None:
+            fast.commanded(rates)
+            slow.commanded(rates)
+        else:
+            got = fast.command(qdd, DT, VELOCITY_LOWER, VELOCITY_UPPER)
+            assert _bits(got) == _bits(slow.command(qdd, DT, VELOCITY_LOWER, VELOCITY_UPPER))
     assert _state_bits(fast) == _state_bits(slow)
 
 
@@ -75,7 +85,8 @@ def loop_ticks():
     """(state, commanded rates) of the MPC's ticks in 2 s of the default closed loop."""
     ticks = []
     observe_brake, commanded = ServoState.observe_brake, ServoState.commanded
-    passes = []
+    command = ServoState.command
+    passes, commands = [], []
 
     def record_observe(self, state, prediction, acceleration):
         ticks.append([state, None])
@@ -85,17 +96,29 @@ def loop_ticks():
         ticks[-1][1] = np.array(rates, float)
         return commanded(self, rates)
 
+    def record_command(self, qdd, dt, lower, upper):  # the rates it commands
+        ticks[-1][1] = np.array(command(self, qdd, dt, lower, upper), float)
+        return ticks[-1][1].copy()
+
     def record_pass(self, *args, _f=ServoPass.observe_brake):
         passes.append(self)
         return _f(self, *args)
 
+    def record_pass_command(self, *args, _f=ServoPass.command):
+        commands.append(_f(self, *args))
+        return commands[-1]
+
     with pytest.MonkeyPatch.context() as mp:
         mp.setattr(ServoState, "observe_brake", record_observe)
         mp.setattr(ServoState, "commanded", record_commanded)
+        mp.setattr(ServoState, "command", record_command)
         mp.setattr(ServoPass, "observe_brake", record_pass)
+        mp.setattr(ServoPass, "command", record_pass_command)
         run_closed_loop(DEFAULT_SCENARIO, None, "mpc-full", duration=2.0)
     assert len(ticks) > 150 and all(r is not None for _, r in ticks)
-    assert len(passes) == len(ticks) - 1  # the loop's own ticks ran compiled (not the first)
+    # the loop's own ticks ran compiled (not the first observe), its commands every one
+    assert len(passes) == len(ticks) - 1
+    assert len(commands) == len(ticks) and all(r is not None for r in commands)
     return ticks
 
 
@@ -106,7 +129,8 @@ def test_closed_loop_ticks_are_the_numpy_paths_bits(loop_ticks):
         for k, (state, rates) in enumerate(loop_ticks):
             if k % 37 == 36:  # a wound-down servo: its setpoint far from the integrated one
                 state = dataclasses.replace(state, servo_setpoint=state.servo_setpoint - 0.01)
-            _step(fast, slow, state, rates)
+            qdd = None if k % 3 == 0 else (rates - fast.rates) / DT  # about the loop's
+            _step(fast, slow, state, rates, qdd)
 
 
 def test_odd_ticks_are_the_numpy_paths_bits(machine):
@@ -129,7 +153,17 @@ def test_odd_ticks_are_the_numpy_paths_bits(machine):
         rates = rng.normal(0.0, rng.choice([0.0, 0.1, 3.0]), N_AXES)
         if k % 13 == 0:
             rates[rng.integers(N_AXES)] = rng.choice([np.nan, np.inf, -np.inf, 0.0, -0.0])
-        _step(fast, slow, state, rates)
+        qdd = None
+        if k % 2:  # accelerations: some to the velocity limits exactly, through them, odd
+            qdd = rng.normal(0.0, rng.choice([1.0, 30.0]), N_AXES)
+            i = rng.integers(N_AXES)
+            qdd[i] = rng.choice([(VELOCITY_UPPER[i] - fast.rates[i]) / DT, np.nan, np.inf,
+                                 -np.inf, 0.0, -0.0])
+        _step(fast, slow, state, rates, qdd)
+        if qdd is not None and not np.isfinite(qdd).all():
+            # a NaN in the state: the sign of a NaN made of two NaNs is the compiler's
+            # (IEEE leaves it open), in the observe's sums as in numpy's; start anew
+            fast.reset(), slow.reset()
 
 
 def test_other_arrays_take_numpy(machine, monkeypatch):
@@ -265,3 +299,28 @@ def test_force_margin_sets_the_thresholds(mpc_controller):
 @pytest.fixture
 def mpc_controller(machine):
     return make_controller("mpc-full", machine, force_model=load_estimator(machine, "full"))
+
+
+def test_command_at_the_range_ends_and_other_limits(machine):
+    """Setpoints driven into the range's ends (and the range's own zero), then limits the
+    pass does not take (writable, or views): numpy's rates and state, to the bit."""
+    fast = ServoState(DT, 0.1, np.zeros(N_AXES), HI, times=PREDICTION.times, brake=BRAKE)
+    slow = ServoState(DT, 0.1, np.zeros(N_AXES), HI, times=PREDICTION.times, compiled=False)
+    state = make_state(machine)
+    for k in range(60):
+        later = dataclasses.replace(state, time=state.time + k * DT)
+        fast.observe_brake(later, PREDICTION, ACCELERATION)
+        slow.observe_free(later, PREDICTION)
+        qdd = np.full(N_AXES, (-1.0) ** (k // 20) * 50.0)
+        qdd[0] = -0.0
+        got = fast.command(qdd, DT, VELOCITY_LOWER, VELOCITY_UPPER)
+        assert _bits(got) == _bits(slow.command(qdd, DT, VELOCITY_LOWER, VELOCITY_UPPER))
+        assert _state_bits(fast) == _state_bits(slow)
+    assert fast._c._limits[2] is not None  # the pass took the constant limits
+    for lower, upper in ((np.array(VELOCITY_LOWER), VELOCITY_UPPER),
+                         (VELOCITY_LOWER, np.concatenate([VELOCITY_UPPER] * 2)[:N_AXES])):
+        qdd = np.linspace(-3.0, 3.0, N_AXES)
+        assert fast._c.command(qdd, DT, lower, upper, DT) is None
+        got = fast.command(qdd, DT, lower, upper)
+        assert _bits(got) == _bits(slow.command(qdd, DT, lower, upper))
+        assert _state_bits(fast) == _state_bits(slow)

@@ -355,12 +355,20 @@ class Controller(abc.ABC):
     def _commanded(self, rates: np.ndarray) -> None:
         """Subclass hook: the rates just commanded."""
 
-    def _command(self, state: MachineState, qdd: np.ndarray, scale: float, info: dict,
-                 fallback: bool) -> ControlCommand:
-        qd = self._rate_basis(state)
-        rates = clip(qd + qdd * self.dt, self.limits.velocity_lower,
+    def _rates(self, state: MachineState, qdd: np.ndarray) -> np.ndarray:
+        """The rates (9,) commanded for the accelerations ``qdd`` (a new array).
+
+        ``clip(basis + qdd dt)`` at the velocity limits (`_rate_basis`), then `_commanded`
+        of them.
+        """
+        rates = clip(self._rate_basis(state) + qdd * self.dt, self.limits.velocity_lower,
                      self.limits.velocity_upper)
         self._commanded(rates)
+        return rates
+
+    def _command(self, state: MachineState, qdd: np.ndarray, scale: float, info: dict,
+                 fallback: bool) -> ControlCommand:
+        rates = self._rates(state, qdd)
         scale = _unit_interval(scale)  # solver tolerance aside, s is in [0, 1]
         self._last_qdd = qdd.copy()
         self._speed_scale = scale

@@ -62,12 +62,15 @@ class ServoState:
                  times=None, compiled: bool = True, brake: tuple | None = None):
         self.dt = float(dt)
         self.time_constant = float(deflection_time_constant)
-        self.lower = np.asarray(lower, float)
-        self.upper = np.asarray(upper, float)
         # Loaded here, not in a tick; the state lives in its buffers then (before the
         # arrays: a deep copy maps them to the copied pass's buffers).
         self._c = (ServoPass.make(N_AXES, SUSPENSION, times, brake)
                    if compiled and times is not None else None)
+        if self._c is None:
+            self.lower, self.upper = np.array(lower, float), np.array(upper, float)
+        else:  # the pass's buffers, as the state's arrays below
+            self.lower, self.upper = self._c.lower, self._c.upper
+            self.lower[:], self.upper[:] = lower, upper
         self._times = times  # the array `observe_free`'s prediction has (its times, kept)
         # the prediction's and the limits' arrays `observe_brake`'s pass was made with
         self._brake_of = brake if self._c is not None and self._c.braking else None
@@ -156,6 +159,27 @@ class ServoState:
             measured = np.asarray(measured, float)[:N_AXES]
         return c.observe_brake(state.q[:N_AXES], measured, _RESYNC,
                                _DELAY_ALLOWANCE * self.dt, self._gain(state))
+
+    def command(self, qdd: np.ndarray, dt: float, lower: np.ndarray,
+                upper: np.ndarray) -> np.ndarray:
+        """The rates ``clip(rates + qdd dt, lower, upper)`` commanded now, a new array (9,).
+
+        ``qdd``: the accelerations (9,) over ``dt`` [s]; ``lower``, ``upper``: the velocity
+        limits (9,). `commanded` of them follows. In one compiled call (the same bits)
+        after the first observe, for float64 accelerations and read-only limits that own
+        their data (the axis limits', not changed); else numpy's.
+        """
+        c = self._c
+        rates = None
+        if (c is not None and self.setpoint is c.setpoint and self.rates is c.rates
+                and self.lower is c.lower and self.upper is c.upper
+                and type(qdd) is np.ndarray and qdd.shape == (N_AXES,)
+                and qdd.dtype == np.float64 and qdd.flags.c_contiguous):
+            rates = c.command(qdd, dt, lower, upper, self.dt)
+        if rates is None:
+            rates = clip(self.rates + qdd * dt, lower, upper)
+            self.commanded(rates)
+        return rates
 
     def commanded(self, rates: np.ndarray) -> None:
         """Advance the setpoints by the rates just commanded, over one period."""

@@ -52,6 +52,26 @@ int servo_observe(double* setpoint, double* deflection, const double* rates,
     }
   return 0;
 }
+
+/* numpy's clip ufunc of a double: min(max(x, lo), hi), a NaN x passed */
+static double np_clip(double x, double lo, double hi) {
+  if (!isnan(x)) x = x > lo ? x : lo;
+  if (!isnan(x)) x = x < hi ? x : hi;
+  return x;
+}
+
+/* The rates commanded for the accelerations qdd over dt, clipped to [vlo, vhi] (out), then
+   `ServoState.commanded` of them: rates = out, the setpoint advanced by them over step and
+   clipped to [lower, upper]. */
+int servo_command(double* setpoint, double* rates, const double* lower, const double* upper,
+                  long n, const double* qdd, double dt, const double* vlo, const double* vhi,
+                  double step, double* out) {
+  long j;
+  for (j = 0; j < n; ++j) out[j] = np_clip(rates[j] + qdd[j] * dt, vlo[j], vhi[j]);
+  for (j = 0; j < n; ++j) rates[j] = out[j];
+  for (j = 0; j < n; ++j) setpoint[j] = np_clip(setpoint[j] + step * rates[j], lower[j], upper[j]);
+  return 0;
+}
 """
 
 # `servo_observe`, then the brake-and-hold trajectory of its (q, qd) at the same m node
@@ -91,7 +111,9 @@ _OBSERVE = [_P] * 5 + [_L] * 3 + [_P, _L] + [_D] * 3 + [_P]
 
 def _library():
     return load_shared(SERVO_C, "servo_state", {
-        "servo_observe": (_OBSERVE, ctypes.c_int)}, "the servo state's numpy")
+        "servo_observe": (_OBSERVE, ctypes.c_int),
+        "servo_command": ([_P] * 4 + [_L, _P, _D, _P, _P, _D, _P], ctypes.c_int)},
+        "the servo state's numpy")
 
 
 def _brake_library():
@@ -106,6 +128,7 @@ class ServoPass:
     Attributes:
         setpoint, deflection, rates: The servo state's arrays (9,) (`ServoState` keeps its
             state here).
+        lower, upper: The setpoint range (9,) (`ServoState` keeps it here).
         q_meas, measured: A call's measured positions and servo setpoints, copied in.
         braking: Whether `observe_brake` runs (the pass was made with a brake).
 
@@ -122,7 +145,11 @@ class ServoPass:
                  brake: tuple | None = None):
         self._lib, self._suspension = lib, suspension
         self.setpoint, self.deflection, self.rates = np.zeros(n), np.zeros(n), np.zeros(n)
+        self.lower, self.upper = np.zeros(n), np.zeros(n)
         self.q_meas, self.measured = np.zeros(n), np.zeros(n)
+        self._limits: tuple | None = None  # (velocity limits' arrays, their kept copies)
+        self._command = bind(lib.servo_command, self.setpoint, self.rates, self.lower,
+                             self.upper, n)
         self.times = np.array(times, float)
         self.n, self.m = n, self.times.size
         head = (self.setpoint, self.deflection, self.rates, self.q_meas)
@@ -170,7 +197,8 @@ class ServoPass:
         """
         new = ServoPass(self._lib, self.n, self._suspension, self.times, self._brake)
         memo[id(self)] = new
-        for name in ("setpoint", "deflection", "rates", "q_meas", "measured", "times"):
+        for name in ("setpoint", "deflection", "rates", "lower", "upper", "q_meas",
+                     "measured", "times"):
             old = getattr(self, name)
             getattr(new, name)[:] = old
             memo[id(old)] = getattr(new, name)
@@ -212,3 +240,27 @@ class ServoPass:
             raise ValueError(f"brake inputs: {self.n} axes, at most 64")
         return (out[0], out[1], out[2:m + 2], out[m + 2:2 * m + 2], out[2 * m + 2:3 * m + 2],
                 out[3 * m + 2:4 * m + 2], out[4 * m + 2:])
+
+    def command(self, qdd: np.ndarray, dt: float, lower: np.ndarray, upper: np.ndarray,
+                step: float) -> np.ndarray | None:
+        """``clip(rates + qdd dt, lower, upper)`` (a new array), commanded.
+
+        Then taken as the rates, the setpoint advanced by them over ``step`` and clipped to
+        the setpoint range (`ServoState.commanded`). ``qdd``: float64, contiguous (n,);
+        ``lower``, ``upper``: the velocity limits, taken when they are read-only float64
+        (n,) arrays that own their data (the axis limits', which nobody changes: kept as
+        copies while the same arrays come). None (nothing done) for other limits.
+        """
+        kept = self._limits
+        if kept is None or kept[0] is not lower or kept[1] is not upper:
+            constant = all(type(a) is np.ndarray and a.base is None and not a.flags.writeable
+                           and a.shape == (self.n,) and a.dtype == np.float64
+                           for a in (lower, upper))
+            kept = self._limits = (lower, upper, *((np.array(lower), np.array(upper))
+                                                  if constant else (None, None)))
+        if kept[2] is None:
+            return None
+        out = np.empty(self.n)
+        self._command(address(qdd), dt, address(kept[2]), address(kept[3]), step,
+                      address(out))
+        return out
