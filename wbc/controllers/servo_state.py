@@ -36,6 +36,7 @@ __all__ = ["ServoState"]
 _RESYNC = 2e-3  # [m or rad] setpoint mismatch that is not explained by a delay
 _DELAY_ALLOWANCE = 5  # control periods of measurement delay the mismatch may come from
 _any = np.logical_or.reduce  # `ndarray.any` of a 1-D array without its Python dispatch
+_UNIT_STRIDE = (8,)  # a contiguous float64 vector's (no `flags` object to ask)
 
 
 class ServoState:
@@ -174,7 +175,7 @@ class ServoState:
         if (c is not None and self.setpoint is c.setpoint and self.rates is c.rates
                 and self.lower is c.lower and self.upper is c.upper
                 and type(qdd) is np.ndarray and qdd.shape == (N_AXES,)
-                and qdd.dtype == np.float64 and qdd.flags.c_contiguous):
+                and qdd.dtype == np.float64 and qdd.strides == _UNIT_STRIDE):
             rates = c.command(qdd, dt, lower, upper, self.dt)
         if rates is None:
             rates = clip(self.rates + qdd * dt, lower, upper)

@@ -7,6 +7,13 @@ does numpy's IEEE operations in numpy's order, element by element as the ufuncs 
 with ``-ffp-contract=off``, `models.cbuild`: no fused multiply-adds), so the same bits
 (`tests/test_servo_state_c.py` compares the two paths). Without a compiler the numpy path
 runs.
+
+The MPC's tick takes more from the same pass (`tests/test_servo_brake_c.py`):
+`SERVO_BRAKE_C` adds the brake trajectory of the observed state
+(`CondensedPrediction.brake_trajectory`: `LIMITS_C`'s brake inputs, then numpy's products
+through the ``cblas_dgemm`` numpy calls) to the observe, ``servo_command`` makes the rates
+the controller commands and advances the setpoints by them (`ServoState.command`). Both are
+called with their arguments packed in kept arrays: ctypes converts two.
 """
 
 from __future__ import annotations
@@ -72,6 +79,14 @@ int servo_command(double* setpoint, double* rates, const double* lower, const do
   for (j = 0; j < n; ++j) setpoint[j] = np_clip(setpoint[j] + step * rates[j], lower[j], upper[j]);
   return 0;
 }
+
+/* `servo_command` of the packed arguments (`POINTERS`, `SCALARS`): ctypes converts two */
+@DEFINES@
+#define PTR(name) ((double*)p[P_##name])
+int servo_command_packed(void* const* p, const double* s) {
+  return servo_command(PTR(setpoint), PTR(rates), PTR(lower), PTR(upper), (long)s[S_n],
+                       PTR(qdd), s[S_dt], PTR(vlo), PTR(vhi), s[S_step], PTR(command_out));
+}
 """
 
 # `servo_observe`, then the brake-and-hold trajectory of its (q, qd) at the same m node
@@ -103,22 +118,42 @@ int servo_observe_brake(void* gemm, const double* h, const double* acc, const do
   for (i = 0; i < m * n; ++i) vb[i] = vf[i] + vb[i];
   return 0;
 }
+
+/* `servo_observe_brake` of the packed arguments (measured: NULL for none) */
+int servo_observe_brake_packed(void* const* p, const double* s) {
+  return servo_observe_brake(p[P_gemm], PTR(h), PTR(acc), PTR(Lq), PTR(Lv), PTR(setpoint),
+                             PTR(deflection), PTR(rates), PTR(q_meas), PTR(measured),
+                             (long)s[S_n], (long)s[S_s0], (long)s[S_s1], PTR(times),
+                             (long)s[S_m], s[S_resync], s[S_delay], s[S_a], PTR(out));
+}
 """
 
+# The packed calls' pointer table and scalars, in their order: a call through ctypes
+# converts every argument (~1 us for the observe's nineteen), two here.
+POINTERS = ("setpoint", "deflection", "rates", "lower", "upper", "q_meas", "measured",
+            "times", "out", "gemm", "h", "acc", "Lq", "Lv", "qdd", "vlo", "vhi",
+            "command_out")
+SCALARS = ("n", "s0", "s1", "m", "resync", "delay", "a", "dt", "step")
+_DEFINES = "\n".join([f"#define P_{n} {i}" for i, n in enumerate(POINTERS)]
+                     + [f"#define S_{n} {i}" for i, n in enumerate(SCALARS)])
+SERVO_C = SERVO_C.replace("@DEFINES@", _DEFINES)
+SERVO_BRAKE_C = SERVO_BRAKE_C.replace("@DEFINES@", _DEFINES)
+_P_ = {name: i for i, name in enumerate(POINTERS)}
+_S_ = {name: i for i, name in enumerate(SCALARS)}
+
 _P, _L, _D = ctypes.c_void_p, ctypes.c_long, ctypes.c_double
-_OBSERVE = [_P] * 5 + [_L] * 3 + [_P, _L] + [_D] * 3 + [_P]
 
 
 def _library():
     return load_shared(SERVO_C, "servo_state", {
-        "servo_observe": (_OBSERVE, ctypes.c_int),
-        "servo_command": ([_P] * 4 + [_L, _P, _D, _P, _P, _D, _P], ctypes.c_int)},
+        "servo_observe": ([_P] * 5 + [_L] * 3 + [_P, _L] + [_D] * 3 + [_P], ctypes.c_int),
+        "servo_command_packed": ([_P, _P], ctypes.c_int)},
         "the servo state's numpy")
 
 
 def _brake_library():
     return load_shared(SERVO_BRAKE_C, "servo_state_brake", {
-        "servo_observe_brake": ([_P] * 5 + _OBSERVE, ctypes.c_int)},
+        "servo_observe_brake_packed": ([_P, _P], ctypes.c_int)},
         "the servo state's and the brake's numpy")
 
 
@@ -147,25 +182,30 @@ class ServoPass:
         self.setpoint, self.deflection, self.rates = np.zeros(n), np.zeros(n), np.zeros(n)
         self.lower, self.upper = np.zeros(n), np.zeros(n)
         self.q_meas, self.measured = np.zeros(n), np.zeros(n)
-        self._limits: tuple | None = None  # (velocity limits' arrays, their kept copies)
-        self._command = bind(lib.servo_command, self.setpoint, self.rates, self.lower,
-                             self.upper, n)
         self.times = np.array(times, float)
         self.n, self.m = n, self.times.size
         head = (self.setpoint, self.deflection, self.rates, self.q_meas)
         tail = (n, suspension.start, suspension.stop, self.times, self.m)
         self._call = {True: bind(lib.servo_observe, *head, self.measured, *tail),
                       False: bind(lib.servo_observe, *head, None, *tail)}
+        # the packed calls' arguments: the buffers' now, a call's own at each call
+        self._table, self._scalars = np.zeros(len(POINTERS), np.uint64), np.zeros(len(SCALARS))
+        for name in ("setpoint", "deflection", "rates", "lower", "upper", "q_meas", "times"):
+            self._table[_P_[name]] = address(getattr(self, name))
+        self._scalars[:4] = n, suspension.start, suspension.stop, self.m
+        self._measured_at = address(self.measured)
+        self._limits: tuple | None = None  # (velocity limits' arrays, their kept copies)
+        self._command = bind(lib.servo_command_packed, self._table, self._scalars)
         self.braking = brake is not None
         self._brake = None
         if brake is not None:
             blib, gemm, *parts = brake
             self._brake = (blib, gemm, *(np.array(a, float, order="C") for a in parts))
-            Lq, Lv, h, acc = self._brake[2:]
-            front = (blib.servo_observe_brake, gemm, h, acc, Lq, Lv)
-            self._call_brake = {
-                True: bind(*front, *head, self.measured, *tail),
-                False: bind(*front, *head, None, *tail)}
+            self._table[_P_["gemm"]] = gemm
+            for name, a in zip(("Lq", "Lv", "h", "acc"), self._brake[2:]):
+                self._table[_P_[name]] = address(a)
+            self._call_brake = bind(blib.servo_observe_brake_packed, self._table,
+                                    self._scalars)
 
     @classmethod
     def make(cls, n: int, suspension: slice, times: np.ndarray,
@@ -234,9 +274,12 @@ class ServoPass:
             ValueError: The brake's call refused the axes (more than 64).
         """
         self._inputs(q_meas, measured)
-        m = self.m
+        m, table, scalars = self.m, self._table, self._scalars
         out = np.empty((5 * m + 2, self.n))
-        if self._call_brake[measured is not None](resync, delay, a, address(out)) != 0:
+        table[_MEASURED] = 0 if measured is None else self._measured_at
+        table[_OUT] = address(out)
+        scalars[_RESYNC], scalars[_DELAY], scalars[_A] = resync, delay, a
+        if self._call_brake() != 0:
             raise ValueError(f"brake inputs: {self.n} axes, at most 64")
         return (out[0], out[1], out[2:m + 2], out[m + 2:2 * m + 2], out[2 * m + 2:3 * m + 2],
                 out[3 * m + 2:4 * m + 2], out[4 * m + 2:])
@@ -251,16 +294,24 @@ class ServoPass:
         (n,) arrays that own their data (the axis limits', which nobody changes: kept as
         copies while the same arrays come). None (nothing done) for other limits.
         """
-        kept = self._limits
+        kept, table, scalars = self._limits, self._table, self._scalars
         if kept is None or kept[0] is not lower or kept[1] is not upper:
             constant = all(type(a) is np.ndarray and a.base is None and not a.flags.writeable
                            and a.shape == (self.n,) and a.dtype == np.float64
                            for a in (lower, upper))
             kept = self._limits = (lower, upper, *((np.array(lower), np.array(upper))
                                                   if constant else (None, None)))
+            if constant:
+                table[_VLO], table[_VHI] = address(kept[2]), address(kept[3])
         if kept[2] is None:
             return None
         out = np.empty(self.n)
-        self._command(address(qdd), dt, address(kept[2]), address(kept[3]), step,
-                      address(out))
+        table[_QDD], table[_COMMAND_OUT] = address(qdd), address(out)
+        scalars[_DT], scalars[_STEP] = dt, step
+        self._command()
         return out
+
+
+_MEASURED, _OUT, _QDD, _VLO, _VHI, _COMMAND_OUT = (
+    _P_[n] for n in ("measured", "out", "qdd", "vlo", "vhi", "command_out"))
+_RESYNC, _DELAY, _A, _DT, _STEP = (_S_[n] for n in ("resync", "delay", "a", "dt", "step"))
