@@ -272,7 +272,7 @@ class Controller(abc.ABC):
                 rp, rv, ra = (np.empty((offsets.size, ref.n)) for _ in range(3))
                 ref.sample_many_into(tau + sigma * offsets, sigma, rp, rv, ra)
                 p[:, i], v[:, i], a[:, i] = rp, rv, ra
-        return ReferenceSample(p, v, a)
+        return ReferenceSample.of(p, v, a)
 
     def reference_ahead(self, offset: float = 0.0) -> ReferenceSample:
         """`reference_at` at one offset: arrays of shape (9,), the same numbers.

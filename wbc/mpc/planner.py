@@ -115,13 +115,13 @@ class MpcPlanner:
         self._plan: np.ndarray | None = None  # (N, 9) inputs of the last plan
         self._plan_time = 0.0
         self._shift: tuple | None = None  # (elapsed time, the plan's step for each step)
-        self._kept_times: tuple | None = None  # (prediction, `node_times`, `node_starts`)
+        self._kept_times: tuple | None = None  # (prediction, `_times`)
         prepare_planner(self)  # the structure's caches now, not in the first tick
 
     @property
     def horizon(self) -> float:
-        """Sum of the step lengths [s]."""
-        return self.prediction.horizon
+        """Sum of the step lengths [s] (kept with `node_times`: asked every tick)."""
+        return self._times()[2]
 
     @property
     def node_times(self) -> np.ndarray:
@@ -136,8 +136,8 @@ class MpcPlanner:
         """The step start times and the horizon: t_0, ..., t_{N-1}, t_N [s], read-only."""
         return self._times()[1]
 
-    def _times(self) -> tuple[np.ndarray, np.ndarray]:
-        """(`node_times`, `node_starts`), kept while the prediction is the same."""
+    def _times(self) -> tuple:
+        """(`node_times`, `node_starts`, `horizon`), kept while the prediction is the same."""
         pred = self.prediction
         kept = self._kept_times
         if kept is None or kept[0] is not pred:
@@ -145,7 +145,7 @@ class MpcPlanner:
                      np.append(pred.start_times, pred.horizon))
             for t in times:
                 t.setflags(write=False)
-            self._kept_times = kept = (pred, *times)
+            self._kept_times = kept = (pred, *times, pred.horizon)
         return kept[1:]
 
     def reset(self) -> None:
