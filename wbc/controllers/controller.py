@@ -215,8 +215,9 @@ class Controller(abc.ABC):
                 self._goal_error = str(exc)
                 self.logger.error("TCP goal dropped: %s", exc)
                 goal = None
-        planned = set()
+        planned = ()
         if goal is not None:
+            planned = set()
             for key, ref, g in (("crane", self.crane_reference, goal.crane),
                                 ("suspension", self.suspension_reference, goal.suspension)):
                 if g is not None:
@@ -327,7 +328,10 @@ class Controller(abc.ABC):
 
     @abc.abstractmethod
     def _solve(self, state: MachineState) -> tuple[np.ndarray, float, dict]:
-        """(qdd (9,), wheel-speed scale, info) for this tick; may raise QPSolveError."""
+        """(qdd (9,), wheel-speed scale, info) for this tick; may raise QPSolveError.
+
+        ``qdd`` is read, and copied where it is kept (`_command`).
+        """
 
     def step(self, state: MachineState) -> ControlCommand:
         """One control tick: measured state in, rate commands out.

@@ -470,4 +470,4 @@ class MpcController(Controller):
             if f.shape[0] > N:
                 info["terminal_forces"] = f[N]
             info["in_contact"] = fcon.last_in_contact.copy()
-        return plan.inputs[0].copy(), plan.speed_scale, info
+        return plan.inputs[0], plan.speed_scale, info  # `_command` copies what it keeps
