@@ -13,11 +13,13 @@ from scenarios.closed_loop import DEFAULT_SCENARIO, run_closed_loop
 from testkit.plant import make_state
 from wbc import load_estimator, make_controller
 from wbc.axes import N_AXES
+from wbc.context import ReferenceSample
 from wbc.controllers.mpc import MpcController
 from wbc.controllers.servo_state import ServoState
 from wbc.controllers.servo_state_c import ServoPass
 from wbc.errors import ConfigurationError
 from wbc.layout import VariableLayout
+from wbc.mpc.context import HorizonContext
 from wbc.mpc.planner import MpcPlanner
 from wbc.mpc.prediction import CondensedPrediction
 
@@ -197,9 +199,9 @@ def test_a_pass_without_the_shapes_has_no_brake():
     for brake in ((PREDICTION.Lq[:5, :5], PREDICTION.Lv, PREDICTION.step_lengths,
                    ACCELERATION),
                   (PREDICTION.Lq, PREDICTION.Lv, PREDICTION.step_lengths, ACCELERATION[:4])):
-        assert not ServoPass.make(N_AXES, slice(7, 9), times, brake).braking
+        assert not ServoPass.make(N_AXES, slice(0, 2), times, brake).braking
     one = CondensedPrediction(VariableLayout(N_AXES, 1), DT)
-    assert not ServoPass.make(N_AXES, slice(7, 9), one.times,
+    assert not ServoPass.make(N_AXES, slice(0, 2), one.times,
                               (one.Lq, one.Lv, one.step_lengths, ACCELERATION)).braking
 
 
@@ -324,3 +326,52 @@ def test_command_at_the_range_ends_and_other_limits(machine):
         got = fast.command(qdd, DT, lower, upper)
         assert _bits(got) == _bits(slow.command(qdd, DT, lower, upper))
         assert _state_bits(fast) == _state_bits(slow)
+
+
+def test_reference_sample_of_is_the_constructor():
+    fields = [np.arange(3.0) + k for k in range(3)]
+    fast, slow = ReferenceSample.of(*fields), ReferenceSample(*fields)
+    assert list(vars(fast)) == list(vars(slow)) == ["position", "velocity", "acceleration"]
+    assert all(vars(fast)[n] is vars(slow)[n] for n in vars(slow))
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        fast.position = fields[1]
+
+
+def test_assembled_context_is_the_constructor(loop_plans):
+    """`HorizonContext.assemble`: the dataclass's fields in its order, as its ``__init__``
+    sets them, the optional ones defaulted."""
+    ctx = loop_plans[-1][0]
+    names = [f.name for f in dataclasses.fields(HorizonContext)]
+    values = {n: vars(ctx)[n] for n in names}
+    slow = HorizonContext(**values)
+    assert list(vars(ctx))[:len(names)] == list(vars(slow)) == names
+    assert all(vars(ctx)[n] is vars(slow)[n] for n in names)
+    required = [n for n in names if n not in ("feedback", "warp", "leveling_offset",
+                                              "warp_drift")]
+    bare = HorizonContext.assemble(*(values[n] for n in required))
+    assert list(vars(bare)) == names and bare.feedback is None and bare.leveling_offset == 0.0
+
+
+def test_node_samples_refuse_arrays_they_cannot_write(machine):
+    """Read-only or strided node arrays: None, nothing written (numpy's path takes them)."""
+    from wbc import CRANE_AXES, AxisLimits, RuckigReference
+
+    limits = AxisLimits.from_machine(machine)
+    ref = RuckigReference(limits, CRANE_AXES)
+    lo, hi = limits.position_lower[CRANE_AXES], limits.position_upper[CRANE_AXES]
+    ref.plan(0.0, lo + 0.1 * (hi - lo), np.zeros(7), np.zeros(7), lo + 0.6 * (hi - lo))
+    offsets = np.linspace(0.0, 1.2, 13)
+    good = [np.zeros((13, 9)) for _ in range(3)]
+    frozen = np.zeros((13, 9))
+    frozen.setflags(write=False)
+    strided = np.zeros((13, 18))[:, ::2]
+    first = ref.index.start
+    for bad in (frozen, strided):
+        arrays = [good[0], bad, good[2]]
+        assert ref._compiled.sample_nodes(0.2, 1.0, offsets, 0.0, first, *arrays) is None
+        assert not good[0].any() and not good[2].any()
+    assert ref._compiled.sample_nodes(0.2, 1.0, offsets, 0.0, first, *good) is not None
+    assert good[0].any()
+    want = [np.zeros((13, 9)) for _ in range(3)]
+    ref.sample_columns_into(0.2 + 1.0 * offsets, 1.0, *want)
+    assert _bits(*good) == _bits(*want)
