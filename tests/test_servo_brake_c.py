@@ -375,3 +375,15 @@ def test_node_samples_refuse_arrays_they_cannot_write(machine):
     want = [np.zeros((13, 9)) for _ in range(3)]
     ref.sample_columns_into(0.2 + 1.0 * offsets, 1.0, *want)
     assert _bits(*good) == _bits(*want)
+
+
+def test_finite_nonnegative_is_numpys_answer():
+    from models.numeric import finite_nonnegative
+
+    rng = np.random.default_rng(3)
+    odd = [np.nan, -np.nan, np.inf, -np.inf, 0.0, -0.0, -5e-324, 5e-324, 1.7e308, -1.0]
+    for _ in range(3000):
+        x = rng.normal(100.0, 300.0, 4)
+        x[rng.random(4) < 0.3] = rng.choice(odd)
+        want = bool(np.isfinite(x).all() and not (x < 0).any())
+        assert finite_nonnegative(x.tolist()) is want

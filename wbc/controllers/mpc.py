@@ -9,6 +9,7 @@ import qpsolvers
 
 from estimators.efforts import ActuatorEfforts
 from models.description import Machine
+from models.numeric import finite_nonnegative
 from models.state import N_SERVO_AXES, MachineState
 from wbc.axes import CRANE_AXES, N_AXES, SUSPENSION_AXES
 from wbc.constraints import (
@@ -51,20 +52,6 @@ from wbc.tasks import (
 )
 
 __all__ = ["MpcController"]
-
-
-def _margins_valid(m0: float, m1: float, m2: float, m3: float) -> bool:
-    """`check_margins`' test of four margins as Python floats: finite and >= 0 each.
-
-    ``0 <= m < inf`` is false for a NaN, an infinity and a negative, true for -0.0 (as
-    ``m < 0`` is false there): the same answers as numpy's ``isfinite`` and ``< 0``,
-    without four ufunc calls every tick.
-    """
-    return (0.0 <= m0 < _INF and 0.0 <= m1 < _INF and 0.0 <= m2 < _INF
-            and 0.0 <= m3 < _INF)
-
-
-_INF = float("inf")
 
 
 class MpcController(Controller):
@@ -161,11 +148,10 @@ class MpcController(Controller):
         self.last_plan: MpcPlan | None = None
         self.force_margin = np.zeros(4)
         ranges = machine.coordinates  # the setpoints may use the full ranges (no margin)
-        pred = self.planner.prediction
+        pred, lim = self.planner.prediction, self.planner.limits  # the servo pass's brake
         self.servo = (ServoState(cfg.dt, mc.deflection_time_constant, ranges.lower[:N_AXES],
-                                 ranges.upper[:N_AXES], times=pred.times,
-                                 brake=(pred.Lq, pred.Lv, pred.step_lengths,
-                                        self.planner.limits.acceleration))
+                                 ranges.upper[:N_AXES], times=pred.times, brake=(
+                                     pred.Lq, pred.Lv, pred.step_lengths, lim.acceleration))
                       if mc.setpoint_state else None)
 
     @property
@@ -217,7 +203,7 @@ class MpcController(Controller):
             ConfigurationError: Not four finite margins >= 0.
         """
         m = np.asarray(margin, float)
-        if m.shape != (4,) or not _margins_valid(*m.tolist()):  # the error's message
+        if m.shape != (4,) or not finite_nonnegative(m.tolist()):  # the error's message
             m = check_margins(margin, 4, "force margin")
         self.force_constraint.thresholds = self.force_thresholds + self.config.force.margin + m
         self.force_margin = m
@@ -277,11 +263,7 @@ class MpcController(Controller):
             self.side_reserve.set_reserve(np.zeros(2))
 
     def _rate_basis(self, state: MachineState) -> np.ndarray:
-        """The rates commanded last tick (with `MpcConfig.setpoint_state`), else measured.
-
-        The servo's own array, not a copy: the base class reads it before `_commanded`
-        writes it (and makes new arrays of it).
-        """
+        """The rates commanded last tick (`MpcConfig.setpoint_state`), else measured (views)."""
         if self.servo is not None and self.servo.setpoint is not None:
             return self.servo.rates
         return state.qd[:N_AXES]
@@ -291,14 +273,10 @@ class MpcController(Controller):
             self.servo.commanded(rates)
 
     def _rates(self, state: MachineState, qdd: np.ndarray) -> np.ndarray:
-        """The base class's rates, by `ServoState.command` once the servo state is observed.
-
-        The same numbers as the base class's clip and `_commanded`, in one compiled call.
-        """
-        servo = self.servo
+        """The base class's rates, by `ServoState.command` once the servo is observed."""
+        servo, limits = self.servo, self.limits
         if servo is None or servo.setpoint is None:
             return super()._rates(state, qdd)
-        limits = self.limits
         return servo.command(qdd, self.dt, limits.velocity_lower, limits.velocity_upper)
 
     def _compensated(self, fb: ForceFeedback, state: MachineState) -> ForceFeedback:
@@ -319,9 +297,8 @@ class MpcController(Controller):
 
     def context(self, state: MachineState) -> HorizonContext:
         """The horizon context of ``state`` (measures the load split, see the class)."""
-        planner = self.planner
+        planner, free, brake = self.planner, None, None
         ref = self.reference_at(planner.node_times)
-        free = brake = None
         if self.servo is not None:  # with the free response and the brake, in one pass
             q, qd, *free, ub, qb, vb = self.servo.observe_brake(
                 state, planner.prediction, planner.limits.acceleration)
