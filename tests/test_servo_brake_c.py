@@ -387,3 +387,16 @@ def test_finite_nonnegative_is_numpys_answer():
         x[rng.random(4) < 0.3] = rng.choice(odd)
         want = bool(np.isfinite(x).all() and not (x < 0).any())
         assert finite_nonnegative(x.tolist()) is want
+
+
+def test_structure_key_is_made_once_and_kept(loop_plans):
+    ctx = loop_plans[-1][0]
+    fresh = HorizonContext.assemble(*(vars(ctx)[f.name] for f in dataclasses.fields(ctx)
+                                      if f.name not in ("feedback", "warp", "leveling_offset",
+                                                        "warp_drift")))
+    assert "structure_key" not in vars(fresh)
+    key = fresh.structure_key
+    assert key == (ctx.prediction.structure_key, ctx.dt) and fresh.structure_key is key
+    assert vars(fresh)["structure_key"] is key
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        fresh.structure_key = key

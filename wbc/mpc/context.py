@@ -13,6 +13,26 @@ from wbc.mpc.prediction import CondensedPrediction
 __all__ = ["HorizonContext"]
 
 
+class _kept:  # noqa: N801 (a decorator, named as `property` is)
+    """A read-only attribute made on first access and kept in the instance's ``__dict__``.
+
+    `functools.cached_property` without its lock (Python 3.11 takes one on every first
+    access): a non-data descriptor, so the kept value is then an ordinary attribute.
+    """
+
+    def __init__(self, fget):
+        self.fget, self.__doc__ = fget, fget.__doc__
+
+    def __set_name__(self, owner, name: str) -> None:
+        self.name = name
+
+    def __get__(self, obj, owner=None):
+        if obj is None:
+            return self
+        value = obj.__dict__[self.name] = self.fget(obj)
+        return value
+
+
 @dataclass(frozen=True)
 class HorizonContext(ControlContext):
     """Inputs of one MPC QP (decision variables: ``layout`` with ``n_steps = N``).
@@ -75,17 +95,14 @@ class HorizonContext(ControlContext):
         object.__setattr__(ctx, "__dict__", d)
         return ctx
 
-    @property
+    @_kept
     def structure_key(self) -> tuple:
         """What constant Jacobians depend on: layout, step lengths and period.
 
-        Made once per context (a dozen tasks and constraints ask each tick), kept in its
-        ``__dict__`` as `ControlContext.brake` keeps its value.
+        Made once per context and kept as its attribute (a dozen tasks and constraints ask
+        each tick: an attribute's lookup, no property call).
         """
-        key = self.__dict__.get("_structure_key")
-        if key is None:
-            key = self.__dict__["_structure_key"] = (self.prediction.structure_key, self.dt)
-        return key
+        return (self.prediction.structure_key, self.dt)
 
     @property
     def n_steps(self) -> int:
