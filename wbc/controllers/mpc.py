@@ -297,12 +297,12 @@ class MpcController(Controller):
 
     def context(self, state: MachineState) -> HorizonContext:
         """The horizon context of ``state`` (measures the load split, see the class)."""
-        planner, free, brake = self.planner, None, None
+        planner, start = self.planner, None
         ref = self.reference_at(planner.node_times)
         if self.servo is not None:  # with the free response and the brake, in one pass
-            q, qd, *free, ub, qb, vb = self.servo.observe_brake(
-                state, planner.prediction, planner.limits.acceleration)
-            brake = (ub, qb, vb)
+            start = self.servo.observe_brake(state, planner.prediction,
+                                             planner.limits.acceleration)
+            q, qd = start[0], start[1]
         else:
             q, qd = state.q[:N_AXES].copy(), state.qd[:N_AXES].copy()
         fb = None
@@ -315,7 +315,7 @@ class MpcController(Controller):
             fb, offset, drift = (self._feedback_steps(measured, state, q) if done is None
                                  else done)
         return planner.context(state, ref, self._last_qdd, self._speed_scale, q=q, qd=qd,
-                               free=free, brake=brake, feedback=fb, warp=self.warp,
+                               start=start, feedback=fb, warp=self.warp,
                                leveling_offset=offset, warp_drift=drift)
 
     def _feedback_steps(self, measured: ForceFeedback, state: MachineState,

@@ -173,8 +173,7 @@ class MpcPlanner:
     def context(self, state: MachineState, reference: ReferenceSample,
                 previous_acceleration: np.ndarray, speed_scale: float, *,
                 q: np.ndarray | None = None, qd: np.ndarray | None = None,
-                free: tuple | None = None, brake: tuple | None = None,
-                **extra) -> HorizonContext:
+                start: tuple | None = None, **extra) -> HorizonContext:
         """The horizon context at ``state`` (reference sampled at `node_times`).
 
         Args:
@@ -182,20 +181,24 @@ class MpcPlanner:
             reference: The reference at the node times.
             previous_acceleration: Acceleration commanded at the previous tick, (9,).
             speed_scale: Wheel-speed scale commanded at the previous tick.
-            q: Initial axis positions of the prediction, (9,); the measured ones if None
-                (the MPC passes its servo state, `wbc.controllers.servo_state`).
-            qd: Initial axis velocities, (9,); the measured ones if None.
-            free: ``prediction.free_response(q, qd)`` if the caller has it
-                (`ServoState.observe_free`), else made here.
-            brake: ``prediction.brake_trajectory(q, qd, limits.acceleration, free)`` if the
-                caller has it (`ServoState.observe_brake`), else made here.
+            q: Initial axis positions of the prediction, (9,), copied; the measured ones if
+                None.
+            qd: Initial axis velocities, (9,), copied; the measured ones if None.
+            start: Instead of ``q`` and ``qd``: ``(q, qd, qf, vf, ub, qb, vb)``, the start,
+                ``prediction.free_response(q, qd)`` and ``prediction.brake_trajectory(q, qd,
+                limits.acceleration, (qf, vf))``, as `ServoState.observe_brake` gives them
+                (the MPC's servo state, `wbc.controllers.servo_state`): new arrays of the
+                caller's, taken as they are.
             extra: Further `HorizonContext` fields (feedback, warp, leveling_offset).
         """
-        q = state.q[:N_AXES].copy() if q is None else np.array(q, float)
-        qd = state.qd[:N_AXES].copy() if qd is None else np.array(qd, float)
-        qf, vf = self.prediction.free_response(q, qd) if free is None else free
-        ub, qb, vb = (self.prediction.brake_trajectory(q, qd, self.limits.acceleration,
-                                                       (qf, vf)) if brake is None else brake)
+        if start is not None:
+            q, qd, qf, vf, ub, qb, vb = start
+        else:
+            q = state.q[:N_AXES].copy() if q is None else np.array(q, float)
+            qd = state.qd[:N_AXES].copy() if qd is None else np.array(qd, float)
+            qf, vf = self.prediction.free_response(q, qd)
+            ub, qb, vb = self.prediction.brake_trajectory(q, qd, self.limits.acceleration,
+                                                          (qf, vf))
         return HorizonContext.assemble(state, q, qd, self.dt, self.layout, self.limits,
                                        self.prediction, reference,
                                        self.nominal_inputs(state.time),
