@@ -5,18 +5,20 @@ prefixed ``scipy_``); its ``ndarray.dot`` and ``@`` of a matrix and a vector end
 ``cblas_dgemv`` (a row and a vector: ``cblas_ddot``), ``linalg.solve`` in ``dgesv``. C code
 that calls the same routines with the arguments numpy passes gets the same bits (the
 observer's tail, `estimators.observer.tail_c`; the MPC's load-split chain,
-`wbc.force_models.chain_c`; DAQP's least-distance step, `wbc.solvers.ldp_step`).
+`wbc.force_models.chain_c`; DAQP's least-distance step, `wbc.solvers.ldp_step`; the MPC's
+brake trajectory, `wbc.controllers.servo_state_c`, through ``cblas_dgemm``).
 """
 
 from __future__ import annotations
 
 import ctypes
+import functools
 import glob
 import os
 
 import numpy as np
 
-__all__ = ["numpy_blas"]
+__all__ = ["numpy_blas", "numpy_gemm"]
 
 _BLAS_SYMBOLS = ("scipy_cblas_dgemv64_", "scipy_cblas_ddot64_", "scipy_dgesv_64_")
 
@@ -30,6 +32,30 @@ def numpy_blas() -> tuple[int, int, int] | None:
     same routines on the same data give the same bits. None where numpy was built
     otherwise (the callers then keep numpy's own calls).
     """
+    lib = _numpy_openblas()
+    try:
+        return None if lib is None else tuple(_symbol(lib, name) for name in _BLAS_SYMBOLS)
+    except AttributeError:
+        return None
+
+
+def numpy_gemm() -> int | None:
+    """The address of the ``cblas_dgemm`` numpy's ``@`` of two matrices calls, or None.
+
+    numpy's matmul of two C-ordered float64 matrices passes ``(101, 111, 111, m, p, n, 1.0,
+    A, n, B, p, 0.0, C, p)`` (row-major, no transposes); `wbc.controllers.servo_state_c`
+    calls it so for the MPC's brake trajectory.
+    """
+    lib = _numpy_openblas()
+    try:
+        return None if lib is None else _symbol(lib, "scipy_cblas_dgemm64_")
+    except AttributeError:
+        return None
+
+
+@functools.cache
+def _numpy_openblas() -> ctypes.CDLL | None:
+    """The OpenBLAS numpy carries (loaded already: the same handle), or None (another build)."""
     try:
         deps = np.show_config(mode="dicts")["Build Dependencies"]
         blas, lapack = deps["blas"], deps["lapack"]
@@ -42,8 +68,11 @@ def numpy_blas() -> tuple[int, int, int] | None:
     if not ok or len(found) != 1:
         return None
     try:
-        lib = ctypes.CDLL(found[0])  # numpy's: loaded already, the same handle
-        return tuple(ctypes.cast(getattr(lib, name), ctypes.c_void_p).value
-                     for name in _BLAS_SYMBOLS)
-    except (OSError, AttributeError):
+        return ctypes.CDLL(found[0])
+    except OSError:
         return None
+
+
+def _symbol(lib: ctypes.CDLL, name: str) -> int:
+    """The address of ``name`` in ``lib`` (AttributeError: not there)."""
+    return ctypes.cast(getattr(lib, name), ctypes.c_void_p).value

@@ -55,19 +55,25 @@ def _step(fast, slow, state, rates) -> None:
 def loop_ticks():
     """(state, commanded rates) of the MPC's ticks in 2 s of the default closed loop."""
     ticks = []
-    observe_free, commanded = ServoState.observe_free, ServoState.commanded
+    observe_brake, commanded = ServoState.observe_brake, ServoState.commanded
+    command = ServoState.command
 
-    def record_observe(self, state, prediction):
+    def record_observe(self, state, prediction, acceleration):
         ticks.append([state, None])
-        return observe_free(self, state, prediction)
+        return observe_brake(self, state, prediction, acceleration)
 
     def record_commanded(self, rates):
         ticks[-1][1] = np.array(rates, float)
         return commanded(self, rates)
 
+    def record_command(self, qdd, dt, lower, upper):  # the rates it commands
+        ticks[-1][1] = np.array(command(self, qdd, dt, lower, upper), float)
+        return ticks[-1][1].copy()
+
     with pytest.MonkeyPatch.context() as mp:
-        mp.setattr(ServoState, "observe_free", record_observe)
+        mp.setattr(ServoState, "observe_brake", record_observe)
         mp.setattr(ServoState, "commanded", record_commanded)
+        mp.setattr(ServoState, "command", record_command)
         run_closed_loop(DEFAULT_SCENARIO, None, "mpc-full", duration=2.0)
     assert len(ticks) > 150 and all(r is not None for _, r in ticks)
     return ticks

@@ -31,6 +31,18 @@ class ReferenceSample:
     velocity: np.ndarray
     acceleration: np.ndarray
 
+    @classmethod
+    def of(cls, position: np.ndarray, velocity: np.ndarray,
+           acceleration: np.ndarray) -> ReferenceSample:
+        """``ReferenceSample(...)`` without the frozen dataclass's per-field setattr.
+
+        The fields set as its ``__init__`` sets them (it has no ``__post_init__``): the
+        MPC samples its horizon every tick.
+        """
+        sample = object.__new__(cls)
+        sample.__dict__.update(position=position, velocity=velocity, acceleration=acceleration)
+        return sample
+
 
 @dataclass(frozen=True)
 class ControlContext:

@@ -215,8 +215,9 @@ class Controller(abc.ABC):
                 self._goal_error = str(exc)
                 self.logger.error("TCP goal dropped: %s", exc)
                 goal = None
-        planned = set()
+        planned = ()
         if goal is not None:
+            planned = set()
             for key, ref, g in (("crane", self.crane_reference, goal.crane),
                                 ("suspension", self.suspension_reference, goal.suspension)):
                 if g is not None:
@@ -272,7 +273,7 @@ class Controller(abc.ABC):
                 rp, rv, ra = (np.empty((offsets.size, ref.n)) for _ in range(3))
                 ref.sample_many_into(tau + sigma * offsets, sigma, rp, rv, ra)
                 p[:, i], v[:, i], a[:, i] = rp, rv, ra
-        return ReferenceSample(p, v, a)
+        return ReferenceSample.of(p, v, a)
 
     def reference_ahead(self, offset: float = 0.0) -> ReferenceSample:
         """`reference_at` at one offset: arrays of shape (9,), the same numbers.
@@ -327,7 +328,10 @@ class Controller(abc.ABC):
 
     @abc.abstractmethod
     def _solve(self, state: MachineState) -> tuple[np.ndarray, float, dict]:
-        """(qdd (9,), wheel-speed scale, info) for this tick; may raise QPSolveError."""
+        """(qdd (9,), wheel-speed scale, info) for this tick; may raise QPSolveError.
+
+        ``qdd`` is read, and copied where it is kept (`_command`).
+        """
 
     def step(self, state: MachineState) -> ControlCommand:
         """One control tick: measured state in, rate commands out.
@@ -346,18 +350,29 @@ class Controller(abc.ABC):
         return self._command(state, qdd, scale, info, fallback=False)
 
     def _rate_basis(self, state: MachineState) -> np.ndarray:
-        """Axis velocities the accelerations are added to, (9,): the measured ones."""
+        """Axis velocities the accelerations are added to, (9,): the measured ones.
+
+        Read, never written (`_command` and `fallback_command` make new arrays of them).
+        """
         return state.qd[:N_AXES]
 
     def _commanded(self, rates: np.ndarray) -> None:
         """Subclass hook: the rates just commanded."""
 
-    def _command(self, state: MachineState, qdd: np.ndarray, scale: float, info: dict,
-                 fallback: bool) -> ControlCommand:
-        qd = self._rate_basis(state)
-        rates = clip(qd + qdd * self.dt, self.limits.velocity_lower,
+    def _rates(self, state: MachineState, qdd: np.ndarray) -> np.ndarray:
+        """The rates (9,) commanded for the accelerations ``qdd`` (a new array).
+
+        ``clip(basis + qdd dt)`` at the velocity limits (`_rate_basis`), then `_commanded`
+        of them.
+        """
+        rates = clip(self._rate_basis(state) + qdd * self.dt, self.limits.velocity_lower,
                      self.limits.velocity_upper)
         self._commanded(rates)
+        return rates
+
+    def _command(self, state: MachineState, qdd: np.ndarray, scale: float, info: dict,
+                 fallback: bool) -> ControlCommand:
+        rates = self._rates(state, qdd)
         scale = _unit_interval(scale)  # solver tolerance aside, s is in [0, 1]
         self._last_qdd = qdd.copy()
         self._speed_scale = scale

@@ -9,6 +9,7 @@ import qpsolvers
 
 from estimators.efforts import ActuatorEfforts
 from models.description import Machine
+from models.numeric import finite_nonnegative
 from models.state import N_SERVO_AXES, MachineState
 from wbc.axes import CRANE_AXES, N_AXES, SUSPENSION_AXES
 from wbc.constraints import (
@@ -147,8 +148,10 @@ class MpcController(Controller):
         self.last_plan: MpcPlan | None = None
         self.force_margin = np.zeros(4)
         ranges = machine.coordinates  # the setpoints may use the full ranges (no margin)
+        pred, lim = self.planner.prediction, self.planner.limits  # the servo pass's brake
         self.servo = (ServoState(cfg.dt, mc.deflection_time_constant, ranges.lower[:N_AXES],
-                                 ranges.upper[:N_AXES], times=self.planner.prediction.times)
+                                 ranges.upper[:N_AXES], times=pred.times, brake=(
+                                     pred.Lq, pred.Lv, pred.step_lengths, lim.acceleration))
                       if mc.setpoint_state else None)
 
     @property
@@ -199,7 +202,9 @@ class MpcController(Controller):
         Raises:
             ConfigurationError: Not four finite margins >= 0.
         """
-        m = check_margins(margin, 4, "force margin")
+        m = np.asarray(margin, float)
+        if m.shape != (4,) or not finite_nonnegative(m.tolist()):  # the error's message
+            m = check_margins(margin, 4, "force margin")
         self.force_constraint.thresholds = self.force_thresholds + self.config.force.margin + m
         self.force_margin = m
 
@@ -258,14 +263,21 @@ class MpcController(Controller):
             self.side_reserve.set_reserve(np.zeros(2))
 
     def _rate_basis(self, state: MachineState) -> np.ndarray:
-        """The rates commanded last tick (with `MpcConfig.setpoint_state`), else measured."""
+        """The rates commanded last tick (`MpcConfig.setpoint_state`), else measured (views)."""
         if self.servo is not None and self.servo.setpoint is not None:
-            return self.servo.rates.copy()
-        return state.qd[:N_AXES].copy()
+            return self.servo.rates
+        return state.qd[:N_AXES]
 
     def _commanded(self, rates: np.ndarray) -> None:
         if self.servo is not None:
             self.servo.commanded(rates)
+
+    def _rates(self, state: MachineState, qdd: np.ndarray) -> np.ndarray:
+        """The base class's rates, by `ServoState.command` once the servo is observed."""
+        servo, limits = self.servo, self.limits
+        if servo is None or servo.setpoint is None:
+            return super()._rates(state, qdd)
+        return servo.command(qdd, self.dt, limits.velocity_lower, limits.velocity_upper)
 
     def _compensated(self, fb: ForceFeedback, state: MachineState) -> ForceFeedback:
         """The split measured in ``state``, carried to the setpoints commanded since.
@@ -285,10 +297,12 @@ class MpcController(Controller):
 
     def context(self, state: MachineState) -> HorizonContext:
         """The horizon context of ``state`` (measures the load split, see the class)."""
-        ref = self.reference_at(self.planner.node_times)
-        free = None
-        if self.servo is not None:  # with the free response of (q, qd), in one pass
-            q, qd, *free = self.servo.observe_free(state, self.planner.prediction)
+        planner, start = self.planner, None
+        ref = self.reference_at(planner.node_times)
+        if self.servo is not None:  # with the free response and the brake, in one pass
+            start = self.servo.observe_brake(state, planner.prediction,
+                                             planner.limits.acceleration)
+            q, qd = start[0], start[1]
         else:
             q, qd = state.q[:N_AXES].copy(), state.qd[:N_AXES].copy()
         fb = None
@@ -300,9 +314,9 @@ class MpcController(Controller):
                     else self._chained_feedback(measured, state, q))
             fb, offset, drift = (self._feedback_steps(measured, state, q) if done is None
                                  else done)
-        return self.planner.context(state, ref, self._last_qdd, self._speed_scale, q=q,
-                                    qd=qd, free=free, feedback=fb, warp=self.warp,
-                                    leveling_offset=offset, warp_drift=drift)
+        return planner.context(state, ref, self._last_qdd, self._speed_scale, q=q, qd=qd,
+                               start=start, feedback=fb, warp=self.warp,
+                               leveling_offset=offset, warp_drift=drift)
 
     def _feedback_steps(self, measured: ForceFeedback, state: MachineState,
                         q: np.ndarray) -> tuple[ForceFeedback, float, np.ndarray | None]:
@@ -433,4 +447,4 @@ class MpcController(Controller):
             if f.shape[0] > N:
                 info["terminal_forces"] = f[N]
             info["in_contact"] = fcon.last_in_contact.copy()
-        return plan.inputs[0].copy(), plan.speed_scale, info
+        return plan.inputs[0], plan.speed_scale, info  # `_command` copies what it keeps

@@ -36,6 +36,7 @@ __all__ = ["ServoState"]
 _RESYNC = 2e-3  # [m or rad] setpoint mismatch that is not explained by a delay
 _DELAY_ALLOWANCE = 5  # control periods of measurement delay the mismatch may come from
 _any = np.logical_or.reduce  # `ndarray.any` of a 1-D array without its Python dispatch
+_UNIT_STRIDE = (8,)  # a contiguous float64 vector's (no `flags` object to ask)
 
 
 class ServoState:
@@ -52,19 +53,28 @@ class ServoState:
         times: The times [s] (m,) of `observe_free`'s free response
             (`CondensedPrediction.times`); None: numpy's `observe_free` only.
         compiled: Use the compiled pass where it can; False: numpy always.
+        brake: ``(Lq, Lv, step_lengths, acceleration)``: the arrays of the prediction at
+            ``times`` and the acceleration limits of `observe_brake`'s brake trajectory,
+            made in the compiled pass's call (`wbc.controllers.servo_state_c`); None:
+            numpy's.
     """
 
     def __init__(self, dt: float, deflection_time_constant: float, lower, upper,
-                 times=None, compiled: bool = True):
+                 times=None, compiled: bool = True, brake: tuple | None = None):
         self.dt = float(dt)
         self.time_constant = float(deflection_time_constant)
-        self.lower = np.asarray(lower, float)
-        self.upper = np.asarray(upper, float)
         # Loaded here, not in a tick; the state lives in its buffers then (before the
         # arrays: a deep copy maps them to the copied pass's buffers).
-        self._c = (ServoPass.make(N_AXES, SUSPENSION, times)
+        self._c = (ServoPass.make(N_AXES, SUSPENSION, times, brake)
                    if compiled and times is not None else None)
+        if self._c is None:
+            self.lower, self.upper = np.array(lower, float), np.array(upper, float)
+        else:  # the pass's buffers, as the state's arrays below
+            self.lower, self.upper = self._c.lower, self._c.upper
+            self.lower[:], self.upper[:] = lower, upper
         self._times = times  # the array `observe_free`'s prediction has (its times, kept)
+        # the prediction's and the limits' arrays `observe_brake`'s pass was made with
+        self._brake_of = brake if self._c is not None and self._c.braking else None
         if self._c is None:
             self._setpoint, self.deflection, self.rates = (np.zeros(N_AXES), np.zeros(N_AXES),
                                                            np.zeros(N_AXES))
@@ -126,6 +136,51 @@ class ServoState:
             measured = np.asarray(measured, float)[:N_AXES]
         return c.observe(state.q[:N_AXES], measured, _RESYNC, _DELAY_ALLOWANCE * self.dt,
                          self._gain(state))
+
+    def observe_brake(self, state: MachineState, prediction, acceleration
+                      ) -> tuple[np.ndarray, ...]:
+        """`observe_free`, then ``prediction.brake_trajectory`` of its (q, qd).
+
+        Returns (q, qd, qf, vf, brake inputs, positions, velocities), the brake at the
+        limits ``acceleration``. In one compiled call (the same bits) when the prediction's
+        times, factors and step lengths and ``acceleration`` are the arrays of the
+        constructor's ``times`` and ``brake`` (a prediction's and the limits' arrays are not
+        changed in place); else `observe_free` and numpy's brake.
+        """
+        kept, c = self._brake_of, self._c
+        if (kept is None or acceleration is not kept[3] or prediction.Lq is not kept[0]
+                or prediction.Lv is not kept[1] or prediction.step_lengths is not kept[2]
+                or prediction.times is not self._times or self.setpoint is not c.setpoint
+                or self.deflection is not c.deflection or self.rates is not c.rates):
+            q, qd, qf, vf = self.observe_free(state, prediction)
+            return (q, qd, qf, vf,
+                    *prediction.brake_trajectory(q, qd, acceleration, (qf, vf)))
+        measured = state.servo_setpoint
+        if measured is not None:
+            measured = np.asarray(measured, float)[:N_AXES]
+        return c.observe_brake(state.q[:N_AXES], measured, _RESYNC,
+                               _DELAY_ALLOWANCE * self.dt, self._gain(state))
+
+    def command(self, qdd: np.ndarray, dt: float, lower: np.ndarray,
+                upper: np.ndarray) -> np.ndarray:
+        """The rates ``clip(rates + qdd dt, lower, upper)`` commanded now, a new array (9,).
+
+        ``qdd``: the accelerations (9,) over ``dt`` [s]; ``lower``, ``upper``: the velocity
+        limits (9,). `commanded` of them follows. In one compiled call (the same bits)
+        after the first observe, for float64 accelerations and read-only limits that own
+        their data (the axis limits', not changed); else numpy's.
+        """
+        c = self._c
+        rates = None
+        if (c is not None and self.setpoint is c.setpoint and self.rates is c.rates
+                and self.lower is c.lower and self.upper is c.upper
+                and type(qdd) is np.ndarray and qdd.shape == (N_AXES,)
+                and qdd.dtype == np.float64 and qdd.strides == _UNIT_STRIDE):
+            rates = c.command(qdd, dt, lower, upper, self.dt)
+        if rates is None:
+            rates = clip(self.rates + qdd * dt, lower, upper)
+            self.commanded(rates)
+        return rates
 
     def commanded(self, rates: np.ndarray) -> None:
         """Advance the setpoints by the rates just commanded, over one period."""

@@ -223,6 +223,7 @@ class FeedbackChain:
         self._starts_of: np.ndarray | None = None
         self.drift = np.zeros(0)
         self.governor_pass = None  # the `GovernorPass` whose buffers are in the table
+        self._per_speed_of: np.ndarray | None = None  # the array `per_speed` holds
         self._table = np.zeros(len(POINTERS), np.uint64)
         for name in ("f", "contact", "measured", "setpoint", "warp", "thresholds", "forces",
                      "diagonal", "per_speed", "ratios"):
@@ -300,13 +301,17 @@ class FeedbackChain:
         gp = None
         if governor is not None:
             gp = governor._c
+            per_speed = governor.per_speed
             if (gp is None or governor._square is not gp.square
-                    or (governor.mean is not None and governor.mean is not gp.mean)
-                    or not _quad(governor.per_speed)):
+                    or (governor.mean is not None and governor.mean is not gp.mean)):
                 return None
             if gp is not self.governor_pass:
                 self.bind_governor(gp)
-            np.copyto(self.per_speed, governor.per_speed)
+            if per_speed is not self._per_speed_of:  # the governor replaces it, not writes
+                if not _quad(per_speed):
+                    return None
+                np.copyto(self.per_speed, per_speed)
+                self._per_speed_of = per_speed
         if drift is not None and starts is not self._starts_of:
             self.bind_starts(starts)
         on = setpoint is not None and measured_setpoint is not None

@@ -13,6 +13,26 @@ from wbc.mpc.prediction import CondensedPrediction
 __all__ = ["HorizonContext"]
 
 
+class _kept:  # noqa: N801 (a decorator, named as `property` is)
+    """A read-only attribute made on first access and kept in the instance's ``__dict__``.
+
+    `functools.cached_property` without its lock (Python 3.11 takes one on every first
+    access): a non-data descriptor, so the kept value is then an ordinary attribute.
+    """
+
+    def __init__(self, fget):
+        self.fget, self.__doc__ = fget, fget.__doc__
+
+    def __set_name__(self, owner, name: str) -> None:
+        self.name = name
+
+    def __get__(self, obj, owner=None):
+        if obj is None:
+            return self
+        value = obj.__dict__[self.name] = self.fget(obj)
+        return value
+
+
 @dataclass(frozen=True)
 class HorizonContext(ControlContext):
     """Inputs of one MPC QP (decision variables: ``layout`` with ``n_steps = N``).
@@ -57,7 +77,9 @@ class HorizonContext(ControlContext):
         """``HorizonContext(*values, **optional)`` without the dataclass's per-field setattr.
 
         The fields are set as the frozen dataclass's ``__init__`` sets them (it has no
-        ``__post_init__``), each with ``object.__setattr__``: 20 of them every tick.
+        ``__post_init__``), each with ``object.__setattr__``: 20 of them every tick. The
+        instance's dictionary is a copy of one made with every field (the defaults in
+        place), then the values written: no resizing while it fills.
 
         Raises:
             TypeError: Not every field without a default given, or an unknown one.
@@ -67,23 +89,20 @@ class HorizonContext(ControlContext):
                             f"optional {sorted(_OPTIONAL)}; got {len(values)} and "
                             f"{sorted(optional)}")
         ctx = object.__new__(cls)
-        d = ctx.__dict__
+        d = _TEMPLATE.copy()
         d.update(zip(_REQUIRED, values))
-        d.update(_OPTIONAL)
         d.update(optional)
+        object.__setattr__(ctx, "__dict__", d)
         return ctx
 
-    @property
+    @_kept
     def structure_key(self) -> tuple:
         """What constant Jacobians depend on: layout, step lengths and period.
 
-        Made once per context (a dozen tasks and constraints ask each tick), kept in its
-        ``__dict__`` as `ControlContext.brake` keeps its value.
+        Made once per context and kept as its attribute (a dozen tasks and constraints ask
+        each tick: an attribute's lookup, no property call).
         """
-        key = self.__dict__.get("_structure_key")
-        if key is None:
-            key = self.__dict__["_structure_key"] = (self.prediction.structure_key, self.dt)
-        return key
+        return (self.prediction.structure_key, self.dt)
 
     @property
     def n_steps(self) -> int:
@@ -93,3 +112,4 @@ class HorizonContext(ControlContext):
 
 _REQUIRED = tuple(f.name for f in fields(HorizonContext) if f.default is MISSING)
 _OPTIONAL = {f.name: f.default for f in fields(HorizonContext) if f.default is not MISSING}
+_TEMPLATE = {**dict.fromkeys(_REQUIRED), **_OPTIONAL}  # `assemble`'s fields, in their order

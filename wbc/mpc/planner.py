@@ -30,32 +30,55 @@ class MpcPlan:
 
     Attributes:
         inputs: Accelerations of the steps, (N, 9); ``inputs[0]`` is applied now.
-        positions, velocities: Predicted node states, (N, 9), nodes 1..N.
         speed_scale: Wheel-speed scale (1.0 without the variable).
         slack: Force slacks (n_slack,) [scaled]: per wheel now, per wheel later, and with
             the side reserve the left and the right pair's; zeros (4,) without them.
         solution: The solver's result.
+        start: What `positions` and `velocities` are predicted from: ``(prediction, q, qd,
+            (free positions, free velocities), inputs)`` of the context and the plan (the
+            inputs a copy of their own).
     """
 
     inputs: np.ndarray
-    positions: np.ndarray
-    velocities: np.ndarray
     speed_scale: float
     slack: np.ndarray
     solution: QPSolution
+    start: tuple
 
     @classmethod
-    def of(cls, inputs: np.ndarray, positions: np.ndarray, velocities: np.ndarray,
-           speed_scale: float, slack: np.ndarray, solution: QPSolution) -> MpcPlan:
+    def of(cls, inputs: np.ndarray, speed_scale: float, slack: np.ndarray,
+           solution: QPSolution, start: tuple) -> MpcPlan:
         """``MpcPlan(...)`` without the frozen dataclass's per-field setattr.
 
         The fields set as its ``__init__`` sets them (it has no ``__post_init__``): one a
         tick.
         """
         plan = object.__new__(cls)
-        plan.__dict__.update(inputs=inputs, positions=positions, velocities=velocities,
-                             speed_scale=speed_scale, slack=slack, solution=solution)
+        plan.__dict__.update(inputs=inputs, speed_scale=speed_scale, slack=slack,
+                             solution=solution, start=start)
         return plan
+
+    @property
+    def positions(self) -> np.ndarray:
+        """Predicted node positions, (N, 9), nodes 1..N."""
+        return self._nodes()[0]
+
+    @property
+    def velocities(self) -> np.ndarray:
+        """Predicted node velocities, (N, 9), nodes 1..N."""
+        return self._nodes()[1]
+
+    def _nodes(self) -> tuple[np.ndarray, np.ndarray]:
+        """`CondensedPrediction.trajectory` of `start`, made on the first access and kept.
+
+        The control loop applies ``inputs[0]`` and never reads the nodes: they are not made
+        every tick.
+        """
+        nodes = self.__dict__.get("_nodes_kept")
+        if nodes is None:
+            prediction, q, qd, free, inputs = self.start
+            nodes = self.__dict__["_nodes_kept"] = prediction.trajectory(q, qd, inputs, free)
+        return nodes
 
 
 class MpcPlanner:
@@ -92,13 +115,13 @@ class MpcPlanner:
         self._plan: np.ndarray | None = None  # (N, 9) inputs of the last plan
         self._plan_time = 0.0
         self._shift: tuple | None = None  # (elapsed time, the plan's step for each step)
-        self._kept_times: tuple | None = None  # (prediction, `node_times`, `node_starts`)
+        self._kept_times: tuple | None = None  # (prediction, `_times`)
         prepare_planner(self)  # the structure's caches now, not in the first tick
 
     @property
     def horizon(self) -> float:
-        """Sum of the step lengths [s]."""
-        return self.prediction.horizon
+        """Sum of the step lengths [s] (kept with `node_times`: asked every tick)."""
+        return self._times()[2]
 
     @property
     def node_times(self) -> np.ndarray:
@@ -113,8 +136,8 @@ class MpcPlanner:
         """The step start times and the horizon: t_0, ..., t_{N-1}, t_N [s], read-only."""
         return self._times()[1]
 
-    def _times(self) -> tuple[np.ndarray, np.ndarray]:
-        """(`node_times`, `node_starts`), kept while the prediction is the same."""
+    def _times(self) -> tuple:
+        """(`node_times`, `node_starts`, `horizon`), kept while the prediction is the same."""
         pred = self.prediction
         kept = self._kept_times
         if kept is None or kept[0] is not pred:
@@ -122,7 +145,7 @@ class MpcPlanner:
                      np.append(pred.start_times, pred.horizon))
             for t in times:
                 t.setflags(write=False)
-            self._kept_times = kept = (pred, *times)
+            self._kept_times = kept = (pred, *times, pred.horizon)
         return kept[1:]
 
     def reset(self) -> None:
@@ -145,12 +168,12 @@ class MpcPlanner:
         if shift is None or shift[0] != elapsed or shift[2] is not starts:
             idx = np.searchsorted(starts, starts + elapsed + 1e-9, side="right") - 1
             self._shift = (elapsed, np.clip(idx, 0, N - 1), starts)
-        return self._plan[self._shift[1]]
+        return self._plan.take(self._shift[1], 0)  # `_plan[idx]`: the rows, a quarter the cost
 
     def context(self, state: MachineState, reference: ReferenceSample,
                 previous_acceleration: np.ndarray, speed_scale: float, *,
                 q: np.ndarray | None = None, qd: np.ndarray | None = None,
-                free: tuple | None = None, **extra) -> HorizonContext:
+                start: tuple | None = None, **extra) -> HorizonContext:
         """The horizon context at ``state`` (reference sampled at `node_times`).
 
         Args:
@@ -158,18 +181,24 @@ class MpcPlanner:
             reference: The reference at the node times.
             previous_acceleration: Acceleration commanded at the previous tick, (9,).
             speed_scale: Wheel-speed scale commanded at the previous tick.
-            q: Initial axis positions of the prediction, (9,); the measured ones if None
-                (the MPC passes its servo state, `wbc.controllers.servo_state`).
-            qd: Initial axis velocities, (9,); the measured ones if None.
-            free: ``prediction.free_response(q, qd)`` if the caller has it
-                (`ServoState.observe_free`), else made here.
+            q: Initial axis positions of the prediction, (9,), copied; the measured ones if
+                None.
+            qd: Initial axis velocities, (9,), copied; the measured ones if None.
+            start: Instead of ``q`` and ``qd``: ``(q, qd, qf, vf, ub, qb, vb)``, the start,
+                ``prediction.free_response(q, qd)`` and ``prediction.brake_trajectory(q, qd,
+                limits.acceleration, (qf, vf))``, as `ServoState.observe_brake` gives them
+                (the MPC's servo state, `wbc.controllers.servo_state`): new arrays of the
+                caller's, taken as they are.
             extra: Further `HorizonContext` fields (feedback, warp, leveling_offset).
         """
-        q = state.q[:N_AXES].copy() if q is None else np.array(q, float)
-        qd = state.qd[:N_AXES].copy() if qd is None else np.array(qd, float)
-        qf, vf = self.prediction.free_response(q, qd) if free is None else free
-        ub, qb, vb = self.prediction.brake_trajectory(q, qd, self.limits.acceleration,
-                                                      (qf, vf))
+        if start is not None:
+            q, qd, qf, vf, ub, qb, vb = start
+        else:
+            q = state.q[:N_AXES].copy() if q is None else np.array(q, float)
+            qd = state.qd[:N_AXES].copy() if qd is None else np.array(qd, float)
+            qf, vf = self.prediction.free_response(q, qd)
+            ub, qb, vb = self.prediction.brake_trajectory(q, qd, self.limits.acceleration,
+                                                          (qf, vf))
         return HorizonContext.assemble(state, q, qd, self.dt, self.layout, self.limits,
                                        self.prediction, reference,
                                        self.nominal_inputs(state.time),
@@ -193,9 +222,9 @@ class MpcPlanner:
             raise
         lay = self.layout
         u = sol.x[lay.accelerations].reshape(lay.n_steps, lay.n_axes)
-        qs, vs = self.prediction.trajectory(ctx.q, ctx.qd, u,
-                                            (ctx.free_positions, ctx.free_velocities))
         s = 1.0 if lay.scale is None else float(sol.x[lay.scale])
         slack = np.zeros(4) if lay.slack is None else sol.x[lay.slack].copy()
         self._plan, self._plan_time = u.copy(), ctx.state.time
-        return MpcPlan.of(u, qs, vs, s, slack, sol)
+        return MpcPlan.of(u, s, slack, sol, (self.prediction, ctx.q, ctx.qd,
+                                             (ctx.free_positions, ctx.free_velocities),
+                                             self._plan))

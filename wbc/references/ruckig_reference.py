@@ -296,8 +296,12 @@ class RuckigReference:
         sample_nodes`); a held reference does not need them.
         """
         i = self.index
-        if not self._planned:
-            self.sample_columns_into(offsets, rate, position, velocity, acceleration)
+        if not self._planned:  # held: `sample_many_into`'s values, no times needed
+            if self._hold is None:
+                self.sample(0.0)  # raises: neither planned nor held
+            position[:, i] = self._hold
+            velocity[:, i] = rate * 0.0
+            acceleration[:, i] = rate**2 * 0.0
             return
         if self.compiled and self._compiled_loaded and isinstance(i, slice):
             first = self._compiled.sample_nodes(tau, rate, offsets, self.start_time, i.start,

@@ -115,6 +115,9 @@ void sample_nodes(void* const* p, const double* s) {
 """
 
 
+_addressof, _char_view = ctypes.addressof, ctypes.c_char.from_buffer
+
+
 def _library():
     p, lg, d = ctypes.c_void_p, ctypes.c_long, ctypes.c_double
     return load_shared(SAMPLE_C, "ruckig_sample", {
@@ -236,21 +239,23 @@ class CompiledTrajectory:
                 and position.shape == velocity.shape
                 == acceleration.shape and m == offsets.shape[0] and 0 <= first
                 and first + self.n <= k and position.dtype == velocity.dtype
-                == acceleration.dtype == offsets.dtype == np.float64
-                and position.flags.c_contiguous
-                and velocity.flags.c_contiguous and acceleration.flags.c_contiguous
-                and position.flags.writeable and velocity.flags.writeable
-                and acceleration.flags.writeable):
+                == acceleration.dtype == offsets.dtype == np.float64):
             return None
+        try:  # a ctypes view takes writable, C-contiguous, non-empty buffers only
+            at_p = _addressof(_char_view(position))
+            at_v = _addressof(_char_view(velocity))
+            at_a = _addressof(_char_view(acceleration))
+        except (TypeError, ValueError, BufferError):
+            if m:
+                return None
+            at_p = at_v = at_a = 0  # no node: nothing is written
         p = self._node_p
         if offsets is not self._offsets_of:
             self._offsets = np.array(offsets, float)
             self._node_times = np.zeros(max(m, 1))
             p[1], p[2] = address(self._offsets), address(self._node_times)
             self._offsets_of = offsets
-        p[5] = address(position) + 8 * first
-        p[6] = address(velocity) + 8 * first
-        p[7] = address(acceleration) + 8 * first
+        p[5], p[6], p[7] = at_p + 8 * first, at_v + 8 * first, at_a + 8 * first
         self._node_s[:] = (self.duration, t0, tau, rate, rate**2, m, k, self.n)
         self._nodes()
         return float(self._node_times[0]) if m else math.nan
