@@ -9,9 +9,10 @@ import numpy as np
 from estimators.linearization import ForceLinearization
 from models.coordinates import N_INDEPENDENT, SUSPENSION
 from wbc.axes import N_AXES
-from wbc.constraints.force_map_c import compiled_force_map, row_offsets
-from wbc.constraints.force_rows import ForceRowsConstraint
-from wbc.drive_model import speed_scale_direction
+from wbc.constraints.constraint import Inequality
+from wbc.constraints.force_map_c import compiled_force_map, row_offsets, row_plan
+from wbc.constraints.force_rows import ForceRowsConstraint, lifted_wheel_thresholds
+from wbc.drive_model import speed_scale_direction, speed_scale_factor
 from wbc.errors import ConfigurationError
 from wbc.force_models.feedback import DIAGONAL
 from wbc.force_models.protocol import (
@@ -27,6 +28,7 @@ __all__ = ["HorizonNormalForceConstraint"]
 _AXES_IN_A = slice(6, 6 + N_AXES)
 _MIN_SCALE = 0.05  # below this the drift is not attributed to the driving speed
 _all = np.logical_and.reduce  # `np.all` of a 1-D array without its Python dispatch
+_ELSEWHERE = object()  # `_tick`: not here, `ForceRowsConstraint.compute`
 
 
 _SUSPENSION_IN_A = slice(6 + SUSPENSION.start, 6 + SUSPENSION.stop)
@@ -104,7 +106,8 @@ class HorizonNormalForceConstraint(ForceRowsConstraint):
             reference). With a model that gives its nodes' kernel rows
             (`estimators.payload.PayloadEstimator.linearize_nodes`), a tick's rows are made
             from those rows without a `ForceLinearization` per node (`_rows_map`, the bits
-            of the C `forces_map`).
+            of the C `forces_map`); prepared (`prepare`), the force map and the rows
+            ``G x <= h`` in one C call (`_tick`, the bits of `ForceRowsConstraint.compute`).
     """
 
     def __init__(self, model: NormalForceModel, thresholds, n_linearizations: int = 3,
@@ -131,6 +134,8 @@ class HorizonNormalForceConstraint(ForceRowsConstraint):
         self.linearization_steps: np.ndarray = np.zeros(0, dtype=int)
         self._structure_cache: tuple | None = None  # (key, structure, last context)
         self._offsets: tuple = (None, None)  # (row views, `row_offsets`) of `_rows_map`
+        self._tick_rows: tuple | None = None  # (row views, `row_offsets`, rows' shape): `_tick`
+        self._kept_plan: tuple | None = None  # (`_row_plan`'s tuple, `row_plan`): `_tick`
         self._warp_cache: tuple | None = None
 
     def _structure(self, ctx) -> SimpleNamespace:
@@ -201,9 +206,72 @@ class HorizonNormalForceConstraint(ForceRowsConstraint):
         if kernel_rows is not None and getattr(kernel_rows[0], "slices", None) is not None:
             views, width = kernel_rows
             self._offsets = (views, row_offsets(views))
+            self._tick_rows = (*self._offsets, (struct.steps.size, width))
             self._compiled_map.prepare(struct, lay.n_steps, lay.n, lay.scale,
                                        (struct.steps.size, width))
         return n_rows
+
+    def compute(self, ctx) -> Inequality | None:
+        """`ForceRowsConstraint.compute`: in one C call where prepared (`_tick`)."""
+        done = self._tick(ctx)
+        return super().compute(ctx) if done is _ELSEWHERE else done
+
+    def _tick(self, ctx):
+        """`compute` from the nodes' kernel rows, the force map and the rows in one C call.
+
+        ``force_rows`` (`wbc.constraints.force_map_c`) writes ``(A, b)`` as `_rows_map`
+        does and ``G``, ``h`` from them as `ForceRowsConstraint.compute` does, the same
+        bits; the nominal states go straight into its buffers. Where it does not apply after
+        the model's call (no kernel rows, another row width) the tick goes on as
+        `_forces_and_flags` does.
+
+        Returns:
+            `compute`'s result, or ``_ELSEWHERE``, nothing evaluated: not prepared for this
+            structure (`prepare`), no C force map.
+        """
+        prepared, kernel, lay = self._tick_rows, self._kernel(), ctx.layout
+        if prepared is None or kernel is None or lay.n_axes != N_AXES:
+            return _ELSEWHERE
+        struct = self._structure(ctx)
+        views, offsets, rows_shape = prepared
+        buffers = kernel.nominal(struct, lay.n_steps, lay.n, lay.scale, rows_shape)
+        if buffers is None:
+            return _ELSEWHERE
+        st = ctx.state
+        qn, vn = self._nominal(ctx, *buffers)
+        later = struct.later_steps
+        first, rows = linearize_nodes(self.model, st, struct.later_times, qn[later], vn[later])
+        flags = linearized_contact_flags(st, first)
+        fields = first.__dict__
+        if rows is not None and fields.get("_views") is views:
+            all_in = _all(flags)
+            warp = ctx.warp if all_in else None
+            n_eval = struct.n_eval
+            plan = self._plan(ctx, flags, n_eval)
+            done = kernel.evaluate_tick(
+                n_eval, lay.n, offsets, ctx, fields["_row"], rows, plan[1],
+                self.thresholds if all_in else lifted_wheel_thresholds(self.thresholds, flags),
+                zero_suspension=ctx.warp is not None, warp=warp,
+                direction=(None if lay.scale is None else
+                           speed_scale_factor(ctx.speed_scale, self.drive_time_constant)),
+                bias=None if ctx.feedback is None else ctx.feedback.bias,
+                drift=ctx.warp_drift if warp is not None else None,
+                s_prev=max(ctx.speed_scale, _MIN_SCALE), brake_time=self.terminal_brake_time,
+                force_scale=self.force_scale)
+            if done is not None:
+                A, b, G, h = done
+                self.linearization_steps = struct.steps
+                self.last_forces_map, self.last_in_contact = (A, b), flags
+                return None if plan[0][0] is None else Inequality(G, h)
+        return self._inequality(ctx, *self._map_of(ctx, first, rows, flags, qn, vn), flags)
+
+    def _plan(self, ctx, flags: np.ndarray, n_eval: int) -> tuple:
+        """``(`ForceRowsConstraint._row_plan`'s tuple, `row_plan` of it)``, kept with it."""
+        rows = self._row_plan(ctx, flags, n_eval)
+        kept = self._kept_plan
+        if kept is None or kept[0] is not rows or kept[1][0][1] != 4 * n_eval:
+            kept = self._kept_plan = (rows, row_plan(rows[0], rows[2], n_eval, ctx.layout.n))
+        return kept
 
     def linearize(self, ctx) -> tuple[np.ndarray, list[ForceLinearization], np.ndarray,
                                       np.ndarray]:
@@ -221,11 +289,16 @@ class HorizonNormalForceConstraint(ForceRowsConstraint):
         return self._linearize(ctx, linearize_forces(self.model, ctx.state),
                                *self._nominal(ctx))
 
-    def _nominal(self, ctx) -> tuple[np.ndarray, np.ndarray]:
-        """The nominal positions and velocities (N + 1, 9), node 0 the measured state's."""
+    def _nominal(self, ctx, qn: np.ndarray | None = None, vn: np.ndarray | None = None
+                 ) -> tuple[np.ndarray, np.ndarray]:
+        """The nominal positions and velocities (N + 1, 9), node 0 the measured state's.
+
+        Written into ``qn``, ``vn`` if given (the C force map's buffers, `_tick`).
+        """
         pred, u = ctx.prediction, ctx.nominal_inputs
-        qn = np.empty((u.shape[0] + 1, N_AXES))
-        vn = np.empty_like(qn)
+        if qn is None:
+            qn = np.empty((u.shape[0] + 1, N_AXES))
+            vn = np.empty_like(qn)
         qn[0], vn[0] = ctx.state.q[:N_AXES], ctx.state.qd[:N_AXES]
         np.add(ctx.free_positions, pred.Lq @ u, out=qn[1:])  # `CondensedPrediction.trajectory`
         np.add(ctx.free_velocities, pred.Lv @ u, out=vn[1:])
@@ -281,12 +354,16 @@ class HorizonNormalForceConstraint(ForceRowsConstraint):
         else:
             first = linearize_forces(self.model, st)
         flags = linearized_contact_flags(st, first)
+        return (*self._map_of(ctx, first, rows, flags, qn, vn), flags)
+
+    def _map_of(self, ctx, first: ForceLinearization, rows: np.ndarray | None, flags,
+                qn: np.ndarray, vn: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """`forces_map` from node 0's linearization and the later nodes' kernel rows."""
         if rows is not None:
             fast = self._rows_map(ctx, first, rows, flags, qn, vn)
             if fast is not None:
-                return (*fast, flags)
-        linearized = self._linearize(ctx, first, qn, vn)
-        return (*self._forces_map(ctx, linearized, flags), flags)
+                return fast
+        return self._forces_map(ctx, self._linearize(ctx, first, qn, vn), flags)
 
     def _rows_map(self, ctx, first: ForceLinearization, rows: np.ndarray, in_contact,
                   qn: np.ndarray, vn: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
