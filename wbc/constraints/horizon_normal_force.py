@@ -51,6 +51,14 @@ def _stacked(lins: list[ForceLinearization], which: np.ndarray, warp: bool
     return G, dq, dqd, g0
 
 
+def _rows_at(rows: np.ndarray) -> slice | np.ndarray:
+    """``rows`` (increasing) as a slice where they are evenly spaced (a view, not a copy)."""
+    step = rows[1] - rows[0] if rows.size > 1 else 1
+    if rows.size and step > 0 and np.array_equal(np.diff(rows), np.full(rows.size - 1, step)):
+        return slice(int(rows[0]), int(rows[-1]) + 1, int(step))
+    return rows
+
+
 class HorizonNormalForceConstraint(ForceRowsConstraint):
     r"""``f_z,i(t_k) >= f_min,i`` at the steps k = 0..N-1, for every wheel i in contact now.
 
@@ -135,7 +143,9 @@ class HorizonNormalForceConstraint(ForceRowsConstraint):
         self._structure_cache: tuple | None = None  # (key, structure, last context)
         self._offsets: tuple = (None, None)  # (row views, `row_offsets`) of `_rows_map`
         self._tick_rows: tuple | None = None  # (row views, `row_offsets`, rows' shape): `_tick`
-        self._kept_plan: tuple | None = None  # (`_row_plan`'s tuple, `row_plan`): `_tick`
+        self._kept_plan: tuple | None = None  # (struct, layout, flags, plan): `_plan`
+        # (struct, layout, `_tick_rows`, the C's arrays, `_nominal`'s out, later rows): `_tick`
+        self._tick_kept: tuple | None = None
         self._warp_cache: tuple | None = None
 
     def _structure(self, ctx) -> SimpleNamespace:
@@ -233,23 +243,28 @@ class HorizonNormalForceConstraint(ForceRowsConstraint):
         if prepared is None or kernel is None or lay.n_axes != N_AXES:
             return _ELSEWHERE
         struct = self._structure(ctx)
-        views, offsets, rows_shape = prepared
-        buffers = kernel.nominal(struct, lay.n_steps, lay.n, lay.scale, rows_shape)
-        if buffers is None:
-            return _ELSEWHERE
+        kept = self._tick_kept
+        if (kept is None or kept[0] is not struct or kept[1] is not lay
+                or kept[2] is not prepared or kept[3] is not kernel.arrays):
+            buffers = kernel.nominal(struct, lay.n_steps, lay.n, lay.scale, prepared[2])
+            if buffers is None:
+                return _ELSEWHERE
+            qn, vn = buffers
+            kept = self._tick_kept = (struct, lay, prepared, kernel.arrays,
+                                      (qn, vn, qn[1:], vn[1:]), _rows_at(struct.later_steps))
         st = ctx.state
-        qn, vn = self._nominal(ctx, *buffers)
-        later = struct.later_steps
-        first, rows = linearize_nodes(self.model, st, struct.later_times, qn[later], vn[later])
+        qn, vn = self._nominal(ctx, kept[4])
+        at = kept[5]
+        first, rows = linearize_nodes(self.model, st, struct.later_times, qn[at], vn[at])
         flags = linearized_contact_flags(st, first)
         fields = first.__dict__
-        if rows is not None and fields.get("_views") is views:
+        if rows is not None and fields.get("_views") is prepared[0]:
             all_in = _all(flags)
             warp = ctx.warp if all_in else None
             n_eval = struct.n_eval
-            plan = self._plan(ctx, flags, n_eval)
+            plan = self._plan(ctx, flags, struct)
             done = kernel.evaluate_tick(
-                n_eval, lay.n, offsets, ctx, fields["_row"], rows, plan[1],
+                n_eval, lay.n, prepared[1], ctx, fields["_row"], rows, plan[1],
                 self.thresholds if all_in else lifted_wheel_thresholds(self.thresholds, flags),
                 zero_suspension=ctx.warp is not None, warp=warp,
                 direction=(None if lay.scale is None else
@@ -262,16 +277,22 @@ class HorizonNormalForceConstraint(ForceRowsConstraint):
                 A, b, G, h = done
                 self.linearization_steps = struct.steps
                 self.last_forces_map, self.last_in_contact = (A, b), flags
-                return None if plan[0][0] is None else Inequality(G, h)
+                return None if plan[0] is None else Inequality(G, h)
         return self._inequality(ctx, *self._map_of(ctx, first, rows, flags, qn, vn), flags)
 
-    def _plan(self, ctx, flags: np.ndarray, n_eval: int) -> tuple:
-        """``(`ForceRowsConstraint._row_plan`'s tuple, `row_plan` of it)``, kept with it."""
-        rows = self._row_plan(ctx, flags, n_eval)
-        kept = self._kept_plan
-        if kept is None or kept[0] is not rows or kept[1][0][1] != 4 * n_eval:
-            kept = self._kept_plan = (rows, row_plan(rows[0], rows[2], n_eval, ctx.layout.n))
-        return kept
+    def _plan(self, ctx, flags: np.ndarray, struct) -> tuple:
+        """``(rows of A or None, `row_plan`)`` of `ForceRowsConstraint._row_plan`, kept.
+
+        Kept with the structure, the layout and the flags it was made for (what the row
+        plan depends on at a tick's ``n_eval`` nodes).
+        """
+        flag_bytes, kept = flags.tobytes(), self._kept_plan
+        lay = ctx.layout
+        if kept is None or kept[0] is not struct or kept[1] is not lay or kept[2] != flag_bytes:
+            rows, _, slack = self._row_plan(ctx, flags, struct.n_eval)
+            kept = self._kept_plan = (struct, lay, flag_bytes,
+                                      (rows, row_plan(rows, slack, struct.n_eval, lay.n)))
+        return kept[3]
 
     def linearize(self, ctx) -> tuple[np.ndarray, list[ForceLinearization], np.ndarray,
                                       np.ndarray]:
@@ -289,19 +310,21 @@ class HorizonNormalForceConstraint(ForceRowsConstraint):
         return self._linearize(ctx, linearize_forces(self.model, ctx.state),
                                *self._nominal(ctx))
 
-    def _nominal(self, ctx, qn: np.ndarray | None = None, vn: np.ndarray | None = None
-                 ) -> tuple[np.ndarray, np.ndarray]:
+    def _nominal(self, ctx, out: tuple | None = None) -> tuple[np.ndarray, np.ndarray]:
         """The nominal positions and velocities (N + 1, 9), node 0 the measured state's.
 
-        Written into ``qn``, ``vn`` if given (the C force map's buffers, `_tick`).
+        Written into ``out`` if given: ``(qn, vn, qn[1:], vn[1:])`` (the C force map's
+        buffers and their views, `_tick`).
         """
         pred, u = ctx.prediction, ctx.nominal_inputs
-        if qn is None:
+        if out is None:
             qn = np.empty((u.shape[0] + 1, N_AXES))
             vn = np.empty_like(qn)
+            out = (qn, vn, qn[1:], vn[1:])
+        qn, vn, q_later, v_later = out
         qn[0], vn[0] = ctx.state.q[:N_AXES], ctx.state.qd[:N_AXES]
-        np.add(ctx.free_positions, pred.Lq @ u, out=qn[1:])  # `CondensedPrediction.trajectory`
-        np.add(ctx.free_velocities, pred.Lv @ u, out=vn[1:])
+        np.add(ctx.free_positions, pred.Lq @ u, out=q_later)  # `CondensedPrediction.trajectory`
+        np.add(ctx.free_velocities, pred.Lv @ u, out=v_later)
         return qn, vn
 
     def _linearize(self, ctx, first: ForceLinearization, qn: np.ndarray, vn: np.ndarray
