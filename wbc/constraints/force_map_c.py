@@ -428,15 +428,22 @@ def row_plan(rows, slack, n_eval: int, n: int) -> tuple[np.ndarray, int]:
     """
     cap = NW * n_eval
     plan = np.full(2 + 3 * cap, -1, np.int64)
-    src = np.arange(cap)[rows] if rows is not None else np.zeros(0, np.int64)
+    if rows is None:
+        src = np.zeros(0, np.int64)
+    elif isinstance(rows, slice):
+        src = np.arange(rows.start, rows.stop, rows.step, dtype=np.int64)
+    else:
+        src = np.asarray(rows, np.int64).reshape(-1)
     m = src.size
+    if not (m <= cap and np.all((src >= 0) & (src < cap))):
+        raise ValueError(f"rows {rows} outside the {cap} rows of A")
     plan[0], plan[1] = m, cap
     plan[2:2 + m] = src
     plan[2 + cap:2 + cap + m] = src % NW
     if slack is not None:
         plan[2 + 2 * cap + slack[0]] = slack[1]
-    if not (np.all((src >= 0) & (src < cap)) and np.all(plan[2 + 2 * cap:] < n)):
-        raise ValueError(f"rows {rows} or slack {slack} outside {cap} rows of {n} columns")
+    if not np.all(plan[2 + 2 * cap:] < n):
+        raise ValueError(f"slack entries {slack} outside the {n} columns of G")
     return plan, plan.ctypes.data
 
 
