@@ -56,7 +56,7 @@ enum { NW = 4, NA = 9, NB = 6, NG = 19, NQ = 13, N_HEADER = 17 };
 /* Mirrors `HorizonNormalForceConstraint._forces_map` (the numpy version), step by step.
    A: (n_eval, 4, n) row-major, b: (n_eval, 4). */
 int force_map(const double* const* p, const long long* iv, const double* dv,
-              double* A, double* b) {
+              double* restrict A, double* restrict b) {
   const long long n_eval = iv[0], N = iv[1], n = iv[2], row_len = iv[3];
   const long long off_g = iv[4], off_dq = iv[5], off_dqd = iv[6], off_g0 = iv[7];
   const long long scale = iv[8], s_lo = iv[9], s_hi = iv[10], zero_susp = iv[11];
@@ -176,7 +176,9 @@ int force_rows(const double* const* p, const long long* iv, const double* dv,
   const long long *src = plan + 2, *wheel = src + cap, *slack = wheel + cap;
   const double k = dv[3], fs = dv[4], nfs = -fs;
   const double *twist = p[16], *qd = p[17], *thr = p[18];
-  double *A = out, *b = out + m_all * n, *G = b + m_all, *h = G + m * n;
+  double *A = out, *b = out + m_all * n;
+  double* restrict G = b + m_all;
+  double* restrict h = G + m * n;
   long long r, c;
   if (m < 0 || m > cap) return -1;
   for (r = 0; r < m; ++r)
@@ -191,7 +193,7 @@ int force_rows(const double* const* p, const long long* iv, const double* dv,
   }
   if (force_map(p, iv, dv, A, b)) return -1;
   for (r = 0; r < m; ++r) {
-    const double* a = A + src[r] * n;
+    const double* restrict a = A + src[r] * n;
     double* g = G + r * n;
     for (c = 0; c < n; ++c) g[c] = a[c] / nfs;
     if (slack[r] >= 0) g[slack[r]] = -1.0;
