@@ -1,4 +1,4 @@
-"""The MPC force rows in one C call (`HorizonNormalForceConstraint._tick`, ``force_rows``).
+"""The MPC force rows in one C call (`wbc.constraints.force_tick`, ``force_rows``).
 
 A prepared constraint's tick writes the force map ``(A, b)`` and the rows ``G x <= h`` in
 one C call from the nodes' kernel rows; `ForceRowsConstraint.compute` on `_forces_and_flags`
@@ -16,8 +16,9 @@ from models.state import WheelContacts
 from testkit.plant import KinematicPlant, make_state
 from wbc import ControllerConfig, ForceConfig, JointGoal, MpcConfig, MpcController
 from wbc.axes import SUSPENSION_AXES
-from wbc.constraints.force_map_c import compiled_force_map, row_plan
+from wbc.constraints.force_map_c import compiled_force_map
 from wbc.constraints.force_rows import ForceRowsConstraint
+from wbc.constraints.force_tick import row_plan
 from wbc.controllers.registry import estimator_models
 from wbc.force_models.feedback import ForceFeedback
 
@@ -86,7 +87,7 @@ def _same(con, ctx, tick: bool = True):
 def test_the_tick_is_the_reference_rows_bits(machine, speed_scale):
     ctrl, states = _turning_mpc(machine, speed_scale)
     con = ctrl.force_constraint
-    assert con._tick_rows is not None  # prepared by the controller
+    assert con._tick.rows is not None  # prepared by the controller
     for st in states[-3:]:
         ctx = ctrl.context(st)
         assert ctx.warp is not None and ctx.feedback is not None
@@ -138,7 +139,7 @@ def test_unprepared_or_other_rows_take_the_reference_path(machine):
     ctrl, states = _turning_mpc(machine, False)
     con = ctrl.force_constraint
     ctx = ctrl.context(states[-1])
-    con._tick_rows = None  # not prepared: `ForceRowsConstraint.compute`
+    con._tick.rows = None  # not prepared: `ForceRowsConstraint.compute`
     got = con.compute(ctx)
     ref = ForceRowsConstraint.compute(con, ctx)
     assert got.G.tobytes() == ref.G.tobytes() and got.h.tobytes() == ref.h.tobytes()

@@ -27,7 +27,7 @@ from models.coordinates import N_INDEPENDENT, SUSPENSION
 from wbc.axes import N_AXES
 from wbc.force_models.feedback import DIAGONAL
 
-__all__ = ["FORCE_MAP_C", "CompiledForceMap", "compiled_force_map", "row_offsets", "row_plan"]
+__all__ = ["FORCE_MAP_C", "CompiledForceMap", "compiled_force_map", "row_offsets"]
 
 # Integer header `iv` (then `which` and `j` of every node), double header `dv`, pointers `p`.
 _I_NAMES = ("n_eval", "n_steps", "n", "row_len", "off_g", "off_dq", "off_dqd", "off_g0",
@@ -36,8 +36,7 @@ _I_NAMES = ("n_eval", "n_steps", "n", "row_len", "off_g", "off_dq", "off_dqd", "
 _D_NAMES = ("speed_scale", "brake_time", "s_prev")
 _P_NAMES = ("rows", "lq", "lv", "since", "decay", "omega", "free_q", "free_v", "qn", "vn",
             "q0", "warp", "direction", "bias", "drift", "diagonal", "twist", "qd", "thresholds")
-# `force_rows`' double header (after `_D_NAMES`, in the same block): the drive's factor and
-# the rows' scale.
+# `force_rows`' double header: `_D_NAMES`, then the drive's factor and the rows' scale.
 _T_NAMES = (*_D_NAMES, "drive_factor", "force_scale")
 NW, NA, NQ = 4, N_AXES, N_INDEPENDENT  # wheels, axes, coordinates (as in FORCE_MAP_C)
 NG = 6 + NQ  # accelerations: base twist, coordinates
@@ -420,33 +419,6 @@ class CompiledForceMap:
 
 
 _HEAD = Struct("=%dd" % len(_T_NAMES))
-
-
-def row_plan(rows, slack, n_eval: int, n: int) -> tuple[np.ndarray, int]:
-    """``force_rows``' plan of `ForceRowsConstraint._row_plan`'s rows and slack entries.
-
-    ``(plan, its address)``: m, the capacity 4 n_eval, then each row's row of A, its wheel
-    and its slack column (-1: none), the capacity each. ``rows`` None: no rows (m = 0).
-    """
-    cap = NW * n_eval
-    plan = np.full(2 + 3 * cap, -1, np.int64)
-    if rows is None:
-        src = np.zeros(0, np.int64)
-    elif isinstance(rows, slice):
-        src = np.arange(rows.start, rows.stop, rows.step, dtype=np.int64)
-    else:
-        src = np.asarray(rows, np.int64).reshape(-1)
-    m = src.size
-    if not (m <= cap and np.all((src >= 0) & (src < cap))):
-        raise ValueError(f"rows {rows} outside the {cap} rows of A")
-    plan[0], plan[1] = m, cap
-    plan[2:2 + m] = src
-    plan[2 + cap:2 + cap + m] = src % NW
-    if slack is not None:
-        plan[2 + 2 * cap + slack[0]] = slack[1]
-    if not np.all(plan[2 + 2 * cap:] < n):
-        raise ValueError(f"slack entries {slack} outside the {n} columns of G")
-    return plan, plan.ctypes.data
 
 
 def row_offsets(views) -> tuple[int, int, int, int]:

@@ -10,9 +10,10 @@ from estimators.linearization import ForceLinearization
 from models.coordinates import N_INDEPENDENT, SUSPENSION
 from wbc.axes import N_AXES
 from wbc.constraints.constraint import Inequality
-from wbc.constraints.force_map_c import compiled_force_map, row_offsets, row_plan
-from wbc.constraints.force_rows import ForceRowsConstraint, lifted_wheel_thresholds
-from wbc.drive_model import speed_scale_direction, speed_scale_factor
+from wbc.constraints.force_map_c import compiled_force_map, row_offsets
+from wbc.constraints.force_rows import ForceRowsConstraint
+from wbc.constraints.force_tick import ELSEWHERE, ForceTick
+from wbc.drive_model import speed_scale_direction
 from wbc.errors import ConfigurationError
 from wbc.force_models.feedback import DIAGONAL
 from wbc.force_models.protocol import (
@@ -28,7 +29,6 @@ __all__ = ["HorizonNormalForceConstraint"]
 _AXES_IN_A = slice(6, 6 + N_AXES)
 _MIN_SCALE = 0.05  # below this the drift is not attributed to the driving speed
 _all = np.logical_and.reduce  # `np.all` of a 1-D array without its Python dispatch
-_ELSEWHERE = object()  # `_tick`: not here, `ForceRowsConstraint.compute`
 
 
 _SUSPENSION_IN_A = slice(6 + SUSPENSION.start, 6 + SUSPENSION.stop)
@@ -49,14 +49,6 @@ def _stacked(lins: list[ForceLinearization], which: np.ndarray, warp: bool
         dq[:, :, SUSPENSION] = 0.0
         dqd[:, :, SUSPENSION] = 0.0
     return G, dq, dqd, g0
-
-
-def _rows_at(rows: np.ndarray) -> slice | np.ndarray:
-    """``rows`` (increasing) as a slice where they are evenly spaced (a view, not a copy)."""
-    step = rows[1] - rows[0] if rows.size > 1 else 1
-    if rows.size and step > 0 and np.array_equal(np.diff(rows), np.full(rows.size - 1, step)):
-        return slice(int(rows[0]), int(rows[-1]) + 1, int(step))
-    return rows
 
 
 class HorizonNormalForceConstraint(ForceRowsConstraint):
@@ -115,7 +107,8 @@ class HorizonNormalForceConstraint(ForceRowsConstraint):
             (`estimators.payload.PayloadEstimator.linearize_nodes`), a tick's rows are made
             from those rows without a `ForceLinearization` per node (`_rows_map`, the bits
             of the C `forces_map`); prepared (`prepare`), the force map and the rows
-            ``G x <= h`` in one C call (`_tick`, the bits of `ForceRowsConstraint.compute`).
+            ``G x <= h`` in one C call (`wbc.constraints.force_tick`, the bits of
+            `ForceRowsConstraint.compute`).
     """
 
     def __init__(self, model: NormalForceModel, thresholds, n_linearizations: int = 3,
@@ -142,10 +135,7 @@ class HorizonNormalForceConstraint(ForceRowsConstraint):
         self.linearization_steps: np.ndarray = np.zeros(0, dtype=int)
         self._structure_cache: tuple | None = None  # (key, structure, last context)
         self._offsets: tuple = (None, None)  # (row views, `row_offsets`) of `_rows_map`
-        self._tick_rows: tuple | None = None  # (row views, `row_offsets`, rows' shape): `_tick`
-        self._kept_plan: tuple | None = None  # (struct, layout, flags, plan): `_plan`
-        # (struct, layout, `_tick_rows`, the C's arrays, `_nominal`'s out, later rows): `_tick`
-        self._tick_kept: tuple | None = None
+        self._tick = ForceTick(_MIN_SCALE)  # `compute` in one C call, once prepared
         self._warp_cache: tuple | None = None
 
     def _structure(self, ctx) -> SimpleNamespace:
@@ -216,83 +206,15 @@ class HorizonNormalForceConstraint(ForceRowsConstraint):
         if kernel_rows is not None and getattr(kernel_rows[0], "slices", None) is not None:
             views, width = kernel_rows
             self._offsets = (views, row_offsets(views))
-            self._tick_rows = (*self._offsets, (struct.steps.size, width))
+            self._tick.rows = (*self._offsets, (struct.steps.size, width))
             self._compiled_map.prepare(struct, lay.n_steps, lay.n, lay.scale,
                                        (struct.steps.size, width))
         return n_rows
 
     def compute(self, ctx) -> Inequality | None:
-        """`ForceRowsConstraint.compute`: in one C call where prepared (`_tick`)."""
-        done = self._tick(ctx)
-        return super().compute(ctx) if done is _ELSEWHERE else done
-
-    def _tick(self, ctx):
-        """`compute` from the nodes' kernel rows, the force map and the rows in one C call.
-
-        ``force_rows`` (`wbc.constraints.force_map_c`) writes ``(A, b)`` as `_rows_map`
-        does and ``G``, ``h`` from them as `ForceRowsConstraint.compute` does, the same
-        bits; the nominal states go straight into its buffers. Where it does not apply after
-        the model's call (no kernel rows, another row width) the tick goes on as
-        `_forces_and_flags` does.
-
-        Returns:
-            `compute`'s result, or ``_ELSEWHERE``, nothing evaluated: not prepared for this
-            structure (`prepare`), no C force map.
-        """
-        prepared, kernel, lay = self._tick_rows, self._kernel(), ctx.layout
-        if prepared is None or kernel is None or lay.n_axes != N_AXES:
-            return _ELSEWHERE
-        struct = self._structure(ctx)
-        kept = self._tick_kept
-        if (kept is None or kept[0] is not struct or kept[1] is not lay
-                or kept[2] is not prepared or kept[3] is not kernel.arrays):
-            buffers = kernel.nominal(struct, lay.n_steps, lay.n, lay.scale, prepared[2])
-            if buffers is None:
-                return _ELSEWHERE
-            qn, vn = buffers
-            kept = self._tick_kept = (struct, lay, prepared, kernel.arrays,
-                                      (qn, vn, qn[1:], vn[1:]), _rows_at(struct.later_steps))
-        st = ctx.state
-        qn, vn = self._nominal(ctx, kept[4])
-        at = kept[5]
-        first, rows = linearize_nodes(self.model, st, struct.later_times, qn[at], vn[at])
-        flags = linearized_contact_flags(st, first)
-        fields = first.__dict__
-        if rows is not None and fields.get("_views") is prepared[0]:
-            all_in = _all(flags)
-            warp = ctx.warp if all_in else None
-            n_eval = struct.n_eval
-            plan = self._plan(ctx, flags, struct)
-            done = kernel.evaluate_tick(
-                n_eval, lay.n, prepared[1], ctx, fields["_row"], rows, plan[1],
-                self.thresholds if all_in else lifted_wheel_thresholds(self.thresholds, flags),
-                zero_suspension=ctx.warp is not None, warp=warp,
-                direction=(None if lay.scale is None else
-                           speed_scale_factor(ctx.speed_scale, self.drive_time_constant)),
-                bias=None if ctx.feedback is None else ctx.feedback.bias,
-                drift=ctx.warp_drift if warp is not None else None,
-                s_prev=max(ctx.speed_scale, _MIN_SCALE), brake_time=self.terminal_brake_time,
-                force_scale=self.force_scale)
-            if done is not None:
-                A, b, G, h = done
-                self.linearization_steps = struct.steps
-                self.last_forces_map, self.last_in_contact = (A, b), flags
-                return None if plan[0] is None else Inequality(G, h)
-        return self._inequality(ctx, *self._map_of(ctx, first, rows, flags, qn, vn), flags)
-
-    def _plan(self, ctx, flags: np.ndarray, struct) -> tuple:
-        """``(rows of A or None, `row_plan`)`` of `ForceRowsConstraint._row_plan`, kept.
-
-        Kept with the structure, the layout and the flags it was made for (what the row
-        plan depends on at a tick's ``n_eval`` nodes).
-        """
-        flag_bytes, kept = flags.tobytes(), self._kept_plan
-        lay = ctx.layout
-        if kept is None or kept[0] is not struct or kept[1] is not lay or kept[2] != flag_bytes:
-            rows, _, slack = self._row_plan(ctx, flags, struct.n_eval)
-            kept = self._kept_plan = (struct, lay, flag_bytes,
-                                      (rows, row_plan(rows, slack, struct.n_eval, lay.n)))
-        return kept[3]
+        """`ForceRowsConstraint.compute`: in one C call where prepared (`ForceTick`)."""
+        done = self._tick.compute(self, ctx)
+        return super().compute(ctx) if done is ELSEWHERE else done
 
     def linearize(self, ctx) -> tuple[np.ndarray, list[ForceLinearization], np.ndarray,
                                       np.ndarray]:
@@ -314,7 +236,7 @@ class HorizonNormalForceConstraint(ForceRowsConstraint):
         """The nominal positions and velocities (N + 1, 9), node 0 the measured state's.
 
         Written into ``out`` if given: ``(qn, vn, qn[1:], vn[1:])`` (the C force map's
-        buffers and their views, `_tick`).
+        buffers and their views, `ForceTick`).
         """
         pred, u = ctx.prediction, ctx.nominal_inputs
         if out is None:
