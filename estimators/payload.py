@@ -370,11 +370,12 @@ class PayloadEstimator:
         """
         key = self._key()
         last = self._last
-        if last is None or last[0] is not state or last[1] != key:
-            done = linearize_first(self._est, state, dt, q_head, qd_head)
-            if done is not None:
-                self._last = (state, key, done[0])
-                return done
+        if last is not None and last[0] is state and last[1] == key:  # `linearize`'s kept
+            return last[2], linearize_rows(self._est, state, dt, q_head, qd_head)
+        done = linearize_first(self._est, state, dt, q_head, qd_head)
+        if done is not None:
+            self._last = (state, key, done[0])
+            return done
         return self.linearize(state), linearize_rows(self._est, state, dt, q_head, qd_head)
 
     def normal_forces_batch(self, batch, payload, strict: bool = False) -> np.ndarray:

@@ -18,6 +18,7 @@ from `ForceLinearization` objects (`CompiledForceMap.evaluate`), or handed over 
 from __future__ import annotations
 
 import ctypes
+from struct import Struct
 
 import numpy as np
 
@@ -34,7 +35,9 @@ _I_NAMES = ("n_eval", "n_steps", "n", "row_len", "off_g", "off_dq", "off_dqd", "
             "drift", "terminal")
 _D_NAMES = ("speed_scale", "brake_time", "s_prev")
 _P_NAMES = ("rows", "lq", "lv", "since", "decay", "omega", "free_q", "free_v", "qn", "vn",
-            "q0", "warp", "direction", "bias", "drift", "diagonal")
+            "q0", "warp", "direction", "bias", "drift", "diagonal", "twist", "qd", "thresholds")
+# `force_rows`' double header: `_D_NAMES`, then the drive's factor and the rows' scale.
+_T_NAMES = (*_D_NAMES, "drive_factor", "force_scale")
 NW, NA, NQ = 4, N_AXES, N_INDEPENDENT  # wheels, axes, coordinates (as in FORCE_MAP_C)
 NG = 6 + NQ  # accelerations: base twist, coordinates
 IV = {name: k for k, name in enumerate(_I_NAMES)}  # places in the headers
@@ -52,7 +55,7 @@ enum { NW = 4, NA = 9, NB = 6, NG = 19, NQ = 13, N_HEADER = 17 };
 /* Mirrors `HorizonNormalForceConstraint._forces_map` (the numpy version), step by step.
    A: (n_eval, 4, n) row-major, b: (n_eval, 4). */
 int force_map(const double* const* p, const long long* iv, const double* dv,
-              double* A, double* b) {
+              double* restrict A, double* restrict b) {
   const long long n_eval = iv[0], N = iv[1], n = iv[2], row_len = iv[3];
   const long long off_g = iv[4], off_dq = iv[5], off_dqd = iv[6], off_g0 = iv[7];
   const long long scale = iv[8], s_lo = iv[9], s_hi = iv[10], zero_susp = iv[11];
@@ -158,6 +161,45 @@ int force_map(const double* const* p, const long long* iv, const double* dv,
   }
   return 0;
 }
+
+/* The constraint's rows on `force_map`'s A, b (written to out: A, b, then G, h): row r of
+   G x <= h is A's row src[r] over -force_scale, with -1 in its slack column (if >= 0),
+   h[r] = (b[src[r]] - thresholds[wheel[r]]) / force_scale; with iv's direction flag the
+   drive's direction first, `wbc.drive_model.speed_scale_direction` (the base's horizontal
+   twist and the wheel speeds times dv[3]). plan: m, capacity, then src, wheel, slack
+   (capacity each). */
+int force_rows(const double* const* p, const long long* iv, const double* dv,
+               const long long* plan, double* out) {
+  const long long n_eval = iv[0], n = iv[2], m_all = NW * n_eval;
+  const long long m = plan[0], cap = plan[1];
+  const long long *src = plan + 2, *wheel = src + cap, *slack = wheel + cap;
+  const double k = dv[3], fs = dv[4], nfs = -fs;
+  const double *twist = p[16], *qd = p[17], *thr = p[18];
+  double *A = out, *b = out + m_all * n;
+  double* restrict G = b + m_all;
+  double* restrict h = G + m * n;
+  long long r, c;
+  if (m < 0 || m > cap) return -1;
+  for (r = 0; r < m; ++r)
+    if (src[r] < 0 || src[r] >= m_all || wheel[r] < 0 || wheel[r] >= NW || slack[r] >= n)
+      return -1;
+  if (iv[13]) {
+    double* d = (double*)p[12];
+    memset(d, 0, sizeof(double) * NG);
+    d[0] = k * twist[0];
+    d[1] = k * twist[1];
+    for (c = NA; c < NQ; ++c) d[NB + c] = k * qd[c];
+  }
+  if (force_map(p, iv, dv, A, b)) return -1;
+  for (r = 0; r < m; ++r) {
+    const double* restrict a = A + src[r] * n;
+    double* g = G + r * n;
+    for (c = 0; c < n; ++c) g[c] = a[c] / nfs;
+    if (slack[r] >= 0) g[slack[r]] = -1.0;
+    h[r] = (b[src[r]] - thr[wheel[r]]) / fs;
+  }
+  return 0;
+}
 """
 # The C source's sizes are this module's.
 if "NA = %d, NB = 6, NG = %d, NQ = %d, N_HEADER = %d" % (NA, NG, NQ, len(_I_NAMES)) \
@@ -173,8 +215,9 @@ class CompiledForceMap:
     new block).
     """
 
-    def __init__(self, fun):
+    def __init__(self, fun, rows_fun=None):
         self._fun = fun
+        self._rows_fun = rows_fun  # `force_rows` (`evaluate_tick`)
         self._key: tuple | None = None
         self._header: tuple | None = None
 
@@ -201,17 +244,27 @@ class CompiledForceMap:
         iv[IV["scale"]] = -1 if scale is None else scale
         iv[IV["terminal"]] = n_eval > N
         iv[IV["susp_lo"]], iv[IV["susp_hi"]] = SUSPENSION.start, SUSPENSION.stop
-        self.dv = np.zeros(len(_D_NAMES))
+        # What a tick brings, in one block in `evaluate_tick`'s order: one copy of its bytes.
+        shapes = {"head": (len(_T_NAMES),), "rows": rows_shape, "qd": (NQ,), "twist": (6,),
+                  "free_q": (N, NA), "free_v": (N, NA), "q0": (NA,), "warp": (NW, NA),
+                  "bias": (NW,), "drift": (n_eval,), "thresholds": (NW,)}
+        sizes = [int(np.prod(shape)) for shape in shapes.values()]
+        block = self._block = np.zeros(sum(sizes))
+        self._block_raw = memoryview(block).cast("B")
+        ends = np.cumsum(sizes)
+        a = {name: block[end - size:end].reshape(shape)
+             for (name, shape), size, end in zip(shapes.items(), sizes, ends)}
+        self.dv = a.pop("head")  # `_D_NAMES`, then the rest of `_T_NAMES`
         self._iv_at, self._dv_at = iv.ctypes.data, self.dv.ctypes.data
-        a = self.arrays = {
-            "rows": np.zeros(rows_shape), "lq": np.ascontiguousarray(struct.lq, float),
+        a.update({
+            "lq": np.ascontiguousarray(struct.lq, float),
             "lv": np.ascontiguousarray(struct.lv, float),
             "since": np.ascontiguousarray(struct.since_j[:, 0], float),
-            "decay": np.ascontiguousarray(struct.decay[:, 0], float), "omega": np.zeros(NW),
-            "free_q": np.zeros((N, NA)), "free_v": np.zeros((N, NA)),
-            "qn": np.zeros((N + 1, NA)), "vn": np.zeros((N + 1, NA)), "q0": np.zeros(NA),
-            "warp": np.zeros((NW, NA)), "direction": np.zeros(NG), "bias": np.zeros(NW),
-            "drift": np.zeros(n_eval), "diagonal": np.array(DIAGONAL, float)}
+            "decay": np.ascontiguousarray(struct.decay[:, 0], float), "omega": a["qd"][NA:NQ],
+            "qn": np.zeros((N + 1, NA)), "vn": np.zeros((N + 1, NA)),
+            "direction": np.zeros(NG), "diagonal": np.array(DIAGONAL, float),
+            "no_warp": np.zeros((NW, NA)), "no_bias": np.zeros(NW), "no_drift": np.zeros(n_eval)})
+        self.arrays = a
         self.pointers = (ctypes.c_void_p * len(_P_NAMES))(
             *(a[name].ctypes.data for name in _P_NAMES))
         self._key = key
@@ -259,6 +312,75 @@ class CompiledForceMap:
         return self._run(struct, n, width, offsets, ctx, qn, vn, zero_suspension, warp,
                          direction, bias, drift, s_prev, brake_time)
 
+    def nominal(self, struct, n_steps: int, n: int, scale, rows_shape: tuple
+                ) -> tuple[np.ndarray, np.ndarray] | None:
+        """The buffers ``(qn, vn)`` (N + 1, 9) of `evaluate_tick`, for the caller to fill.
+
+        None without `force_rows` or where the buffers kept are not those of this structure
+        and rows' shape (`prepare`): then `evaluate_rows`.
+        """
+        kept = self._key
+        if (self._rows_fun is None or kept is None or kept[0] is not struct
+                or kept[1] != n_steps or kept[2] != n or kept[3] != scale
+                or kept[4] != rows_shape):
+            return None
+        return self.arrays["qn"], self.arrays["vn"]
+
+    def evaluate_tick(self, n_eval: int, n: int, offsets: tuple, ctx, first: np.ndarray,
+                      later: np.ndarray, plan: tuple, thresholds: np.ndarray, *,
+                      zero_suspension: bool, warp, direction: float | None, bias, drift,
+                      s_prev: float, brake_time: float | None, force_scale: float
+                      ) -> tuple | None:
+        """``(A, b, G, h)``: `evaluate_rows`' ``(A, b)`` and the constraint's rows, one call.
+
+        After `nominal` (whose buffers hold this tick's nominal states). ``direction``: the
+        factor of `wbc.drive_model.speed_scale_direction` (``1 / (tau max(s, s_min))``;
+        None: no such term); ``plan``: ``(int64 array, its address)`` of ``force_rows``'
+        plan (m, capacity, then the rows of A, their wheels and slack columns);
+        ``thresholds``: each wheel's [N], (4,). G and h are those of
+        `ForceRowsConstraint.compute` on ``(A, b)``, bit for bit
+        (`tests/test_force_tick_c.py`). All four are views of one new block.
+
+        Returns:
+            None (nothing evaluated) where the tick's arrays do not fill the block (a row of
+            another width, an array of another shape or type): then `evaluate_rows`.
+        """
+        a = self.arrays
+        st = ctx.state
+        if first.size != a["rows"].shape[1]:
+            return None
+        head = _HEAD.pack(ctx.speed_scale, 1.0 if brake_time is None else brake_time, s_prev,
+                          0.0 if direction is None else direction, force_scale)
+        try:
+            data = b"".join((
+                head, first, later, st.qd, st.base_twist, ctx.free_positions,
+                ctx.free_velocities, ctx.q, a["no_warp"] if warp is None else warp,
+                a["no_bias"] if bias is None else bias,
+                a["no_drift"] if drift is None else drift[:n_eval], thresholds))
+        except (TypeError, ValueError, BufferError):
+            return None
+        raw = self._block_raw
+        if len(data) != len(raw):
+            return None
+        raw[:] = data
+        iv = self.iv
+        header = (first.size, *offsets, zero_suspension, warp is not None,
+                  direction is not None, bias is not None, drift is not None)
+        if header != self._header:
+            iv[_ROW_HEADER] = header[:5]
+            iv[_TERM_FLAGS] = header[5:]
+            self._header = header
+        M = NW * n_eval
+        m = int(plan[0][0])
+        out = np.empty(M * (n + 1) + m * (n + 1))
+        at = address(out)
+        if self._rows_fun(self.pointers, self._iv_at, self._dv_at, plan[1], at) != 0:
+            raise ValueError(f"force rows: inconsistent sizes {iv[:4].tolist()}, plan "
+                             f"{plan[0][:2].tolist()}")
+        G_at = M * (n + 1)
+        return (out[:M * n].reshape(M, n), out[M * n:G_at],
+                out[G_at:G_at + m * n].reshape(m, n), out[G_at + m * n:])
+
     def _run(self, struct, n: int, width: int, offsets: tuple, ctx, qn, vn,
              zero_suspension: bool, warp, direction, bias, drift, s_prev: float,
              brake_time: float | None) -> tuple[np.ndarray, np.ndarray]:
@@ -296,6 +418,9 @@ class CompiledForceMap:
         return out[:m * n].reshape(m, n), out[m * n:]
 
 
+_HEAD = Struct("=%dd" % len(_T_NAMES))
+
+
 def row_offsets(views) -> tuple[int, int, int, int]:
     """Where ``G``, ``d_q``, ``d_qd``, ``g0`` start in a row of ``views`` (`RowViews`)."""
     slices = views.slices
@@ -320,5 +445,6 @@ def compiled_force_map() -> CompiledForceMap | None:
     The library is compiled (or found in the cache) and loaded once per process.
     """
     lib = load_shared(FORCE_MAP_C, "force_map",
-                      {"force_map": ([ctypes.c_void_p] * 5, ctypes.c_int)}, "numpy", "-O3")
-    return None if lib is None else CompiledForceMap(lib.force_map)
+                      {"force_map": ([ctypes.c_void_p] * 5, ctypes.c_int),
+                       "force_rows": ([ctypes.c_void_p] * 5, ctypes.c_int)}, "numpy", "-O3")
+    return None if lib is None else CompiledForceMap(lib.force_map, lib.force_rows)

@@ -114,6 +114,11 @@ class ForceRowsConstraint(Constraint):
     def compute(self, ctx) -> Inequality | None:
         """Rows ``-(A x + b) / f_s - eps <= -f_min / f_s`` of the wheels in contact now."""
         A, b, flags = self._forces_and_flags(ctx)
+        return self._inequality(ctx, A, b, flags)
+
+    def _inequality(self, ctx, A: np.ndarray, b: np.ndarray, flags: np.ndarray
+                    ) -> Inequality | None:
+        """`compute`'s rows of the forces ``A x + b`` and the contact flags (kept as last)."""
         self.last_forces_map, self.last_in_contact = (A, b), flags
         rows, thresholds, slack = self._rows(ctx, flags, A.shape[0] // 4)
         if rows is None:
@@ -132,6 +137,22 @@ class ForceRowsConstraint(Constraint):
         lifts); the thresholds, which the MPC's margin moves every tick, are made each call.
         The rows are an index array, or a slice where they follow each other (all four
         wheels in contact).
+        """
+        rows, wheels, slack = self._row_plan(ctx, flags, n_nodes)
+        if rows is None:
+            return None, None, None
+        # `np.tile(thresholds[wheels], nodes.size)`, written into its array at once
+        per_node = (self.thresholds if wheels.size == 4
+                    else lifted_wheel_thresholds(self.thresholds, flags)[wheels])
+        thresholds = np.empty((self._rows_cache[2].size, wheels.size))
+        thresholds[:] = per_node
+        return rows, thresholds.reshape(-1), slack
+
+    def _row_plan(self, ctx, flags: np.ndarray, n_nodes: int) -> tuple:
+        """``(rows of A, wheels in contact, slack entries of G)`` of `_rows`, kept.
+
+        The same tuple object while the flags, the constrained nodes and the slacks stay the
+        same; rows None without a wheel in contact.
         """
         nodes, later = self._constrained_nodes(ctx, n_nodes)
         lay = ctx.layout
@@ -158,12 +179,4 @@ class ForceRowsConstraint(Constraint):
                     slack = (np.arange(col.size), col)
                 cache = (key, (rows, wheels, slack))
         self._rows_cache = (*cache[:2], nodes, later, lay)
-        rows, wheels, slack = cache[1]
-        if rows is None:
-            return None, None, None
-        # `np.tile(thresholds[wheels], nodes.size)`, written into its array at once
-        per_node = (self.thresholds if wheels.size == 4
-                    else lifted_wheel_thresholds(self.thresholds, flags)[wheels])
-        thresholds = np.empty((nodes.size, wheels.size))
-        thresholds[:] = per_node
-        return rows, thresholds.reshape(-1), slack
+        return cache[1]

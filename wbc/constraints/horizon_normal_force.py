@@ -9,8 +9,10 @@ import numpy as np
 from estimators.linearization import ForceLinearization
 from models.coordinates import N_INDEPENDENT, SUSPENSION
 from wbc.axes import N_AXES
+from wbc.constraints.constraint import Inequality
 from wbc.constraints.force_map_c import compiled_force_map, row_offsets
 from wbc.constraints.force_rows import ForceRowsConstraint
+from wbc.constraints.force_tick import ELSEWHERE, ForceTick
 from wbc.drive_model import speed_scale_direction
 from wbc.errors import ConfigurationError
 from wbc.force_models.feedback import DIAGONAL
@@ -104,7 +106,9 @@ class HorizonNormalForceConstraint(ForceRowsConstraint):
             reference). With a model that gives its nodes' kernel rows
             (`estimators.payload.PayloadEstimator.linearize_nodes`), a tick's rows are made
             from those rows without a `ForceLinearization` per node (`_rows_map`, the bits
-            of the C `forces_map`).
+            of the C `forces_map`); prepared (`prepare`), the force map and the rows
+            ``G x <= h`` in one C call (`wbc.constraints.force_tick`, the bits of
+            `ForceRowsConstraint.compute`).
     """
 
     def __init__(self, model: NormalForceModel, thresholds, n_linearizations: int = 3,
@@ -131,6 +135,7 @@ class HorizonNormalForceConstraint(ForceRowsConstraint):
         self.linearization_steps: np.ndarray = np.zeros(0, dtype=int)
         self._structure_cache: tuple | None = None  # (key, structure, last context)
         self._offsets: tuple = (None, None)  # (row views, `row_offsets`) of `_rows_map`
+        self._tick = ForceTick(_MIN_SCALE)  # `compute` in one C call, once prepared
         self._warp_cache: tuple | None = None
 
     def _structure(self, ctx) -> SimpleNamespace:
@@ -201,9 +206,15 @@ class HorizonNormalForceConstraint(ForceRowsConstraint):
         if kernel_rows is not None and getattr(kernel_rows[0], "slices", None) is not None:
             views, width = kernel_rows
             self._offsets = (views, row_offsets(views))
+            self._tick.rows = (*self._offsets, (struct.steps.size, width))
             self._compiled_map.prepare(struct, lay.n_steps, lay.n, lay.scale,
                                        (struct.steps.size, width))
         return n_rows
+
+    def compute(self, ctx) -> Inequality | None:
+        """`ForceRowsConstraint.compute`: in one C call where prepared (`ForceTick`)."""
+        done = self._tick.compute(self, ctx)
+        return super().compute(ctx) if done is ELSEWHERE else done
 
     def linearize(self, ctx) -> tuple[np.ndarray, list[ForceLinearization], np.ndarray,
                                       np.ndarray]:
@@ -221,14 +232,21 @@ class HorizonNormalForceConstraint(ForceRowsConstraint):
         return self._linearize(ctx, linearize_forces(self.model, ctx.state),
                                *self._nominal(ctx))
 
-    def _nominal(self, ctx) -> tuple[np.ndarray, np.ndarray]:
-        """The nominal positions and velocities (N + 1, 9), node 0 the measured state's."""
+    def _nominal(self, ctx, out: tuple | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """The nominal positions and velocities (N + 1, 9), node 0 the measured state's.
+
+        Written into ``out`` if given: ``(qn, vn, qn[1:], vn[1:])`` (the C force map's
+        buffers and their views, `ForceTick`).
+        """
         pred, u = ctx.prediction, ctx.nominal_inputs
-        qn = np.empty((u.shape[0] + 1, N_AXES))
-        vn = np.empty_like(qn)
+        if out is None:
+            qn = np.empty((u.shape[0] + 1, N_AXES))
+            vn = np.empty_like(qn)
+            out = (qn, vn, qn[1:], vn[1:])
+        qn, vn, q_later, v_later = out
         qn[0], vn[0] = ctx.state.q[:N_AXES], ctx.state.qd[:N_AXES]
-        np.add(ctx.free_positions, pred.Lq @ u, out=qn[1:])  # `CondensedPrediction.trajectory`
-        np.add(ctx.free_velocities, pred.Lv @ u, out=vn[1:])
+        np.add(ctx.free_positions, pred.Lq @ u, out=q_later)  # `CondensedPrediction.trajectory`
+        np.add(ctx.free_velocities, pred.Lv @ u, out=v_later)
         return qn, vn
 
     def _linearize(self, ctx, first: ForceLinearization, qn: np.ndarray, vn: np.ndarray
@@ -281,12 +299,16 @@ class HorizonNormalForceConstraint(ForceRowsConstraint):
         else:
             first = linearize_forces(self.model, st)
         flags = linearized_contact_flags(st, first)
+        return (*self._map_of(ctx, first, rows, flags, qn, vn), flags)
+
+    def _map_of(self, ctx, first: ForceLinearization, rows: np.ndarray | None, flags,
+                qn: np.ndarray, vn: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """`forces_map` from node 0's linearization and the later nodes' kernel rows."""
         if rows is not None:
             fast = self._rows_map(ctx, first, rows, flags, qn, vn)
             if fast is not None:
-                return (*fast, flags)
-        linearized = self._linearize(ctx, first, qn, vn)
-        return (*self._forces_map(ctx, linearized, flags), flags)
+                return fast
+        return self._forces_map(ctx, self._linearize(ctx, first, qn, vn), flags)
 
     def _rows_map(self, ctx, first: ForceLinearization, rows: np.ndarray, in_contact,
                   qn: np.ndarray, vn: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
