@@ -31,12 +31,13 @@ from __future__ import annotations
 
 import copy
 import ctypes
+import functools
 import operator
 from dataclasses import dataclass
 
 import numpy as np
 
-from models.cbuild import address, bind, load_shared
+from models.cbuild import address, bind, compile_shared, load_shared
 from models.numpy_blas import numpy_blas
 
 __all__ = ["CONSTANT", "INPUT", "LEVELING", "LINEAR_C", "SMOOTHNESS", "TRACKING",
@@ -117,9 +118,65 @@ void linear_terms(const long long* prog, const double* const* cp, gemv_fn gemv, 
     for (i = 0; i < n; ++i) q[i] += own[i];
   }
 }
+
+/* numpy's PyArrayObject_fields up to its flags (a CPython object's head first), and where
+   its PyArray_Descr keeps byteorder and type_num: `_objects_readable` checks them. */
+typedef struct {
+  long long refcnt; const void* type; char* data; int nd; const long long* dims;
+  const long long* strides; const void* base; const char* descr; int flags;
+} np_array;
+enum { C_ALIGNED = 0x0001 | 0x0100, WRITEABLE = 0x0400, NPY_DOUBLE = 12, BYTEORDER = 26,
+       TYPE_NUM = 28 };
+
+/* The data of `obj` if it is an ndarray (not a subclass), C-ordered, aligned, native
+   float64 of shape (d0,) (nd 1) or (d0, d1) (nd 2); else NULL. */
+static char* array_data(const void* obj, const void* ndarray, int nd, long long d0,
+                        long long d1) {
+  const np_array* a = (const np_array*)obj;
+  if (a->type != ndarray || a->nd != nd || a->dims[0] != d0 || (nd == 2 && a->dims[1] != d1)
+      || (a->flags & C_ALIGNED) != C_ALIGNED || a->descr[BYTEORDER] != '='
+      || *(const int*)(a->descr + TYPE_NUM) != NPY_DOUBLE)
+    return 0;
+  return a->data;
+}
+
+void array_probe(const void* obj, long long* out) {
+  const np_array* a = (const np_array*)obj;
+  out[0] = (long long)a->data; out[1] = a->nd; out[2] = a->dims[0];
+  out[3] = a->nd > 1 ? a->dims[1] : -1; out[4] = a->flags & (C_ALIGNED | WRITEABLE);
+  out[5] = *(const int*)(a->descr + TYPE_NUM); out[6] = a->descr[BYTEORDER];
+  out[7] = (long long)a->type;
+}
+
+/* linear_terms with the context's arrays as objects, checked here: 1 (nothing written)
+   when one is not what the program reads, else 0. q: a writable (n,) array. */
+int linear_objects(const long long* prog, const double* const* cp, gemv_fn gemv,
+                   long long n, double* c, double* e, const void* ndarray, const void* none,
+                   long long N, long long A, const void* fp, const void* fv,
+                   const void* rp, const void* rv, const void* ra, const void* up,
+                   const void* q0, const void* drift, double offset, const void* q) {
+  const char *d_fp = array_data(fp, ndarray, 2, N, A), *d_fv = array_data(fv, ndarray, 2, N, A);
+  const char *d_rp = array_data(rp, ndarray, 2, N + 1, A);
+  const char *d_rv = array_data(rv, ndarray, 2, N + 1, A);
+  const char *d_ra = array_data(ra, ndarray, 2, N + 1, A);
+  const char *d_up = array_data(up, ndarray, 1, A, 0), *d_q0 = array_data(q0, ndarray, 1, A, 0);
+  const char* d_drift = drift == none ? 0 : array_data(drift, ndarray, 1, N + 1, 0);
+  char* d_q = array_data(q, ndarray, 1, n, 0);
+  if (!(d_fp && d_fv && d_rp && d_rv && d_ra && d_up && d_q0 && d_q)
+      || (drift != none && !d_drift) || !(((const np_array*)q)->flags & WRITEABLE))
+    return 1;
+  linear_terms(prog, cp, gemv, n, c, e, (const double*)d_fp, (const double*)d_fv,
+               (const double*)d_rp, (const double*)d_rv, (const double*)d_ra,
+               (const double*)d_up, (const double*)d_q0, (const double*)d_drift, offset,
+               (double*)d_q);
+  return 0;
+}
 """
 
 _P = ctypes.c_void_p
+
+
+_O = ctypes.py_object
 
 
 def _library():
@@ -127,6 +184,44 @@ def _library():
                        {"linear_terms": ([_P, _P, _P, ctypes.c_longlong, _P, _P, _P, _P, _P,
                                           _P, _P, _P, _P, _P, ctypes.c_double, _P], None)},
                        "the tasks' numpy linear terms")
+
+
+@functools.cache
+def _objects_function():
+    """``linear_objects`` (the context's arrays passed as objects), or None.
+
+    Loaded as a `ctypes.PyDLL` function (it reads Python objects: the GIL held), and only
+    if ``array_probe`` reads numpy's array fields where `_objects_readable` finds them:
+    else the arrays' addresses are taken in Python (`LinearProgram.__call__`).
+    """
+    lib = _library()
+    if lib is None:
+        return None
+    py = ctypes.PyDLL(str(compile_shared(LINEAR_C, "linear_terms")))  # the same file
+    probe, fun = py.array_probe, py.linear_objects
+    probe.argtypes, probe.restype = [_O, _P], None
+    fun.argtypes = [_P, _P, _P, ctypes.c_longlong, _P, _P, _P, _P, ctypes.c_longlong,
+                    ctypes.c_longlong, *[_O] * 8, ctypes.c_double, _O]
+    fun.restype = ctypes.c_int
+    return fun if _objects_readable(probe) else None
+
+
+def _objects_readable(probe) -> bool:
+    """Whether ``array_probe`` reads what numpy says of a few arrays (the C's struct)."""
+    base = np.zeros((4, 6))
+    base.setflags(write=False)
+    arrays = (np.zeros((3, 4)), np.zeros(5), base, base[:, ::2], np.zeros(3, np.float32),
+              np.zeros(3, ">f8"), np.zeros((2, 3), order="F"))
+    out = np.zeros(8, np.int64)
+    for a in arrays:
+        probe(a, out.ctypes.data)
+        flags = (a.flags.c_contiguous * 0x0001 | a.flags.aligned * 0x0100
+                 | a.flags.writeable * 0x0400)
+        want = (a.ctypes.data, a.ndim, a.shape[0], a.shape[1] if a.ndim > 1 else -1, flags,
+                a.dtype.num, ord(a.dtype.byteorder), id(np.ndarray))
+        if tuple(int(v) for v in out) != want:
+            return False
+    return np.dtype(np.float64).num == 12 and np.dtype(np.float64).byteorder == "="
 
 
 @dataclass(frozen=True, eq=False)
@@ -197,6 +292,10 @@ class LinearProgram:
         self._lib, self._gemv = lib, gemv
         self._call = bind(lib.linear_terms, self._prog, self._table, gemv, n, self._c,
                           self._e)
+        objects = _objects_function()
+        self._objects = None if objects is None else bind(
+            objects, self._prog, self._table, gemv, n, self._c, self._e, id(np.ndarray),
+            id(None), N, A)
 
     @classmethod
     def make(cls, terms: tuple, layout) -> LinearProgram | None:
@@ -225,6 +324,8 @@ class LinearProgram:
             self._call(None, None, None, None, None, None, None, None, 0.0, address(q))
             return q
         arrays = _inputs(ctx)
+        if self._objects is not None:
+            return None if self._objects(*arrays, float(ctx.leveling_offset), q) else q
         drift = arrays[7]
         if drift is None:
             arrays = arrays[:7]
