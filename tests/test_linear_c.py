@@ -179,3 +179,15 @@ def test_the_sum_starts_at_plus_zero(contexts):
     q = _same_q(builder, oracle, contexts[0])
     assert builder._linear[2] is not None and builder._guard is None  # a term, no guard
     assert not np.any(np.signbit(q))
+
+
+def test_same_objects():
+    a, b = np.zeros(3), np.ones(2)
+    a.setflags(write=False)
+    b.setflags(write=False)
+    same = linear_c.SameObjects.make((a, 1.5, b))
+    assert same((a, same.objects[1], b)) and same.call((a, same.objects[1], b)) == 1
+    assert not same((a, 1.5 + 0.0 * a.sum(), b))  # an equal float, another object
+    assert not same((a, same.objects[1])) and not same((b, same.objects[1], b))
+    b.setflags(write=True)
+    assert not same((a, same.objects[1], b))

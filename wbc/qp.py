@@ -12,7 +12,7 @@ import qpsolvers
 
 from wbc.constraints.constraint import Box, Constraint, Inequality
 from wbc.errors import ConfigurationError, WbcError
-from wbc.tasks.linear_c import LinearProgram
+from wbc.tasks.linear_c import LinearProgram, SameObjects
 from wbc.tasks.task import Task
 
 __all__ = ["QP", "QPBuilder", "build_qp"]
@@ -298,49 +298,48 @@ class QPBuilder:
 
     def _guard_holds(self, ctx, guard: tuple) -> bool:
         """Whether every task would return the last tick's term (`_guarded`)."""
-        tasks, idle, structure, of_ctx, at_ctx, of_tasks, at_tasks, holder = guard
-        return (len(self.tasks) == len(tasks) and all(map(operator.is_, self.tasks, tasks))
-                and ctx.structure_key == structure
-                and all(map(operator.is_, of_ctx(ctx), at_ctx))
-                and all(map(operator.is_, of_tasks(holder), at_tasks))
-                and not any(task.is_active(ctx) for task in idle))
+        structure, idle, get, same, holder = guard
+        holder.ctx = ctx
+        try:
+            now = get(holder)
+        except AttributeError:  # another kind of context
+            return False
+        finally:
+            holder.ctx = None  # not kept past the tick
+        return (same.call(tuple(self.tasks) + now) and ctx.structure_key == structure
+                and not (idle and any(task.is_active(ctx) for task in idle)))
 
     def _guarded(self, ctx, terms: list) -> tuple | None:
         """What `_guard_holds` checks, from the terms of ``ctx`` (`LinearTerm.guard`).
 
-        ``(tasks, inactive tasks, structure key, getter of the context's attributes, their
-        objects, getter of the tasks' attributes, their objects, the tasks by name)``: one
-        C call per getter instead of every task's checks. An array's ``flags.writeable``
-        is read too (it must stay False). None when a term has no guard or reads a
-        writable array (the tasks are asked every tick).
+        ``(structure key, inactive tasks, getter, check, holder)``: the getter reads every
+        attribute the terms' guards name, of the context and of the tasks (``holder.ctx``
+        and ``holder.t0``, ...), in one C call, and the check compares the tasks and those
+        with the objects now in one more (`linear_c.SameObjects`: the same objects, arrays
+        still read-only), instead of every task's checks. None when a term has no guard,
+        reads a writable array, or without the compiled check (the tasks are asked every
+        tick).
         """
         tasks = tuple(self.tasks)
         active = [task for task in tasks if task.is_active(ctx)]
         idle = tuple(task for task in tasks if not any(task is a for a in active))
-        paths = {"ctx": [], "task": []}
-        for i, term in enumerate(terms):
+        paths = []
+        for task, term in zip(active, terms):
             if term.guard is None:
                 return None
             for path in term.guard:
                 owner, _, rest = path.partition(".")
-                if owner not in paths or not rest:
+                if owner not in ("ctx", "task") or not rest:
                     return None
-                paths[owner].append(rest if owner == "ctx" else f"t{tasks.index(active[i])}.{rest}")
-        holder = types.SimpleNamespace(**{f"t{i}": task for i, task in enumerate(tasks)})
-        getters = []
-        for owner, obj in (("ctx", ctx), ("task", holder)):
-            names = []
-            for name in dict.fromkeys(paths[owner]):
-                value = operator.attrgetter(name)(obj)
-                names.append(name)
-                if isinstance(value, np.ndarray):
-                    if value.flags.writeable:
-                        return None
-                    names.append(name + ".flags.writeable")
-            names = names or ["__class__"]
-            get = operator.attrgetter(*names, "__class__")  # a tuple, even of one name
-            getters += [get, get(obj)]
-        return (tasks, idle, ctx.structure_key, *getters, holder)
+                paths.append(path if owner == "ctx" else f"t{tasks.index(task)}.{rest}")
+        holder = types.SimpleNamespace(ctx=ctx, **{f"t{i}": t for i, t in enumerate(tasks)})
+        get = operator.attrgetter(*dict.fromkeys(paths), "__class__")  # a tuple, always
+        now = get(holder)
+        holder.ctx = None
+        if any(isinstance(x, np.ndarray) and x.flags.writeable for x in now):
+            return None
+        same = SameObjects.make(tasks + now)
+        return None if same is None else (ctx.structure_key, idle, get, same, holder)
 
     def _program(self, ctx) -> tuple | None:
         """``(terms, layout, program, P)`` of the active tasks' terms at ``ctx``, kept.

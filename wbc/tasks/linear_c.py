@@ -41,7 +41,7 @@ from models.cbuild import address, bind, compile_shared, load_shared
 from models.numpy_blas import numpy_blas
 
 __all__ = ["CONSTANT", "INPUT", "LEVELING", "LINEAR_C", "SMOOTHNESS", "TRACKING",
-           "LinearProgram", "LinearTerm"]
+           "LinearProgram", "LinearTerm", "SameObjects"]
 
 CONSTANT, TRACKING, INPUT, SMOOTHNESS, LEVELING = range(5)
 _N_ARRAYS = {CONSTANT: 1, TRACKING: 1, INPUT: 1, SMOOTHNESS: 1, LEVELING: 3}
@@ -148,6 +148,28 @@ void array_probe(const void* obj, long long* out) {
   out[7] = (long long)a->type;
 }
 
+/* A tuple's items (CPython's PyTupleObject: its head, its size, the items). */
+typedef struct { long long refcnt; const void* type; long long size; const void* items[]; }
+    py_tuple;
+
+long long tuple_probe(const void* t, long long i) {
+  return i < 0 ? ((const py_tuple*)t)->size : (long long)((const py_tuple*)t)->items[i];
+}
+
+/* 1 if tuple `t` holds the objects `kept` (count of them), each one flagged in `arrays`
+   an ndarray that is still read-only; else 0. */
+int same_objects(const unsigned long long* kept, const unsigned char* arrays, long long count,
+                 const void* t) {
+  const py_tuple* tuple = (const py_tuple*)t;
+  long long i;
+  if (tuple->size != count) return 0;
+  for (i = 0; i < count; ++i)
+    if ((unsigned long long)tuple->items[i] != kept[i]
+        || (arrays[i] && (((const np_array*)tuple->items[i])->flags & WRITEABLE)))
+      return 0;
+  return 1;
+}
+
 /* linear_terms with the context's arrays as objects, checked here: 1 (nothing written)
    when one is not what the program reads, else 0. q: a writable (n,) array. */
 int linear_objects(const long long* prog, const double* const* cp, gemv_fn gemv,
@@ -204,6 +226,55 @@ def _objects_function():
                     ctypes.c_longlong, *[_O] * 8, ctypes.c_double, _O]
     fun.restype = ctypes.c_int
     return fun if _objects_readable(probe) else None
+
+
+@functools.cache
+def _same_function():
+    """``same_objects``, or None (see `same_objects`)."""
+    if _objects_function() is None:
+        return None
+    py = ctypes.PyDLL(str(compile_shared(LINEAR_C, "linear_terms")))
+    probe, fun = py.tuple_probe, py.same_objects
+    probe.argtypes, probe.restype = [_O, ctypes.c_longlong], ctypes.c_longlong
+    fun.argtypes, fun.restype = [_P, _P, ctypes.c_longlong, _O], ctypes.c_int
+    items = (object(), np.zeros(2), None)
+    if probe(items, -1) != 3 or any(probe(items, i) != id(x) for i, x in enumerate(items)):
+        return None
+    return fun
+
+
+class SameObjects:
+    """A check that a tuple holds the given objects, and that its arrays are read-only.
+
+    ``SameObjects.make(objects)(t)``: whether ``t`` (a tuple) holds the very objects of
+    ``objects`` in order, each array among them still read-only: one C call
+    (`wbc.qp.QPBuilder`'s guard of the tasks' terms). The objects are kept (their
+    addresses compared). ``call(t)``: the same as the C's int (1 or 0), without this
+    object's method call.
+    """
+
+    def __init__(self, fun, objects: tuple):
+        self.objects = objects
+        self._kept = np.array([id(x) for x in objects] or [0], np.uint64)
+        self._arrays = np.array([isinstance(x, np.ndarray) for x in objects] or [0], np.uint8)
+        self._fun = fun
+        self.call = bind(fun, self._kept, self._arrays, len(objects))  # self(t) as 1 or 0
+
+    @classmethod
+    def make(cls, objects: tuple) -> SameObjects | None:
+        """The check of ``objects``; None without the compiled check (or its self-test)."""
+        fun = _same_function()
+        return None if fun is None else cls(fun, tuple(objects))
+
+    def __deepcopy__(self, memo) -> SameObjects:
+        """A check of its own: of the copied objects, its call bound to its own arrays."""
+        new = SameObjects(self._fun, copy.deepcopy(self.objects, memo))
+        memo[id(self)] = new
+        return new
+
+    def __call__(self, t: tuple) -> bool:
+        """Whether tuple ``t`` holds the objects, its arrays read-only."""
+        return self.call(t) == 1
 
 
 def _objects_readable(probe) -> bool:
