@@ -12,7 +12,8 @@ import qpsolvers
 
 from wbc.constraints.constraint import Box, Constraint, Inequality
 from wbc.errors import ConfigurationError, WbcError
-from wbc.tasks.linear_c import LinearProgram, SameObjects
+from wbc.tasks.linear_c import LinearProgram
+from wbc.tasks.object_fields_c import SameObjects
 from wbc.tasks.task import Task
 
 __all__ = ["QP", "QPBuilder", "build_qp"]
@@ -315,7 +316,7 @@ class QPBuilder:
         ``(structure key, inactive tasks, getter, check, holder)``: the getter reads every
         attribute the terms' guards name, of the context and of the tasks (``holder.ctx``
         and ``holder.t0``, ...), in one C call, and the check compares the tasks and those
-        with the objects now in one more (`linear_c.SameObjects`: the same objects, arrays
+        with the objects now in one more (`object_fields_c.SameObjects`: the same objects, arrays
         still read-only), instead of every task's checks. None when a term has no guard,
         reads a writable array, or without the compiled check (the tasks are asked every
         tick).

@@ -39,15 +39,16 @@ import numpy as np
 
 from models.cbuild import address, bind, compile_shared, load_shared
 from models.numpy_blas import numpy_blas
+from wbc.tasks.object_fields_c import ARRAY_FIELDS_C, fields_readable
 
 __all__ = ["CONSTANT", "INPUT", "LEVELING", "LINEAR_C", "SMOOTHNESS", "TRACKING",
-           "LinearProgram", "LinearTerm", "SameObjects"]
+           "LinearProgram", "LinearTerm"]
 
 CONSTANT, TRACKING, INPUT, SMOOTHNESS, LEVELING = range(5)
 _N_ARRAYS = {CONSTANT: 1, TRACKING: 1, INPUT: 1, SMOOTHNESS: 1, LEVELING: 3}
 _HORIZON = {TRACKING, INPUT, SMOOTHNESS, LEVELING}  # kinds that read the context's arrays
 
-LINEAR_C = r"""
+LINEAR_C = ARRAY_FIELDS_C + r"""
 #include <string.h>
 typedef void (*gemv_fn)(int, int, long long, long long, double, const double*, long long,
                         const double*, long long, double, double*, long long);
@@ -119,57 +120,6 @@ void linear_terms(const long long* prog, const double* const* cp, gemv_fn gemv, 
   }
 }
 
-/* numpy's PyArrayObject_fields up to its flags (a CPython object's head first), and where
-   its PyArray_Descr keeps byteorder and type_num: `_objects_readable` checks them. */
-typedef struct {
-  long long refcnt; const void* type; char* data; int nd; const long long* dims;
-  const long long* strides; const void* base; const char* descr; int flags;
-} np_array;
-enum { C_ALIGNED = 0x0001 | 0x0100, WRITEABLE = 0x0400, NPY_DOUBLE = 12, BYTEORDER = 26,
-       TYPE_NUM = 28 };
-
-/* The data of `obj` if it is an ndarray (not a subclass), C-ordered, aligned, native
-   float64 of shape (d0,) (nd 1) or (d0, d1) (nd 2); else NULL. */
-static char* array_data(const void* obj, const void* ndarray, int nd, long long d0,
-                        long long d1) {
-  const np_array* a = (const np_array*)obj;
-  if (a->type != ndarray || a->nd != nd || a->dims[0] != d0 || (nd == 2 && a->dims[1] != d1)
-      || (a->flags & C_ALIGNED) != C_ALIGNED || a->descr[BYTEORDER] != '='
-      || *(const int*)(a->descr + TYPE_NUM) != NPY_DOUBLE)
-    return 0;
-  return a->data;
-}
-
-void array_probe(const void* obj, long long* out) {
-  const np_array* a = (const np_array*)obj;
-  out[0] = (long long)a->data; out[1] = a->nd; out[2] = a->dims[0];
-  out[3] = a->nd > 1 ? a->dims[1] : -1; out[4] = a->flags & (C_ALIGNED | WRITEABLE);
-  out[5] = *(const int*)(a->descr + TYPE_NUM); out[6] = a->descr[BYTEORDER];
-  out[7] = (long long)a->type;
-}
-
-/* A tuple's items (CPython's PyTupleObject: its head, its size, the items). */
-typedef struct { long long refcnt; const void* type; long long size; const void* items[]; }
-    py_tuple;
-
-long long tuple_probe(const void* t, long long i) {
-  return i < 0 ? ((const py_tuple*)t)->size : (long long)((const py_tuple*)t)->items[i];
-}
-
-/* 1 if tuple `t` holds the objects `kept` (count of them), each one flagged in `arrays`
-   an ndarray that is still read-only; else 0. */
-int same_objects(const unsigned long long* kept, const unsigned char* arrays, long long count,
-                 const void* t) {
-  const py_tuple* tuple = (const py_tuple*)t;
-  long long i;
-  if (tuple->size != count) return 0;
-  for (i = 0; i < count; ++i)
-    if ((unsigned long long)tuple->items[i] != kept[i]
-        || (arrays[i] && (((const np_array*)tuple->items[i])->flags & WRITEABLE)))
-      return 0;
-  return 1;
-}
-
 /* linear_terms with the context's arrays as objects, checked here: 1 (nothing written)
    when one is not what the program reads, else 0. q: a writable (n,) array. */
 int linear_objects(const long long* prog, const double* const* cp, gemv_fn gemv,
@@ -195,10 +145,7 @@ int linear_objects(const long long* prog, const double* const* cp, gemv_fn gemv,
 }
 """
 
-_P = ctypes.c_void_p
-
-
-_O = ctypes.py_object
+_P, _O = ctypes.c_void_p, ctypes.py_object
 
 
 def _library():
@@ -213,86 +160,17 @@ def _objects_function():
     """``linear_objects`` (the context's arrays passed as objects), or None.
 
     Loaded as a `ctypes.PyDLL` function (it reads Python objects: the GIL held), and only
-    if ``array_probe`` reads numpy's array fields where `_objects_readable` finds them:
+    where `object_fields_c.fields_readable` (numpy's array fields where the C reads them):
     else the arrays' addresses are taken in Python (`LinearProgram.__call__`).
     """
-    lib = _library()
-    if lib is None:
+    if _library() is None or not fields_readable():
         return None
     py = ctypes.PyDLL(str(compile_shared(LINEAR_C, "linear_terms")))  # the same file
-    probe, fun = py.array_probe, py.linear_objects
-    probe.argtypes, probe.restype = [_O, _P], None
+    fun = py.linear_objects
     fun.argtypes = [_P, _P, _P, ctypes.c_longlong, _P, _P, _P, _P, ctypes.c_longlong,
                     ctypes.c_longlong, *[_O] * 8, ctypes.c_double, _O]
     fun.restype = ctypes.c_int
-    return fun if _objects_readable(probe) else None
-
-
-@functools.cache
-def _same_function():
-    """``same_objects``, or None (see `same_objects`)."""
-    if _objects_function() is None:
-        return None
-    py = ctypes.PyDLL(str(compile_shared(LINEAR_C, "linear_terms")))
-    probe, fun = py.tuple_probe, py.same_objects
-    probe.argtypes, probe.restype = [_O, ctypes.c_longlong], ctypes.c_longlong
-    fun.argtypes, fun.restype = [_P, _P, ctypes.c_longlong, _O], ctypes.c_int
-    items = (object(), np.zeros(2), None)
-    if probe(items, -1) != 3 or any(probe(items, i) != id(x) for i, x in enumerate(items)):
-        return None
     return fun
-
-
-class SameObjects:
-    """A check that a tuple holds the given objects, and that its arrays are read-only.
-
-    ``SameObjects.make(objects)(t)``: whether ``t`` (a tuple) holds the very objects of
-    ``objects`` in order, each array among them still read-only: one C call
-    (`wbc.qp.QPBuilder`'s guard of the tasks' terms). The objects are kept (their
-    addresses compared). ``call(t)``: the same as the C's int (1 or 0), without this
-    object's method call.
-    """
-
-    def __init__(self, fun, objects: tuple):
-        self.objects = objects
-        self._kept = np.array([id(x) for x in objects] or [0], np.uint64)
-        self._arrays = np.array([isinstance(x, np.ndarray) for x in objects] or [0], np.uint8)
-        self._fun = fun
-        self.call = bind(fun, self._kept, self._arrays, len(objects))  # self(t) as 1 or 0
-
-    @classmethod
-    def make(cls, objects: tuple) -> SameObjects | None:
-        """The check of ``objects``; None without the compiled check (or its self-test)."""
-        fun = _same_function()
-        return None if fun is None else cls(fun, tuple(objects))
-
-    def __deepcopy__(self, memo) -> SameObjects:
-        """A check of its own: of the copied objects, its call bound to its own arrays."""
-        new = SameObjects(self._fun, copy.deepcopy(self.objects, memo))
-        memo[id(self)] = new
-        return new
-
-    def __call__(self, t: tuple) -> bool:
-        """Whether tuple ``t`` holds the objects, its arrays read-only."""
-        return self.call(t) == 1
-
-
-def _objects_readable(probe) -> bool:
-    """Whether ``array_probe`` reads what numpy says of a few arrays (the C's struct)."""
-    base = np.zeros((4, 6))
-    base.setflags(write=False)
-    arrays = (np.zeros((3, 4)), np.zeros(5), base, base[:, ::2], np.zeros(3, np.float32),
-              np.zeros(3, ">f8"), np.zeros((2, 3), order="F"))
-    out = np.zeros(8, np.int64)
-    for a in arrays:
-        probe(a, out.ctypes.data)
-        flags = (a.flags.c_contiguous * 0x0001 | a.flags.aligned * 0x0100
-                 | a.flags.writeable * 0x0400)
-        want = (a.ctypes.data, a.ndim, a.shape[0], a.shape[1] if a.ndim > 1 else -1, flags,
-                a.dtype.num, ord(a.dtype.byteorder), id(np.ndarray))
-        if tuple(int(v) for v in out) != want:
-            return False
-    return np.dtype(np.float64).num == 12 and np.dtype(np.float64).byteorder == "="
 
 
 @dataclass(frozen=True, eq=False)
