@@ -351,7 +351,8 @@ class QPBuilder:
         terms = []
         for task in self.tasks:
             if task.is_active(ctx):
-                term = task.linear_term(ctx)
+                say = getattr(task, "linear_term", None)  # a duck-typed task: none
+                term = None if say is None else say(ctx)
                 if term is None:
                     self._refused = task
                     return None
