@@ -141,6 +141,28 @@ def test_without_terms_or_with_other_arrays_the_numpy_loop(contexts):
     _same_q(builder, oracle, c)
 
 
+def test_the_addresses_taken_in_python(contexts):
+    """Where the C does not read numpy's fields: the shapes and addresses in Python."""
+    tasks = _variants()
+    builder, oracle = QPBuilder(tasks, []), QPBuilder(tasks, [], compiled=False)
+    _same_q(builder, oracle, contexts[0])
+    program = builder._linear[2]
+    program._objects = None
+    ctx = contexts[-1]
+    fp = ctx.free_positions
+    read_only = fp.copy()
+    read_only.setflags(write=False)
+    for c in (*contexts, dataclasses.replace(ctx, warp_drift=None),
+              dataclasses.replace(ctx, free_positions=read_only)):
+        assert program(c) is not None
+        _same_q(builder, oracle, c)
+    for c in (dataclasses.replace(ctx, free_positions=np.asfortranarray(fp)),
+              dataclasses.replace(ctx, free_positions=fp.astype(">f8")),
+              dataclasses.replace(ctx, q=ctx.q.astype(np.float32))):
+        assert program(c) is None
+        _same_q(builder, oracle, c)
+
+
 def test_a_copied_builder_has_its_own_program(contexts):
     tasks = _variants()
     builder, oracle = QPBuilder(tasks, []), QPBuilder(tasks, [], compiled=False)

@@ -22,9 +22,10 @@ with the arguments ``matmul`` passes (`models.numpy_blas`): the same bits.
 * ``LEVELING``: ``(J^T W) e``, ``e = (q_free - q_0) row + drift / F_s - offset / F_s``
   (`HorizonLevelingTask`).
 
-The numpy path (each task's ``compute_qp_objective``) stays the reference and the fallback
-without a compiler or numpy's OpenBLAS (`tests/test_linear_c.py` compares them on real
-ticks, bit for bit).
+The context's arrays go to the C as objects, their shapes, order and type checked there
+(`wbc.tasks.object_fields_c`). The numpy path (each task's ``compute_qp_objective``) stays
+the reference and the fallback without a compiler or numpy's OpenBLAS
+(`tests/test_linear_c.py` compares them on real ticks, bit for bit).
 """
 
 from __future__ import annotations
@@ -206,7 +207,9 @@ class LinearProgram:
     """The terms of the active tasks in order, run in one call: ``q`` of `QPBuilder.build`.
 
     Made by `make` when every term fits the layout (else None: the numpy path). Checks the
-    context's arrays' shapes each tick (the C reads them by address).
+    context's arrays each tick (the C reads them unchecked): passed as objects and checked
+    in C where `object_fields_c.fields_readable`, else their shapes, types and addresses
+    taken in Python.
     """
 
     def __init__(self, lib, gemv: int, terms: tuple, layout):
