@@ -316,10 +316,10 @@ class QPBuilder:
         ``(structure key, inactive tasks, getter, check, holder)``: the getter reads every
         attribute the terms' guards name, of the context and of the tasks (``holder.ctx``
         and ``holder.t0``, ...), in one C call, and the check compares the tasks and those
-        with the objects now in one more (`object_fields_c.SameObjects`: the same objects, arrays
-        still read-only), instead of every task's checks. None when a term has no guard,
-        reads a writable array, or without the compiled check (the tasks are asked every
-        tick).
+        with the objects now in one more (`wbc.tasks.object_fields_c.SameObjects`: the
+        same objects, arrays still read-only), instead of every task's checks. None when a
+        term has no guard or names what the context lacks, an array it names is writable,
+        or without the compiled check (the tasks are asked every tick).
         """
         tasks = tuple(self.tasks)
         active = [task for task in tasks if task.is_active(ctx)]
@@ -335,8 +335,12 @@ class QPBuilder:
                 paths.append(path if owner == "ctx" else f"t{tasks.index(task)}.{rest}")
         holder = types.SimpleNamespace(ctx=ctx, **{f"t{i}": t for i, t in enumerate(tasks)})
         get = operator.attrgetter(*dict.fromkeys(paths), "__class__")  # a tuple, always
-        now = get(holder)
-        holder.ctx = None
+        try:
+            now = get(holder)
+        except AttributeError:
+            return None
+        finally:
+            holder.ctx = None
         if any(isinstance(x, np.ndarray) and x.flags.writeable for x in now):
             return None
         same = SameObjects.make(tasks + now)

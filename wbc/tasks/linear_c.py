@@ -222,21 +222,18 @@ class LinearProgram:
             + [((N + 1,), _F8)]
         prog, arrays, scratch = [len(terms)], [], N
         for t in terms:
-            own = [np.ascontiguousarray(a, float) for a in t.arrays]
-            if t.kind == TRACKING:
+            if t.kind == TRACKING:  # J^T W F- or C-ordered, as the task's product reads it
                 k, jw = len(t.ints), t.arrays[0]
                 prog += [TRACKING, N, A, k, int(jw.flags.f_contiguous), *t.ints]
-                own[0] = jw  # F- or C-ordered, as the task's product reads it
                 scratch = max(scratch, 2 * N * k)
             elif t.kind == LEVELING:
                 prog += [LEVELING, N, A, int(t.arrays[1].flags.f_contiguous)]
-                own[1] = t.arrays[1]
                 scratch = max(scratch, N + N * A)
             elif t.kind in (INPUT, SMOOTHNESS):
                 prog += [t.kind, *t.ints]
             else:
                 prog += [CONSTANT]
-            arrays += own
+            arrays += t.arrays  # read as they are at each tick (`_fits`: no copies)
         self._prog = np.array(prog, np.int64)
         self._arrays = arrays  # kept alive: the table holds their addresses
         self._table = np.array([a.ctypes.data for a in arrays] or [0], np.uint64)
@@ -321,11 +318,16 @@ def _address(a: np.ndarray) -> int:
 
 
 def _fits(t: LinearTerm, layout) -> bool:
-    """Whether term ``t``'s arrays and integers fit ``layout`` (the C reads them unchecked)."""
+    """Whether term ``t``'s arrays and integers fit ``layout`` (the C reads them unchecked).
+
+    Its arrays aligned native float64 in one block (a 1-D one C-ordered; a ``J^T W`` in
+    either order).
+    """
     n, N, A = layout.n, layout.n_steps, layout.n_axes
     a = t.arrays
     if (not isinstance(t, LinearTerm) or len(a) != _N_ARRAYS.get(t.kind, -1)
-            or not all(isinstance(x, np.ndarray) and x.dtype == np.float64 for x in a)
+            or not all(isinstance(x, np.ndarray) and x.dtype == _F8 and x.flags.aligned
+                       and (x.flags.c_contiguous or x.flags.f_contiguous) for x in a)
             or t.H.shape != (n, n) or t.H.flags.writeable):
         return False
     if t.kind == CONSTANT:
