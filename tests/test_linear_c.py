@@ -213,3 +213,32 @@ def test_same_objects():
     assert not same((a, same.objects[1])) and not same((b, same.objects[1], b))
     b.setflags(write=True)
     assert not same((a, same.objects[1], b))
+
+
+def test_terms_that_do_not_fit_leave_it_to_the_numpy_loop(contexts):
+    from wbc.errors import WbcError
+    from wbc.tasks import ConstantJacobianTask
+
+    class Constant(ConstantJacobianTask):
+        constant_error = True
+        size, step = 0, 1
+
+        def compute_error(self, ctx):
+            return np.zeros(ctx.layout.n)
+
+        def compute_jacobian(self, ctx):
+            return np.eye(ctx.layout.n)
+
+        def _linear_term(self, ctx):
+            return np.arange((ctx.layout.n + self.size) * self.step, dtype=float)[::self.step]
+
+    ctx = contexts[0]
+    strided = Constant()
+    strided.step = 2  # a view that is not one block: no program, the numpy loop
+    builder, oracle = QPBuilder([strided], []), QPBuilder([strided], [], compiled=False)
+    _same_q(builder, oracle, ctx)
+    assert builder._linear[2] is None
+    longer = Constant()
+    longer.size = 1
+    with pytest.raises(WbcError, match="returned H"):
+        QPBuilder([longer], []).build(ctx)
