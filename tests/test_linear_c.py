@@ -242,3 +242,16 @@ def test_terms_that_do_not_fit_leave_it_to_the_numpy_loop(contexts):
     longer.size = 1
     with pytest.raises(WbcError, match="returned H"):
         QPBuilder([longer], []).build(ctx)
+
+
+def test_without_the_library_the_builder_stays_with_numpy(contexts, monkeypatch):
+    monkeypatch.setattr(linear_c, "numpy_blas", lambda: None)  # not numpy's BLAS
+    linear_c.available.cache_clear()
+    try:
+        tasks = _variants()
+        builder, oracle = QPBuilder(tasks, []), QPBuilder(tasks, [], compiled=False)
+        for ctx in contexts:
+            _same_q(builder, oracle, ctx)
+        assert not builder.compiled and builder._guard is None
+    finally:
+        linear_c.available.cache_clear()

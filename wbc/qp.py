@@ -12,6 +12,7 @@ import qpsolvers
 
 from wbc.constraints.constraint import Box, Constraint, Inequality
 from wbc.errors import ConfigurationError, WbcError
+from wbc.tasks import linear_c
 from wbc.tasks.linear_c import LinearProgram
 from wbc.tasks.object_fields_c import SameObjects
 from wbc.tasks.task import Task
@@ -366,6 +367,8 @@ class QPBuilder:
         if (kept is None or len(kept[0]) != len(terms) or not (kept[1] is lay or kept[1] == lay)
                 or not all(map(operator.is_, terms, kept[0]))):
             program = LinearProgram.make(tuple(terms), lay) if terms else None
+            if program is None and not linear_c.available():
+                self.compiled = False  # no compiler or not numpy's BLAS: the numpy loop
             P = self._hessian(lay.n, [t.H for t in terms]) if program is not None else None
             kept = self._linear = (terms, lay, program, P)
         self._guard = None if kept[2] is None else self._guarded(ctx, terms)

@@ -43,7 +43,7 @@ from models.numpy_blas import numpy_blas
 from wbc.tasks.object_fields_c import ARRAY_FIELDS_C, fields_readable
 
 __all__ = ["CONSTANT", "INPUT", "LEVELING", "LINEAR_C", "SMOOTHNESS", "TRACKING",
-           "LinearProgram", "LinearTerm"]
+           "LinearProgram", "LinearTerm", "available"]
 
 CONSTANT, TRACKING, INPUT, SMOOTHNESS, LEVELING = range(5)
 _N_ARRAYS = {CONSTANT: 1, TRACKING: 1, INPUT: 1, SMOOTHNESS: 1, LEVELING: 3}
@@ -157,6 +157,12 @@ def _library():
 
 
 @functools.cache
+def available() -> bool:
+    """Whether `LINEAR_C` compiles here and numpy's BLAS is the one it calls (once)."""
+    return numpy_blas() is not None and _library() is not None
+
+
+@functools.cache
 def _objects_function():
     """``linear_objects`` (the context's arrays passed as objects), or None.
 
@@ -253,11 +259,9 @@ class LinearProgram:
         None without a compiler or numpy's OpenBLAS, or when a term does not fit the layout
         (the numpy path then says what is wrong).
         """
-        if not all(_fits(t, layout) for t in terms):
+        if not all(_fits(t, layout) for t in terms) or not available():
             return None
-        blas = numpy_blas()
-        lib = None if blas is None else _library()
-        return None if lib is None else cls(lib, blas[0], terms, layout)
+        return cls(_library(), numpy_blas()[0], terms, layout)
 
     def __deepcopy__(self, memo) -> LinearProgram:
         """A program of its own: its call bound to its own buffers."""
