@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import operator
 import sys
+import types
 from collections.abc import Sequence
 
 import numpy as np
@@ -11,6 +12,9 @@ import qpsolvers
 
 from wbc.constraints.constraint import Box, Constraint, Inequality
 from wbc.errors import ConfigurationError, WbcError
+from wbc.tasks import linear_c
+from wbc.tasks.linear_c import LinearProgram
+from wbc.tasks.object_fields_c import SameObjects
 from wbc.tasks.task import Task
 
 __all__ = ["QP", "QPBuilder", "build_qp"]
@@ -64,19 +68,29 @@ class QPBuilder:
     (`_stacked_rows`). The bounds are the last tick's numbers again (fresh copies) while
     every box is the last tick's read-only one (`_bounds`).
 
+    When every active task says its term (`Task.linear_term`: the MPC's do), ``q`` is
+    written by one compiled call (`wbc.tasks.linear_c.LinearProgram`, kept while the terms
+    are the same objects) instead of each task's ``compute_qp_objective`` and the sum in
+    numpy: the same bits (`_compiled_objective`).
+
     Args:
         tasks: Cost terms.
         constraints: Constraints.
         regularization: Tikhonov term added to P's diagonal (> 0 keeps P definite).
+        compiled: Write ``q`` in C when the tasks allow it; False: always the numpy loop.
     """
 
     def __init__(self, tasks: Sequence[Task], constraints: Sequence[Constraint],
-                 regularization: float = 1e-9):
+                 regularization: float = 1e-9, compiled: bool = True):
         if not regularization >= 0:
             raise ConfigurationError(f"regularization must be >= 0, got {regularization}")
         self.tasks = tasks  # the owner's lists: what it appends later counts
         self.constraints = constraints
         self.regularization = regularization
+        self.compiled = bool(compiled)
+        self._linear: tuple | None = None  # (terms, layout, program or None, P)
+        self._guard: tuple | None = None  # `_guarded`: the terms' guards, checked at once
+        self._refused: Task | None = None  # the task that said no term: the numpy loop
         self._hessians: list | None = None  # the H arrays the cached P sums
         self._P: np.ndarray | None = None
         self._layout = None  # the layout of `_defaults`
@@ -179,13 +193,16 @@ class QPBuilder:
         same arrays in the same order, or sums its own); when every constraint said its
         number of rows, an array for the first ``G`` with its pages mapped
         (`_stacked_rows`; every entry is written there); the default bounds and the zeros
-        of ``q``. Nothing that depends on the state.
+        of ``q``; with `compiled`, the program of the tasks' terms (`_compiled_objective`:
+        its library loaded now). Nothing that depends on the state.
         """
         lay = ctx.layout
         hessians = [task.prepare(ctx) for task in self.tasks if task.is_active(ctx)]
         rows = [con.prepare(ctx) for con in self.constraints]
         if hessians and all(H is not None for H in hessians):
             self._hessian(lay.n, hessians)
+            if self.compiled:
+                self._program(ctx)
         if self._rows is None and rows and None not in rows and sum(rows) > 0:
             self._spare = np.full((sum(rows), lay.n), 0.0)  # written: its pages mapped
         if lay is not self._layout:
@@ -200,23 +217,8 @@ class QPBuilder:
                 are empty (lower > upper).
         """
         n = ctx.layout.n
-        hessians = []
-        q = None
-        for task in self.tasks:
-            if not task.is_active(ctx):
-                continue
-            H, c = task.compute_qp_objective(ctx)
-            if H.shape != (n, n) or c.shape != (n,):
-                raise WbcError(f"{type(task).__name__} returned H {H.shape}, c {c.shape}; "
-                               f"expected ({n}, {n}), ({n},)")
-            hessians.append(H)
-            if q is None:  # +0 + c, as zeros(n) += c (a -0 becomes +0), into a new array
-                q = np.add(self._zeros(n), c)
-            else:
-                q += c
-        if q is None:
-            q = np.zeros(n)
-        P = self._hessian(n, hessians)
+        objective = self._compiled_objective(ctx) if self.compiled else None
+        P, q = self._objective(ctx, n) if objective is None else objective
         Gs, hs, constant, diagonal, boxes = [], [], [], [], []
         rows = 0
         for con in self.constraints:
@@ -251,6 +253,126 @@ class QPBuilder:
         G = self._stacked_rows(Gs, constant, dict(diagonal), rows) if Gs else None
         h = np.concatenate(hs) if hs else None
         return QP._of_checked(P, q, G, h, lb, ub, constant, tuple(diagonal))
+
+    def _objective(self, ctx, n: int) -> tuple[np.ndarray, np.ndarray]:
+        """``(P, q)``: each active task's ``compute_qp_objective``, ``q`` their in-place sum.
+
+        Raises:
+            WbcError: A task returned arrays of the wrong shape.
+        """
+        hessians = []
+        q = None
+        for task in self.tasks:
+            if not task.is_active(ctx):
+                continue
+            H, c = task.compute_qp_objective(ctx)
+            if H.shape != (n, n) or c.shape != (n,):
+                raise WbcError(f"{type(task).__name__} returned H {H.shape}, c {c.shape}; "
+                               f"expected ({n}, {n}), ({n},)")
+            hessians.append(H)
+            if q is None:  # +0 + c, as zeros(n) += c (a -0 becomes +0), into a new array
+                q = np.add(self._zeros(n), c)
+            else:
+                q += c
+        if q is None:
+            q = np.zeros(n)
+        return self._hessian(n, hessians), q
+
+    def _compiled_objective(self, ctx) -> tuple[np.ndarray, np.ndarray] | None:
+        """`_objective`'s ``(P, q)`` by the kept program of the active tasks' terms.
+
+        None (the numpy loop then runs) when a task says no term (remembered while it is
+        one of the tasks), without a compiler, or when a term or a context array does not
+        fit the layout (the numpy loop then raises the error it finds).
+        """
+        guard = self._guard
+        if guard is not None and self._guard_holds(ctx, guard):
+            kept = self._linear
+        else:
+            refused = self._refused
+            if refused is not None and refused in self.tasks:
+                return None
+            kept = self._program(ctx)
+            if kept is None or kept[2] is None:
+                return None
+        q = kept[2](ctx)
+        return None if q is None else (kept[3], q)
+
+    def _guard_holds(self, ctx, guard: tuple) -> bool:
+        """Whether every task would return the last tick's term (`_guarded`)."""
+        structure, idle, get, same, holder = guard
+        holder.ctx = ctx
+        try:
+            now = get(holder)
+        except AttributeError:  # another kind of context
+            return False
+        finally:
+            holder.ctx = None  # not kept past the tick
+        return (same.call(tuple(self.tasks) + now) and ctx.structure_key == structure
+                and not (idle and any(task.is_active(ctx) for task in idle)))
+
+    def _guarded(self, ctx, terms: list) -> tuple | None:
+        """What `_guard_holds` checks, from the terms of ``ctx`` (`LinearTerm.guard`).
+
+        ``(structure key, inactive tasks, getter, check, holder)``: the getter reads every
+        attribute the terms' guards name, of the context and of the tasks (``holder.ctx``
+        and ``holder.t0``, ...), in one C call, and the check compares the tasks and those
+        with the objects now in one more (`wbc.tasks.object_fields_c.SameObjects`: the
+        same objects, arrays still read-only), instead of every task's checks. None when a
+        term has no guard or names what the context lacks, an array it names is writable,
+        or without the compiled check (the tasks are asked every tick).
+        """
+        tasks = tuple(self.tasks)
+        active = [task for task in tasks if task.is_active(ctx)]
+        idle = tuple(task for task in tasks if not any(task is a for a in active))
+        paths = []
+        for task, term in zip(active, terms):
+            if term.guard is None:
+                return None
+            for path in term.guard:
+                owner, _, rest = path.partition(".")
+                if owner not in ("ctx", "task") or not rest:
+                    return None
+                paths.append(path if owner == "ctx" else f"t{tasks.index(task)}.{rest}")
+        holder = types.SimpleNamespace(ctx=ctx, **{f"t{i}": t for i, t in enumerate(tasks)})
+        get = operator.attrgetter(*dict.fromkeys(paths), "__class__")  # a tuple, always
+        try:
+            now = get(holder)
+        except AttributeError:
+            return None
+        finally:
+            holder.ctx = None
+        if any(isinstance(x, np.ndarray) and x.flags.writeable for x in now):
+            return None
+        same = SameObjects.make(tasks + now)
+        return None if same is None else (ctx.structure_key, idle, get, same, holder)
+
+    def _program(self, ctx) -> tuple | None:
+        """``(terms, layout, program, P)`` of the active tasks' terms at ``ctx``, kept.
+
+        A new program only when a term or the layout is not the last one (the tasks keep
+        their terms with their caches: once per structure). None: a task said no term.
+        """
+        terms = []
+        for task in self.tasks:
+            if task.is_active(ctx):
+                say = getattr(task, "linear_term", None)  # a duck-typed task: none
+                term = None if say is None else say(ctx)
+                if term is None:
+                    self._refused = task
+                    return None
+                terms.append(term)
+        self._refused = None
+        kept, lay = self._linear, ctx.layout
+        if (kept is None or len(kept[0]) != len(terms) or not (kept[1] is lay or kept[1] == lay)
+                or not all(map(operator.is_, terms, kept[0]))):
+            program = LinearProgram.make(tuple(terms), lay) if terms else None
+            if program is None and not linear_c.available():
+                self.compiled = False  # no compiler or not numpy's BLAS: the numpy loop
+            P = self._hessian(lay.n, [t.H for t in terms]) if program is not None else None
+            kept = self._linear = (terms, lay, program, P)
+        self._guard = None if kept[2] is None else self._guarded(ctx, terms)
+        return kept
 
     def _zeros(self, n: int) -> np.ndarray:
         """Read-only zeros (n,), kept."""

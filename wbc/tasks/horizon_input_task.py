@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from wbc.tasks.linear_c import INPUT, LinearTerm
 from wbc.tasks.task import ConstantJacobianTask, StepWeights
 
 __all__ = ["HorizonInputTask"]
@@ -42,6 +43,17 @@ class HorizonInputTask(ConstantJacobianTask):
         np.multiply(self.compute_weight(ctx), self.compute_error(ctx),
                     out=c[lay.accelerations])
         return c
+
+    def _make_term(self, ctx) -> LinearTerm | None:
+        """`INPUT` on the accelerations: `_linear_term` in C (`wbc.tasks.linear_c`).
+
+        This class's own arithmetic: None for a subclass (it says its own).
+        """
+        if type(self) is not HorizonInputTask:
+            return None
+        acc = ctx.layout.accelerations
+        return LinearTerm(INPUT, self._H, (acc.start, acc.stop - acc.start), (self._weight,),
+                          ("ctx.layout", "task.weight"))
 
     def compute_jacobian(self, ctx) -> np.ndarray:
         """Identity on all accelerations."""

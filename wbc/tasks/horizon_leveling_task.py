@@ -6,6 +6,7 @@ import numpy as np
 
 from wbc.errors import ConfigurationError
 from wbc.force_models.feedback import DIAGONAL
+from wbc.tasks.linear_c import LEVELING, LinearTerm
 from wbc.tasks.task import ConstantJacobianTask
 
 __all__ = ["HorizonLevelingTask"]
@@ -77,6 +78,17 @@ class HorizonLevelingTask(ConstantJacobianTask):
             w += ctx.warp_drift[1:] / self.force_scale
         w -= ctx.leveling_offset / self.force_scale
         return w
+
+    def _make_term(self, ctx) -> LinearTerm | None:
+        """`LEVELING`: `compute_error` and ``J^T W e`` in C (`wbc.tasks.linear_c`).
+
+        This class's own arithmetic: None for a subclass (it says its own).
+        """
+        if type(self) is not HorizonLevelingTask:
+            return None
+        return LinearTerm(LEVELING, self._H, (),
+                          (self._row(ctx), self._jw, np.array([self.force_scale])),
+                          ("ctx.layout", "ctx.warp", "task.weight", "task.force_scale"))
 
     def compute_jacobian(self, ctx) -> np.ndarray:
         """``row @ Pq`` of each node, (N, n)."""

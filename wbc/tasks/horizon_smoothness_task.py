@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from wbc.tasks.linear_c import SMOOTHNESS, LinearTerm
 from wbc.tasks.task import ConstantJacobianTask, StepWeights
 
 __all__ = ["HorizonSmoothnessTask"]
@@ -47,6 +48,17 @@ class HorizonSmoothnessTask(ConstantJacobianTask):
         np.negative(ctx.previous_acceleration, out=step)
         np.multiply(step, self.compute_weight(ctx)[first], out=step)
         return c
+
+    def _make_term(self, ctx) -> LinearTerm | None:
+        """`SMOOTHNESS` on step 0's inputs: `_linear_term` in C (`wbc.tasks.linear_c`).
+
+        This class's own arithmetic: None for a subclass (it says its own).
+        """
+        if type(self) is not HorizonSmoothnessTask:
+            return None
+        first = ctx.layout.step(0)
+        return LinearTerm(SMOOTHNESS, self._H, (first.start, first.stop - first.start),
+                          (self._weight,), ("ctx.layout", "task.weight"))
 
     def compute_jacobian(self, ctx) -> np.ndarray:
         """First differences of the inputs."""

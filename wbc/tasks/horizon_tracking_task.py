@@ -6,6 +6,7 @@ import numpy as np
 
 from wbc.errors import ConfigurationError
 from wbc.tasks.joint_task import _axes, _gain
+from wbc.tasks.linear_c import TRACKING, LinearTerm
 from wbc.tasks.task import ConstantJacobianTask
 
 __all__ = ["HorizonTrackingTask"]
@@ -104,6 +105,17 @@ class HorizonTrackingTask(ConstantJacobianTask):
             e = self._error = np.empty((2, d.shape[1], self.axes.size))
         e[...] = d[:, :, self._columns]
         return self._jw @ e.reshape(-1)
+
+    def _make_term(self, ctx) -> LinearTerm | None:
+        """`TRACKING` on the task's axes: `_linear_term` in C (`wbc.tasks.linear_c`).
+
+        This class's own arithmetic: None for a subclass (it says its own).
+        """
+        if type(self) is not HorizonTrackingTask:
+            return None
+        return LinearTerm(TRACKING, self._H, tuple(int(a) for a in self.axes), (self._jw,),
+                          ("ctx.layout", "task.position_weight", "task.velocity_weight",
+                           "task.terminal_factor"))
 
     def compute_jacobian(self, ctx) -> np.ndarray:
         """Rows of Pq and Pv of the task's axes."""

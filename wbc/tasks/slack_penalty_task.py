@@ -35,6 +35,11 @@ class SlackPenaltyTask(ConstantJacobianTask):
         """Active when the layout has slacks."""
         return ctx.layout.slack is not None
 
+    def _term_guard(self) -> tuple | None:
+        """The layout (activity, structure), the weight and rho_1; this class's own."""
+        return (("ctx.layout", "task.weight", "task.linear") if type(self) is SlackPenaltyTask
+                else None)
+
     def compute_error(self, ctx) -> np.ndarray:
         """Zero: the quadratic part is ``||eps||^2``."""
         return np.zeros(ctx.layout.n_slack)

@@ -24,6 +24,10 @@ class SpeedScaleTask(ConstantJacobianTask):
         """Active when the layout has a speed scale."""
         return ctx.layout.scale is not None
 
+    def _term_guard(self) -> tuple | None:
+        """The layout (activity, structure) and the weight; this class's own."""
+        return ("ctx.layout", "task.weight") if type(self) is SpeedScaleTask else None
+
     def compute_error(self, ctx) -> np.ndarray:
         """-1."""
         return np.array([-1.0])

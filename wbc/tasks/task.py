@@ -8,6 +8,7 @@ import functools
 import numpy as np
 
 from wbc.errors import ConfigurationError
+from wbc.tasks.linear_c import CONSTANT, LinearTerm
 
 __all__ = ["Objective", "StepWeights", "Task", "step_weights"]
 
@@ -103,6 +104,15 @@ class Task(abc.ABC):
         jw = jac.T * self.compute_weight(ctx)
         return jw @ jac, jw @ err
 
+    def linear_term(self, ctx) -> LinearTerm | None:
+        """`compute_qp_objective` at ``ctx`` said as a `wbc.tasks.linear_c.LinearTerm`.
+
+        Called only when the task is active. `wbc.qp.QPBuilder` then writes ``c`` and its
+        sum in one compiled call (`wbc.tasks.linear_c.LinearProgram`): the same bits.
+        None (the default): this task's ``c`` is computed by `compute_qp_objective`.
+        """
+        return None
+
 
 class ConstantJacobianTask(Task):
     """A task whose Jacobian depends only on the context's structure: ``J^T W`` is cached.
@@ -126,9 +136,49 @@ class ConstantJacobianTask(Task):
         self._jw = None
         self._H = None
         self._c = None  # with `constant_error`: ``J^T W e``, read-only
+        self._term: LinearTerm | None | bool = None  # `linear_term`'s (False: none)
 
     def compute_qp_objective(self, ctx) -> Objective:
         """(H, c) with ``H`` and ``J^T W`` cached per structure."""
+        self._refresh(ctx)
+        if not self.constant_error:
+            return self._H, self._linear_term(ctx)
+        if self._c is None:
+            self._c = self._linear_term(ctx)
+            self._c.setflags(write=False)
+        return self._H, self._c
+
+    def linear_term(self, ctx) -> LinearTerm | None:
+        """`Task.linear_term`: the kept term while the cache stays (made by `_make_term`).
+
+        With `constant_error` a `CONSTANT` term of `compute_qp_objective`'s read-only ``c``
+        (a subclass's too: `SlackPenaltyTask` adds its linear penalty), kept while that
+        is the same array.
+        """
+        if self.constant_error:
+            H, c = self.compute_qp_objective(ctx)
+            term = self._term
+            if not term or term.arrays[0] is not c or term.H is not H:
+                term = self._term = LinearTerm(CONSTANT, H, (), (c,), self._term_guard())
+            return term
+        self._refresh(ctx)
+        if self._term is None:
+            self._term = self._make_term(ctx) or False
+        return self._term or None
+
+    def _make_term(self, ctx) -> LinearTerm | None:
+        """The `LinearTerm` of the current cache (`_jw`, `_H`); None: no compiled form."""
+        return None
+
+    def _term_guard(self) -> tuple | None:
+        """`LinearTerm.guard` of this task's terms; None (the default): ask every tick.
+
+        A class that says one says it for its own type only (a subclass may read more).
+        """
+        return None
+
+    def _refresh(self, ctx) -> None:
+        """Make the cache again when the structure or the weights changed."""
         weight = self.compute_weight(ctx)
         structure = self.structure_key(ctx)
         # a read-only weight array seen before is the same weight (no bytes compared)
@@ -136,12 +186,6 @@ class ConstantJacobianTask(Task):
         if (self._cache_key is None or self._cache_key[0] != structure
                 or (not same_weight and self._cache_key[1] != weight.tobytes())):
             self._fill(ctx, weight, structure)
-        if not self.constant_error:
-            return self._H, self._linear_term(ctx)
-        if self._c is None:
-            self._c = self._linear_term(ctx)
-            self._c.setflags(write=False)
-        return self._H, self._c
 
     def _fill(self, ctx, weight: np.ndarray, structure) -> None:
         """Make the cache of ``structure`` and ``weight``: ``J^T W``, ``H``; ``c`` unset."""
@@ -151,6 +195,7 @@ class ConstantJacobianTask(Task):
         self._H = self._jw @ jac
         self._H.setflags(write=False)
         self._c = None
+        self._term = None
         self._cache_key = (structure, weight.tobytes())
 
     def prepare(self, ctx) -> np.ndarray | None:
