@@ -16,7 +16,7 @@ from models.state import MachineState
 from wbc.axes import N_AXES
 from wbc.controllers.command import ControlCommand
 
-__all__ = ["KinematicPlant", "make_state", "moving_mpc"]
+__all__ = ["KinematicPlant", "make_state", "moving_mpc", "turning_mpc"]
 
 
 def make_state(machine: Machine, q=None, qd=None, qdd=None, time: float = 0.0,
@@ -87,3 +87,38 @@ def moving_mpc(machine: Machine, ticks: int = 4, dt: float = 0.01):
     for _ in range(ticks):
         plant.apply(ctrl.step(plant.state))
     return ctrl, plant
+
+
+def turning_mpc(machine: Machine, speed_scale: bool, ticks: int = 5, dt: float = 0.01):
+    """``(ctrl, states)``: mpc-full with the estimator, driving and turning, a crane move.
+
+    The base drives at 0.4 m/s, turns at 0.15 rad/s and rolls and pitches slowly, the
+    wheels spin at 1.5 rad/s, and the goal moves the crane and the suspension a little:
+    every block of the horizon's force rows (drive terms, speed scale) is nonzero.
+    ``states``: the plant's state after each of the ``ticks`` ticks. Skips the calling test
+    (`pytest.skip`) where the estimator is not compiled.
+    """
+    import dataclasses
+
+    import pytest
+
+    from wbc import ControllerConfig, ForceConfig, JointGoal, MpcConfig, MpcController
+    from wbc.axes import SUSPENSION_AXES
+    from wbc.controllers.registry import estimator_models
+
+    model, feedback = estimator_models(machine, "full")
+    if not hasattr(model, "linearize_rows") or model._est.backend != "compiled":
+        pytest.skip("no compiled estimator")
+    cfg = ControllerConfig(force=ForceConfig(speed_scale=speed_scale), mpc=MpcConfig())
+    ctrl = MpcController(machine, cfg, force_model=model, feedback=feedback)
+    st = make_state(machine)
+    ctrl.set_goal(JointGoal(crane=st.q[2:9] + np.array([0.05, -0.05, 0.05, 0.2, 0, 0, 0]),
+                            suspension=st.q[SUSPENSION_AXES] + 0.02))
+    plant = KinematicPlant(dataclasses.replace(
+        st, qd=np.r_[st.qd[:9], np.full(4, 1.5)],
+        base_twist=np.array([0.4, 0.05, 0.0, 0.02, -0.03, 0.15])), dt)
+    states = []
+    for _ in range(ticks):
+        plant.apply(ctrl.step(plant.state))
+        states.append(plant.state)
+    return ctrl, states

@@ -13,38 +13,13 @@ import numpy as np
 import pytest
 
 from models.state import WheelContacts
-from testkit.plant import KinematicPlant, make_state
-from wbc import ControllerConfig, ForceConfig, JointGoal, MpcConfig, MpcController
-from wbc.axes import SUSPENSION_AXES
+from testkit.plant import turning_mpc
 from wbc.constraints.force_map_c import compiled_force_map
 from wbc.constraints.force_rows import ForceRowsConstraint
 from wbc.constraints.force_tick import row_plan
-from wbc.controllers.registry import estimator_models
 from wbc.force_models.feedback import ForceFeedback
 
-DT = 0.01
-
 pytestmark = pytest.mark.skipif(compiled_force_map() is None, reason="no C compiler")
-
-
-def _turning_mpc(machine, speed_scale: bool, ticks: int = 5):
-    """mpc-full with the estimator, driving and turning on a tilted base, a crane move."""
-    model, feedback = estimator_models(machine, "full")
-    if not hasattr(model, "linearize_rows") or model._est.backend != "compiled":
-        pytest.skip("no compiled estimator")
-    cfg = ControllerConfig(force=ForceConfig(speed_scale=speed_scale), mpc=MpcConfig())
-    ctrl = MpcController(machine, cfg, force_model=model, feedback=feedback)
-    st = make_state(machine)
-    ctrl.set_goal(JointGoal(crane=st.q[2:9] + np.array([0.05, -0.05, 0.05, 0.2, 0, 0, 0]),
-                            suspension=st.q[SUSPENSION_AXES] + 0.02))
-    plant = KinematicPlant(dataclasses.replace(
-        st, qd=np.r_[st.qd[:9], np.full(4, 1.5)],
-        base_twist=np.array([0.4, 0.05, 0.0, 0.02, -0.03, 0.15])), DT)
-    states = []
-    for _ in range(ticks):
-        plant.apply(ctrl.step(plant.state))
-        states.append(plant.state)
-    return ctrl, states
 
 
 def _both(con, ctx):
@@ -85,7 +60,7 @@ def _same(con, ctx, tick: bool = True):
 
 @pytest.mark.parametrize("speed_scale", [False, True])
 def test_the_tick_is_the_reference_rows_bits(machine, speed_scale):
-    ctrl, states = _turning_mpc(machine, speed_scale)
+    ctrl, states = turning_mpc(machine, speed_scale)
     con = ctrl.force_constraint
     assert con._tick.rows is not None  # prepared by the controller
     for st in states[-3:]:
@@ -110,7 +85,7 @@ def _lifted(ctrl, st):
 
 
 def test_three_wheels_thresholds_a_drift_and_no_feedback(machine):
-    ctrl, states = _turning_mpc(machine, True)
+    ctrl, states = turning_mpc(machine, True)
     con = ctrl.force_constraint
     st = states[-1]
     ctx = _lifted(ctrl, st)
@@ -125,7 +100,7 @@ def test_three_wheels_thresholds_a_drift_and_no_feedback(machine):
 
 def test_no_wheel_in_contact_logs_the_map_and_has_no_rows(machine):
     """No wheel: a tipping state, no kernel rows; the tick goes on as the reference."""
-    ctrl, states = _turning_mpc(machine, False)
+    ctrl, states = turning_mpc(machine, False)
     con = ctrl.force_constraint
     st = states[-1]
     points = con.model.estimate(st).contact_points
@@ -136,7 +111,7 @@ def test_no_wheel_in_contact_logs_the_map_and_has_no_rows(machine):
 
 
 def test_unprepared_or_other_rows_take_the_reference_path(machine):
-    ctrl, states = _turning_mpc(machine, False)
+    ctrl, states = turning_mpc(machine, False)
     con = ctrl.force_constraint
     ctx = ctrl.context(states[-1])
     con._tick.rows = None  # not prepared: `ForceRowsConstraint.compute`

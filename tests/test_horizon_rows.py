@@ -13,35 +13,10 @@ import numpy as np
 import pytest
 
 from models.state import WheelContacts
-from testkit.plant import KinematicPlant, make_state
-from wbc import ControllerConfig, ForceConfig, JointGoal, MpcConfig, MpcController
-from wbc.axes import SUSPENSION_AXES
+from testkit.plant import turning_mpc
 from wbc.constraints.force_map_c import compiled_force_map
-from wbc.controllers.registry import estimator_models
-
-DT = 0.01
 
 pytestmark = pytest.mark.skipif(compiled_force_map() is None, reason="no C compiler")
-
-
-def _turning_mpc(machine, speed_scale: bool, ticks: int = 5):
-    """mpc-full with the estimator, driving and turning on a tilted base, a crane move."""
-    model, feedback = estimator_models(machine, "full")
-    if not hasattr(model, "linearize_rows") or model._est.backend != "compiled":
-        pytest.skip("no compiled estimator")
-    cfg = ControllerConfig(force=ForceConfig(speed_scale=speed_scale), mpc=MpcConfig())
-    ctrl = MpcController(machine, cfg, force_model=model, feedback=feedback)
-    st = make_state(machine)
-    ctrl.set_goal(JointGoal(crane=st.q[2:9] + np.array([0.05, -0.05, 0.05, 0.2, 0, 0, 0]),
-                            suspension=st.q[SUSPENSION_AXES] + 0.02))
-    plant = KinematicPlant(dataclasses.replace(
-        st, qd=np.r_[st.qd[:9], np.full(4, 1.5)],
-        base_twist=np.array([0.4, 0.05, 0.0, 0.02, -0.03, 0.15])), DT)
-    states = []
-    for _ in range(ticks):
-        plant.apply(ctrl.step(plant.state))
-        states.append(plant.state)
-    return ctrl, states
 
 
 def _both(con, ctx):
@@ -69,7 +44,7 @@ def _both(con, ctx):
 
 @pytest.mark.parametrize("speed_scale", [False, True])
 def test_the_tick_path_is_forces_maps_bits(machine, speed_scale):
-    ctrl, states = _turning_mpc(machine, speed_scale)
+    ctrl, states = turning_mpc(machine, speed_scale)
     con = ctrl.force_constraint
     for st in states[-3:]:
         ctx = ctrl.context(st)
@@ -82,7 +57,7 @@ def test_the_tick_path_is_forces_maps_bits(machine, speed_scale):
 
 
 def test_three_wheels_a_drift_and_no_feedback(machine):
-    ctrl, states = _turning_mpc(machine, True)
+    ctrl, states = turning_mpc(machine, True)
     con = ctrl.force_constraint
     st = states[-1]
     points = con.model.estimate(st).contact_points  # the wheels' lowest points
@@ -120,7 +95,7 @@ class _ObjectsOnly:
 
 
 def test_without_rows_the_objects_path_gives_the_same(machine):
-    ctrl, states = _turning_mpc(machine, False)
+    ctrl, states = turning_mpc(machine, False)
     con = ctrl.force_constraint
     ctx = ctrl.context(states[-1])
     A, b, flags = con._forces_and_flags(ctx)
@@ -138,7 +113,7 @@ def test_without_rows_the_objects_path_gives_the_same(machine):
 
 def test_nodes_it_leaves_to_one_by_one_fall_back(machine):
     """A later node out of range: no rows; the objects' path clips it (node 0 kept)."""
-    ctrl, states = _turning_mpc(machine, False)
+    ctrl, states = turning_mpc(machine, False)
     con = ctrl.force_constraint
     ctx = ctrl.context(states[-1])
     far = ctx.nominal_inputs.copy()
