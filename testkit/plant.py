@@ -16,7 +16,7 @@ from models.state import MachineState
 from wbc.axes import N_AXES
 from wbc.controllers.command import ControlCommand
 
-__all__ = ["KinematicPlant", "make_state", "moving_mpc", "turning_mpc"]
+__all__ = ["KinematicPlant", "make_state", "moving_mpc", "odd_servo_states", "turning_mpc"]
 
 
 def make_state(machine: Machine, q=None, qd=None, qdd=None, time: float = 0.0,
@@ -122,3 +122,29 @@ def turning_mpc(machine: Machine, speed_scale: bool, ticks: int = 5, dt: float =
         plant.apply(ctrl.step(plant.state))
         states.append(plant.state)
     return ctrl, states
+
+
+def odd_servo_states(machine: Machine, rng: np.random.Generator, n: int, reset_every: int,
+                     dt: float):
+    """Yield ``(reset, state)`` ``n`` times: the servo state's odd ticks.
+
+    Time steps of ``dt``, 0, -0.02 and 0.3 s; axis positions scattered by 0.02 around the
+    home pose; on three ticks of four a measured setpoint at, near (2 mm) or far (5 cm)
+    from the positions, else none. ``reset``: the caller resets its servo states first
+    (every ``reset_every``-th tick). The generator draws from ``rng`` between the caller's
+    own draws, in the order of the loop it replaces.
+    """
+    import dataclasses
+
+    base = make_state(machine)
+    t = 0.0
+    for k in range(n):
+        reset = k % reset_every == reset_every - 1
+        t += float(rng.choice([dt, dt, 0.0, -0.02, 0.3]))
+        q = base.q.copy()
+        q[:N_AXES] += rng.normal(0.0, 0.02, N_AXES)
+        state = make_state(machine, q=q, time=t)
+        if k % 4:
+            near = q[:N_AXES] + rng.choice([0.0, 2e-3, -2e-3, 0.05, -0.0], N_AXES)
+            state = dataclasses.replace(state, servo_setpoint=near)
+        yield reset, state

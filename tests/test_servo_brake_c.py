@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from scenarios.closed_loop import DEFAULT_SCENARIO, run_closed_loop
-from testkit.plant import make_state
+from testkit.plant import make_state, odd_servo_states
 from wbc import load_estimator, make_controller
 from wbc.axes import N_AXES
 from wbc.context import ReferenceSample
@@ -140,18 +140,9 @@ def test_odd_ticks_are_the_numpy_paths_bits(machine):
     the limit over several steps, or at rest at once), a reset."""
     rng = np.random.default_rng(7)
     fast, slow = _pair()
-    base = make_state(machine)
-    t = 0.0
-    for k in range(2000):
-        if k % 500 == 499:
+    for k, (reset, state) in enumerate(odd_servo_states(machine, rng, 2000, 500, DT)):
+        if reset:
             fast.reset(), slow.reset()
-        t += float(rng.choice([DT, DT, 0.0, -0.02, 0.3]))
-        q = base.q.copy()
-        q[:N_AXES] += rng.normal(0.0, 0.02, N_AXES)
-        state = make_state(machine, q=q, time=t)
-        if k % 4:
-            near = q[:N_AXES] + rng.choice([0.0, 2e-3, -2e-3, 0.05, -0.0], N_AXES)
-            state = dataclasses.replace(state, servo_setpoint=near)
         rates = rng.normal(0.0, rng.choice([0.0, 0.1, 3.0]), N_AXES)
         if k % 13 == 0:
             rates[rng.integers(N_AXES)] = rng.choice([np.nan, np.inf, -np.inf, 0.0, -0.0])

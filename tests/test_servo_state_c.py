@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from scenarios.closed_loop import DEFAULT_SCENARIO, run_closed_loop
-from testkit.plant import make_state
+from testkit.plant import make_state, odd_servo_states
 from wbc.axes import N_AXES
 from wbc.controllers.servo_state import ServoState
 from wbc.controllers.servo_state_c import ServoPass
@@ -93,18 +93,9 @@ def test_odd_ticks_are_the_numpy_paths_bits(machine):
     """No measured setpoint, near ones, time standing or going back, odd rates, a reset."""
     rng = np.random.default_rng(5)
     fast, slow = _pair()
-    base = make_state(machine)
-    t = 0.0
-    for k in range(3000):
-        if k % 700 == 699:
+    for k, (reset, state) in enumerate(odd_servo_states(machine, rng, 3000, 700, DT)):
+        if reset:
             fast.reset(), slow.reset()
-        t += float(rng.choice([DT, DT, 0.0, -0.02, 0.3]))
-        q = base.q.copy()
-        q[:N_AXES] += rng.normal(0.0, 0.02, N_AXES)
-        state = make_state(machine, q=q, time=t)
-        if k % 4:
-            near = q[:N_AXES] + rng.choice([0.0, 2e-3, -2e-3, 0.05, -0.0], N_AXES)
-            state = dataclasses.replace(state, servo_setpoint=near)
         rates = rng.normal(0.0, 0.1, N_AXES)
         if k % 13 == 0:
             rates[rng.integers(N_AXES)] = rng.choice([np.nan, np.inf, -np.inf, 0.0, -0.0])
