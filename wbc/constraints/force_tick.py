@@ -26,6 +26,7 @@ __all__ = ["ELSEWHERE", "ForceTick", "row_plan"]
 
 ELSEWHERE = object()  # `ForceTick.compute`: not here, nothing evaluated
 _all = np.logical_and.reduce  # `np.all` of a 1-D array without its Python dispatch
+_ALL_IN = np.ones(4, dtype=bool)  # the contact flags of `ForceTick.prepare`
 
 
 class ForceTick:
@@ -94,6 +95,14 @@ class ForceTick:
                 con.last_forces_map, con.last_in_contact = (A, b), flags
                 return None if plan[0] is None else Inequality(G, h)
         return con._inequality(ctx, *con._map_of(ctx, first, rows, flags, qn, vn), flags)
+
+    def prepare(self, con, ctx, struct) -> None:
+        """The row plan of all four wheels in contact now (`_row_plan`), not at the first tick.
+
+        ``ctx``: a `wbc.structure.StructureContext` (the ticks' layout); ``struct``:
+        ``con``'s structure of it. Another contact pattern makes its own at its first tick.
+        """
+        self._row_plan(con, ctx, _ALL_IN, struct)
 
     def _row_plan(self, con, ctx, flags: np.ndarray, struct) -> tuple:
         """``(rows of A or None, `row_plan`)`` of ``con._row_plan``, kept.
