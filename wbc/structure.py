@@ -5,7 +5,8 @@ period and their own settings, not on the state: the tasks' constant Hessians, t
 constraint's node structure and compiled buffers, the limits' constant rows. They make it
 at the first tick that asks, which then costs several ticks. `prepare_planner` makes it
 before the clock starts, each task and constraint through its ``prepare`` hook on a
-`StructureContext`, keyed as a tick's context keys it (`HorizonContext.structure_key`): the
+`StructureContext`, keyed as a tick's context keys it (`HorizonContext.structure_key`), and
+the solver's of the rows they fix (`wbc.qp.PreparedRows`, ``solver.prepare``): the
 first tick finds it, and a tick of another structure rebuilds it as before. What a tick
 computes is the same: the same operations on the same operands, only earlier; nothing that
 depends on the state (counters, ``last_*`` attributes, the solver's workspace) is touched.
@@ -64,3 +65,8 @@ def prepare_planner(planner, warp: np.ndarray | None = None) -> None:
     ctx = StructureContext(planner.layout, planner.prediction, float(planner.dt),
                            planner.limits, warp)
     planner.builder.prepare(ctx)
+    rows = planner.builder.prepared_rows
+    prepare = getattr(planner.solver, "prepare", None)  # `wbc.solvers.DaqpBackend.prepare`
+    if rows is not None and prepare is not None:
+        prepare(rows.m, ctx.layout.n, rows.constant_rows, rows.diagonal_rows, rows.lb,
+                rows.ub)

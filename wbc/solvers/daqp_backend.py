@@ -290,11 +290,34 @@ class DaqpBackend:
         if not (G.dtype == h.dtype == np.float64 and G.strides[1] == 8 and h.strides[0] == 8
                 and self.compiled):
             return None
-        key = (structure.key, G.shape[1])
+        return self._screen_of(structure, G.shape[1])
+
+    def _screen_of(self, structure: RowStructure, n: int) -> CompiledScreen | None:
+        """The `CompiledScreen` of rows of this structure and n columns, kept."""
+        key = (structure.key, n)
         if self._screen_c is None or self._screen_c[0] != key:
-            self._screen_c = (key, compiled_screen(G.shape[0], G.shape[1], structure.gaps,
-                                                   structure.done))
+            m_in = structure.constant.size
+            self._screen_c = (key, compiled_screen(m_in, n, structure.gaps, structure.done))
         return self._screen_c[1]
+
+    def prepare(self, m_in: int, n: int, blocks: tuple, diagonal: tuple, lb: np.ndarray,
+                ub: np.ndarray) -> None:
+        """Make what the first solve of a problem of these rows makes of them alone, now.
+
+        ``m_in`` rows of n columns, their `wbc.qp.QP.constant_rows` ``blocks`` and
+        ``diagonal_rows``, the bounds ``lb``, ``ub`` (n,) of the constant blocks' columns
+        (`wbc.qp.PreparedRows`, before a controller's clock starts): the rows'
+        `RowStructure`, the C screening of it and the blocks' screening sums under those
+        bounds (`BlockSums`: kept per block while the bounds of its columns stay). What a
+        solve makes of another problem it makes as before; nothing of a solve (multipliers,
+        the factor, the workspace) is touched.
+        """
+        if not (self.screen and m_in and blocks):  # `_screen` keeps nothing without blocks
+            return
+        structure = self._structure(m_in, blocks, diagonal)
+        self._sums.sums(m_in, n, blocks, lb, ub)
+        if self.compiled:
+            self._screen_of(structure, n)
 
     def _fused(self, t0: float, G, kept: np.ndarray, inv_t: np.ndarray, a_all, f, lb, ub,
                h, b, m_in: int, m_eq: int, blocks: tuple, diagonal: tuple,
