@@ -4,7 +4,7 @@
 force tick's kept buffers and its row plan of every wheel in contact
 (`wbc.constraints.force_tick.ForceTick.prepare`), and the solver's row structure, C
 screening and constant blocks' screening sums of the rows the constraints fix
-(`wbc.qp.PreparedRows`, `wbc.solvers.DaqpBackend.prepare`): the first tick, all wheels in
+(`wbc.structure.PreparedRows`, `wbc.solvers.DaqpBackend.prepare`): the first tick, all wheels in
 contact, finds them and makes none again. Their bits are the unprepared controller's
 (`tests/test_structure_prepare.py` compares every QP, plan and command).
 """
@@ -16,6 +16,7 @@ from testkit.plant import KinematicPlant, make_state
 from wbc import ControllerConfig, JointGoal, MpcController
 from wbc.controllers.registry import estimator_models
 from wbc.solvers import DaqpBackend
+from wbc.structure import StructureContext, prepared_rows
 
 
 def _first_tick(machine):
@@ -28,8 +29,10 @@ def _first_tick(machine):
 
 def test_the_prepared_rows_are_the_first_qps(machine):
     ctrl, step = _first_tick(machine)
-    rows = ctrl.planner.builder.prepared_rows
-    assert rows is not None and rows.constant_rows and rows.diagonal_rows
+    pl = ctrl.planner
+    ctx = StructureContext(pl.layout, pl.prediction, pl.dt, pl.limits, ctrl.warp)
+    rows = prepared_rows(pl.constraints, pl.builder.prepare(ctx), ctx)  # made again: the same
+    assert rows.constant_rows and rows.diagonal_rows
     qps = []
     build = ctrl.planner.builder.build
     ctrl.planner.builder.build = lambda ctx: qps.append(build(ctx)) or qps[-1]

@@ -6,7 +6,6 @@ import operator
 import sys
 import types
 from collections.abc import Sequence
-from typing import NamedTuple
 
 import numpy as np
 import qpsolvers
@@ -18,25 +17,9 @@ from wbc.tasks.linear_c import LinearProgram
 from wbc.tasks.object_fields_c import SameObjects
 from wbc.tasks.task import Task
 
-__all__ = ["PreparedRows", "QP", "QPBuilder", "build_qp"]
+__all__ = ["QP", "QPBuilder", "build_qp"]
 
 _any = np.logical_or.reduce  # `ndarray.any` of a 1-D array without its Python dispatch
-
-
-class PreparedRows(NamedTuple):
-    """The rows of the first QP of a structure, as far as its constraints fix them.
-
-    `QPBuilder.prepare`'s, for the solver's own preparation (`wbc.structure`): the number
-    of rows of ``G`` (every wheel in contact), the `QP.constant_rows` and `QP.diagonal_rows`
-    a tick of the structure gives, and the layout's default bounds narrowed by the boxes the
-    constraints fix (``lb``, ``ub``, (n,): a tick's other boxes narrow them further).
-    """
-
-    m: int
-    constant_rows: tuple
-    diagonal_rows: tuple
-    lb: np.ndarray
-    ub: np.ndarray
 
 
 class QP(qpsolvers.Problem):
@@ -116,7 +99,6 @@ class QPBuilder:
         self._zero: np.ndarray | None = None  # `_zeros`
         self._rows: tuple | None = None  # (the last G, its constant blocks' places)
         self._spare: np.ndarray | None = None  # `prepare`'s G for the first `_stacked_rows`
-        self.prepared_rows: PreparedRows | None = None  # `prepare`'s, for the solver's
 
     def _stacked_rows(self, Gs: list, constant: tuple, diagonal: tuple, m: int) -> np.ndarray:
         """``np.concatenate(Gs)``, shape (m, n); the constant blocks' rows kept from the last.
@@ -202,7 +184,7 @@ class QPBuilder:
         self._bounds_kept = (layout, boxes, lb.copy(), ub.copy()) if constant else None
         return lb, ub
 
-    def prepare(self, ctx) -> None:
+    def prepare(self, ctx) -> list:
         """Make what the structure alone fixes before the first tick (`wbc.structure`).
 
         ``ctx``: a `wbc.structure.StructureContext`. Each active task's and every
@@ -212,8 +194,10 @@ class QPBuilder:
         number of rows, an array for the first ``G`` with its pages mapped
         (`_stacked_rows`; every entry is written there); the default bounds and the zeros
         of ``q``; with `compiled`, the program of the tasks' terms (`_compiled_objective`:
-        its library loaded now); and `prepared_rows` (`_prepared_rows`). Nothing that
-        depends on the state.
+        its library loaded now). Nothing that depends on the state.
+
+        Returns:
+            Each constraint's number of rows (``prepare``'s: None where not known).
         """
         lay = ctx.layout
         hessians = [task.prepare(ctx) for task in self.tasks if task.is_active(ctx)]
@@ -227,33 +211,7 @@ class QPBuilder:
         if lay is not self._layout:
             self._defaults, self._layout = lay.default_bounds(), lay
         self._zeros(lay.n)
-        self.prepared_rows = (self._prepared_rows(ctx, rows) if rows and None not in rows
-                              else None)
-
-    def _prepared_rows(self, ctx, rows: list) -> PreparedRows:
-        """The `PreparedRows` of the constraints' ``rows`` (after their ``prepare``).
-
-        As `build` places them: a read-only ``G`` a constraint fixes is a constant block at
-        its first row, else its `DiagonalBlocks`, if it fixes them; the defaults narrowed
-        by the fixed boxes in order, as `_bounds` narrows (new arrays: `_bounds`' kept
-        ones are a tick's).
-        """
-        constant, diagonal = [], []
-        lb, ub = self._defaults[0].copy(), self._defaults[1].copy()
-        first = 0
-        for con, m in zip(self.constraints, rows):
-            say = getattr(con, "prepared_form", None)  # a duck-typed constraint: nothing
-            form = None if say is None else say(ctx)
-            if form is not None and form.box is not None:
-                np.maximum(lb, form.box.lower, out=lb)
-                np.minimum(ub, form.box.upper, out=ub)
-            if form is not None and m:
-                if form.G is not None and not form.G.flags.writeable:
-                    constant.append((first, form.G))
-                elif form.diagonal is not None:
-                    diagonal.append((first, form.diagonal))
-            first += m
-        return PreparedRows(first, tuple(constant), tuple(diagonal), lb, ub)
+        return rows
 
     def build(self, ctx) -> QP:
         r"""The QP at ``ctx`` (a context with a ``layout``: `QPContext` or `HorizonContext`).
