@@ -9,9 +9,13 @@ contact, finds them and makes none again. Their bits are the unprepared controll
 (`tests/test_structure_prepare.py` compares every QP, plan and command).
 """
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
+from estimators.margin_kernel import MARGIN_STEP
+from estimators.uncertainty import prepare_margin
 from testkit.plant import KinematicPlant, make_state
 from wbc import ControllerConfig, JointGoal, MpcController
 from wbc.controllers.registry import estimator_models
@@ -78,3 +82,45 @@ def test_the_first_tick_finds_the_force_ticks_buffers_and_row_plan(machine):
     cmd = ctrl.step(KinematicPlant(st, 0.01).state)
     assert not cmd.fallback and ctrl.force_constraint.last_in_contact.all()
     assert tick._kept is kept and tick._plan is plan  # found, not made again
+
+
+def test_a_prepared_margin_is_found_and_gives_an_unprepared_ones_bits(machine):
+    """`estimators.uncertainty.prepare_margin` (the closed loop, before its clock starts)."""
+    pairs = []
+    for _ in range(2):
+        model, split = estimator_models(machine, "full")
+        ctrl = MpcController(machine, ControllerConfig(), force_model=model, feedback=split)
+        pairs.append((ctrl.force_model, ctrl.feedback.closure))
+    (model, closure), (plain, plain_closure) = pairs
+    if model._est._kernels is None or not model._est._kernels.compiled:
+        pytest.skip("no compiled kernels")
+    calls = model._est._calls.__dict__
+    before = set(calls)
+    kept = (model._last, model.n_clipped, closure._stepped)
+    prepare_margin(closure, model)
+    made = set(calls) - before
+    assert len(made) == 1  # the joint kernel's terms
+    key = made.pop()
+    terms = calls[key]
+    assert (model._last, model.n_clipped, closure._stepped) == kept  # nothing of a state
+    state = replace(make_state(machine), suspension_force=np.array([3e4, 4e4]))
+    got = model.linearize_with_margin(state, closure, MARGIN_STEP)
+    ref = plain.linearize_with_margin(state, plain_closure, MARGIN_STEP)
+    assert calls[key] is terms and set(calls) == before | {key}  # found, not made again
+    assert got[0]._row.tobytes() == ref[0]._row.tobytes()
+    assert len(got[1]) == len(ref[1])
+    assert all(np.asarray(a).tobytes() == np.asarray(b).tobytes()
+               for a, b in zip(got[1], ref[1]))
+
+
+def test_the_side_reserve_says_no_rows_without_a_reserve(machine):
+    model, split = estimator_models(machine, "full")
+    config = ControllerConfig()
+    config = replace(config, force=replace(config.force, side_reserve=500.0))
+    ctrl = MpcController(machine, config, force_model=model, feedback=split)
+    side = ctrl.side_reserve
+    pl = ctrl.planner
+    ctx = StructureContext(pl.layout, pl.prediction, pl.dt, pl.limits, ctrl.warp)
+    assert side.prepare(ctx) == 0
+    side.set_reserve(np.array([1000.0, 0.0]))
+    assert side.prepare(ctx) is None
