@@ -51,9 +51,10 @@ from models.state import MachineState
 __all__ = ["MARGIN_COND", "MARGIN_FORCES", "MARGIN_G", "MARGIN_QD", "MARGIN_STEP",
            "MARGIN_STEPPED_COND", "MARGIN_STEPPED_SUM", "MARGIN_SUM", "MarginTerms",
            "joint_function", "joint_kernel", "linearize_with_margin", "margin_function",
-           "margin_kernel", "margin_terms"]
+           "margin_kernel", "margin_terms", "prepare_joint"]
 
 MARGIN_STEP = 100.0  # [N] the suspension forces' step of the force margin
+_ALL_IN = np.ones(4, bool)  # `prepare_joint`'s contact flags
 
 # Positions in ``nf_margin``'s output row: the derivative kernel's G, d_qd (row-major) and
 # condition; the estimate kernel's forces (4 rows of 4: at the state, each suspension force
@@ -220,6 +221,23 @@ def _kept_terms(estimator, make_kernel, step: float, payload_step: float, *offse
             return None
         terms = calls[key] = MarginTerms(kernel, *offset)
     return terms
+
+
+def prepare_joint(model, closure, step: float, payload_step: float) -> None:
+    """Make what `linearize_with_margin`'s first call with these makes of them alone, now.
+
+    This thread's `MarginTerms` of ``model``'s joint kernel, and the closure's packer
+    selectors of every wheel in contact, with and without suspension forces
+    (`RowPacker.selectors`, the likely first states): before a closed loop's clock starts.
+    Nothing of a state is evaluated, counted or kept; nothing where the two would not share
+    the call (`linearize_with_margin`'s checks of the estimators).
+    """
+    if (model._kernels is None or closure._kernels is not model._kernels
+            or model._qs is not None or closure._qs is not None):
+        return
+    if _kept_terms(model, joint_kernel, step, payload_step, LAYOUT.der_size) is not None:
+        for suspension_force in (False, True):
+            closure._packer.selectors(_ALL_IN, suspension_force, closure.D, closure.beta)
 
 
 def margin_terms(estimator, state: MachineState, step: float, payload_step: float

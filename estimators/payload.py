@@ -40,6 +40,7 @@ from estimators.margin_kernel import (
     linearize_with_margin,
     margin_kernel,
     margin_terms,
+    prepare_joint,
 )
 from estimators.results import Estimate
 from estimators.suspension_response import stepped_forces
@@ -339,6 +340,15 @@ class PayloadEstimator:
         must be linearized one by one.
         """
         return linearize_rows(self._est, state, dt, q_head, qd_head)
+
+    def prepare_margin(self, closure: PayloadEstimator, step: float) -> None:
+        """Make what `linearize_with_margin`'s first call with ``closure`` makes, now.
+
+        `estimators.margin_kernel.prepare_joint`: this thread's buffers and call of the
+        joint kernel, the closure's likely selectors; nothing of a state is evaluated,
+        counted or kept.
+        """
+        prepare_joint(self._est, closure._est, step, SPAN)
 
     def prepare_nodes(self, n: int, m: int) -> tuple | None:
         """Make what `linearize_nodes`' first call with n later states makes, now.

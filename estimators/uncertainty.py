@@ -44,7 +44,7 @@ from models.coordinates import N_INDEPENDENT
 from models.state import MachineState, frozen_array
 
 __all__ = ["StateUncertainty", "closure_margin", "force_margin", "model_normal_forces",
-           "normal_force_std", "suspension_sensitivity"]
+           "normal_force_std", "prepare_margin", "suspension_sensitivity"]
 
 # [N] the forces are affine in the cylinder forces: any step works (`margin_terms`' kernel
 # is built for this one)
@@ -177,6 +177,20 @@ def closure_margin(closure, model, state: MachineState, uncertainty: StateUncert
     d_m = (closure.payload_sensitivity(state) if hasattr(closure, "payload_sensitivity")
            else None)
     return force_margin(normal_force_std(lin, uncertainty, d_susp, d_m), confidence)
+
+
+def prepare_margin(closure, model) -> None:
+    """Make what `closure_margin`'s first call with these makes of them alone, now.
+
+    This thread's compiled margin pass and, where ``model`` shares a kernel call with
+    ``closure`` (its ``prepare_margin``, `estimators.payload.PayloadEstimator`), that
+    call's buffers: before a closed loop's clock starts. Nothing of a state.
+    """
+    if not hasattr(closure, "stepped_suspension_forces") or _margin_pass() is None:
+        return
+    prepare = getattr(model, "prepare_margin", None)
+    if model is not closure and prepare is not None and hasattr(closure, "margin_terms"):
+        prepare(closure, _SUSPENSION_STEP)
 
 
 @functools.cache

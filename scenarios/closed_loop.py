@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from estimators.uncertainty import closure_margin
+from estimators.uncertainty import closure_margin, prepare_margin
 from models import build_reference_machine
 from models.log import ScenarioLog
 from scenarios.closed_loop_scenarios import (
@@ -227,6 +227,8 @@ def run_closed_loop(scenario: ClosedLoopScenario | str, out_dir: Path | None = N
     ctrl = make_controller(controller, machine, config)
     sensing = Sensing(sim, machine, sensors, seed if sensor_seed is None else sensor_seed)
     mpc = isinstance(ctrl, MpcController)
+    if mpc:  # the margin's first-call buffers now, not in the first tick
+        prepare_margin(_closure(ctrl), ctrl.force_model)
     kin = TcpKinematics(machine)
     goals = _GoalSequence([JointGoal(crane=p.coordinates(machine)) for p in scenario.goals],
                           scenario.first_goal_time, scenario.dwell)

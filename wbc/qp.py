@@ -184,7 +184,7 @@ class QPBuilder:
         self._bounds_kept = (layout, boxes, lb.copy(), ub.copy()) if constant else None
         return lb, ub
 
-    def prepare(self, ctx) -> None:
+    def prepare(self, ctx) -> list:
         """Make what the structure alone fixes before the first tick (`wbc.structure`).
 
         ``ctx``: a `wbc.structure.StructureContext`. Each active task's and every
@@ -195,6 +195,9 @@ class QPBuilder:
         (`_stacked_rows`; every entry is written there); the default bounds and the zeros
         of ``q``; with `compiled`, the program of the tasks' terms (`_compiled_objective`:
         its library loaded now). Nothing that depends on the state.
+
+        Returns:
+            Each constraint's number of rows (``prepare``'s: None where not known).
         """
         lay = ctx.layout
         hessians = [task.prepare(ctx) for task in self.tasks if task.is_active(ctx)]
@@ -208,6 +211,7 @@ class QPBuilder:
         if lay is not self._layout:
             self._defaults, self._layout = lay.default_bounds(), lay
         self._zeros(lay.n)
+        return rows
 
     def build(self, ctx) -> QP:
         r"""The QP at ``ctx`` (a context with a ``layout``: `QPContext` or `HorizonContext`).

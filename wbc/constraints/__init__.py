@@ -1,7 +1,13 @@
 """Constraints: ``G x <= h`` or bounds, for the whole-body QP and the MPC."""
 
 from wbc.constraints.acceleration_limit import AccelerationLimit
-from wbc.constraints.constraint import Box, Constraint, DiagonalBlocks, Inequality
+from wbc.constraints.constraint import (
+    Box,
+    Constraint,
+    DiagonalBlocks,
+    Inequality,
+    PreparedForm,
+)
 from wbc.constraints.horizon_effort_limit import HorizonEffortLimit
 from wbc.constraints.horizon_limits import (
     HorizonLimit,
@@ -20,5 +26,5 @@ __all__ = [
     "HorizonLimit",
     "HorizonNormalForceConstraint",
     "HorizonPositionLimit", "HorizonVelocityLimit", "Inequality", "NormalForceConstraint",
-    "PositionLimit", "SideReserveConstraint", "SpeedScaleLimit", "VelocityLimit",
+    "PositionLimit", "PreparedForm", "SideReserveConstraint", "SpeedScaleLimit", "VelocityLimit",
 ]

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from wbc.constraints.constraint import Box, Constraint
+from wbc.constraints.constraint import Box, Constraint, PreparedForm
 
 __all__ = ["AccelerationLimit"]
 
@@ -25,6 +25,10 @@ class AccelerationLimit(Constraint):
         """The box of ``ctx``'s layout and limits, now (`Constraint.prepare`); no rows."""
         self.compute(ctx)
         return 0
+
+    def prepared_form(self, ctx) -> PreparedForm:
+        """The box of ``ctx``'s layout and limits (`Constraint.prepared_form`)."""
+        return PreparedForm(box=self.compute(ctx))
 
     def compute(self, ctx) -> Box:
         """Box on all axis accelerations."""

@@ -8,7 +8,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["Box", "Constraint", "DiagonalBlocks", "Inequality", "unbounded"]
+__all__ = ["Box", "Constraint", "DiagonalBlocks", "Inequality", "PreparedForm", "unbounded"]
 
 
 @dataclass(frozen=True)
@@ -57,6 +57,24 @@ class Box:
     upper: np.ndarray
 
 
+@dataclass(frozen=True)
+class PreparedForm:
+    """What every tick of a structure gives of a constraint, as far as the structure fixes it.
+
+    `Constraint.prepared_form`: a solver may make what it derives from these before the
+    first tick (`wbc.structure.prepare_planner`).
+
+    Attributes:
+        box: The `Box` `Constraint.compute` returns (None: no box, or not fixed).
+        G: The read-only ``G`` of the `Inequality` it returns (None: not fixed).
+        diagonal: That `Inequality`'s `DiagonalBlocks` (None: none, or not fixed).
+    """
+
+    box: Box | None = None
+    G: np.ndarray | None = None
+    diagonal: DiagonalBlocks | None = None
+
+
 class Constraint(abc.ABC):
     """A constraint says ``G x <= h`` or a box for the current context, or is inactive."""
 
@@ -75,6 +93,14 @@ class Constraint(abc.ABC):
             The number of rows of ``G`` that `compute` gives at a tick of this structure
             (0: a box, or inactive; for a state-dependent count its likely one, e.g. every
             wheel in contact), None: not known (the default).
+        """
+        return None
+
+    def prepared_form(self, ctx) -> PreparedForm | None:
+        """After `prepare` with ``ctx``: what `compute` gives at every tick of its structure.
+
+        The same objects the ticks get (the read-only ``G``, the `Box`), or an equal
+        `DiagonalBlocks`. None: nothing fixed (the default).
         """
         return None
 

@@ -26,6 +26,7 @@ __all__ = ["ELSEWHERE", "ForceTick", "row_plan"]
 
 ELSEWHERE = object()  # `ForceTick.compute`: not here, nothing evaluated
 _all = np.logical_and.reduce  # `np.all` of a 1-D array without its Python dispatch
+_ALL_IN = np.ones(4, dtype=bool)  # the contact flags of `ForceTick.prepare`
 
 
 class ForceTick:
@@ -58,15 +59,9 @@ class ForceTick:
         if prepared is None or kernel is None or lay.n_axes != N_AXES:
             return ELSEWHERE
         struct = con._structure(ctx)
-        kept = self._kept
-        if (kept is None or kept[0] is not struct or kept[1] is not lay
-                or kept[2] is not prepared or kept[3] is not kernel.arrays):
-            buffers = kernel.nominal(struct, lay.n_steps, lay.n, lay.scale, prepared[2])
-            if buffers is None:
-                return ELSEWHERE
-            qn, vn = buffers
-            kept = self._kept = (struct, lay, prepared, kernel.arrays,
-                                 (qn, vn, qn[1:], vn[1:]), _rows_at(struct.later_steps))
+        kept = self._buffers(kernel, struct, lay)
+        if kept is None:
+            return ELSEWHERE
         st = ctx.state
         qn, vn = con._nominal(ctx, kept[4])
         at = kept[5]
@@ -94,6 +89,37 @@ class ForceTick:
                 con.last_forces_map, con.last_in_contact = (A, b), flags
                 return None if plan[0] is None else Inequality(G, h)
         return con._inequality(ctx, *con._map_of(ctx, first, rows, flags, qn, vn), flags)
+
+    def prepare(self, con, ctx, struct) -> None:
+        """What `compute` keeps of a structure, now: not at the first tick.
+
+        The nominal buffers' views and the later nodes' rows (`_buffers`) and the row plan
+        of all four wheels in contact (`_row_plan`; another contact pattern makes its own at
+        its first tick). ``ctx``: a `wbc.structure.StructureContext` (the ticks' layout);
+        ``struct``: ``con``'s structure of it; after ``con`` set `rows`.
+        """
+        kernel = con._kernel()
+        if self.rows is None or kernel is None:
+            return
+        self._buffers(kernel, struct, ctx.layout)
+        self._row_plan(con, ctx, _ALL_IN, struct)
+
+    def _buffers(self, kernel, struct, lay) -> tuple | None:
+        """The kept ``(struct, layout, rows, C arrays, nominal views, later rows)``.
+
+        Made again when the structure, layout, prepared `rows` or the force map's arrays
+        are not those it was made for; None where the force map has no buffers for them.
+        """
+        prepared, kept = self.rows, self._kept
+        if (kept is None or kept[0] is not struct or kept[1] is not lay
+                or kept[2] is not prepared or kept[3] is not kernel.arrays):
+            buffers = kernel.nominal(struct, lay.n_steps, lay.n, lay.scale, prepared[2])
+            if buffers is None:
+                return None
+            qn, vn = buffers
+            kept = self._kept = (struct, lay, prepared, kernel.arrays,
+                                 (qn, vn, qn[1:], vn[1:]), _rows_at(struct.later_steps))
+        return kept
 
     def _row_plan(self, con, ctx, flags: np.ndarray, struct) -> tuple:
         """``(rows of A or None, `row_plan`)`` of ``con._row_plan``, kept.

@@ -22,7 +22,7 @@ import numpy as np
 
 from estimators.efforts import ActuatorEfforts, effort_ranges
 from wbc.axes import CRANE_AXES, N_AXES, axis_index
-from wbc.constraints.constraint import Constraint, DiagonalBlocks, Inequality
+from wbc.constraints.constraint import Constraint, DiagonalBlocks, Inequality, PreparedForm
 from wbc.constraints.limits_c import compiled_effort_rows
 from wbc.errors import ConfigurationError
 from wbc.mpc.prediction import nominal_state
@@ -101,6 +101,10 @@ class HorizonEffortLimit(Constraint):
         if rows is not None:
             rows.set_bounds(self.upper, self.lower, self._scale, ax)
         return g_shape[0]
+
+    def prepared_form(self, ctx) -> PreparedForm:
+        """The rows' `DiagonalBlocks` of ``ctx``'s structure (`Constraint.prepared_form`)."""
+        return PreparedForm(diagonal=self._structure(ctx)[4])
 
     def compute(self, ctx) -> Inequality:
         """Two rows per crane axis and step: ``+-E u_k <= bound - e_0``."""

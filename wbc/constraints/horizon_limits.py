@@ -7,7 +7,7 @@ import abc
 import numpy as np
 
 from wbc.axes import N_AXES
-from wbc.constraints.constraint import Constraint, Inequality
+from wbc.constraints.constraint import Constraint, Inequality, PreparedForm
 from wbc.constraints.limits_c import compiled_horizon_bounds
 
 __all__ = ["HorizonLimit", "HorizonPositionLimit", "HorizonVelocityLimit"]
@@ -44,6 +44,10 @@ class HorizonLimit(Constraint):
         """``[P; -P]`` and the compiled ``h`` of ``ctx``'s structure (`Constraint.prepare`)."""
         self._compiled(np.empty((ctx.layout.n_steps, N_AXES)))
         return self._rows(ctx, self._matrix(ctx.prediction)).shape[0]
+
+    def prepared_form(self, ctx) -> PreparedForm:
+        """The read-only ``[P; -P]`` of ``ctx``'s structure (`Constraint.prepared_form`)."""
+        return PreparedForm(G=self._rows(ctx, self._matrix(ctx.prediction)))
 
     def _rows(self, ctx, P: np.ndarray) -> np.ndarray:
         """``[P; -P]``, read-only, made once per structure."""

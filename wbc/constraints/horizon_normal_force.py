@@ -190,7 +190,8 @@ class HorizonNormalForceConstraint(ForceRowsConstraint):
         `_structure`; with the C force map and a model that prepares its nodes' kernel rows
         (``prepare_nodes(n, m)``, `estimators.payload.PayloadEstimator`: its buffers and
         C call for the later nodes, returning the rows' `RowViews` and width), the row
-        offsets and the force map's buffers for those rows (`_rows_map`); and the rows of
+        offsets, the force map's buffers for those rows (`_rows_map`) and the C tick's row
+        plan of all four wheels in contact (`ForceTick.prepare`); and the rows of
         all four wheels in contact (`ForceRowsConstraint._rows`: other flags at the first
         tick make theirs): their number.
         """
@@ -209,6 +210,7 @@ class HorizonNormalForceConstraint(ForceRowsConstraint):
             self._tick.rows = (*self._offsets, (struct.steps.size, width))
             self._compiled_map.prepare(struct, lay.n_steps, lay.n, lay.scale,
                                        (struct.steps.size, width))
+            self._tick.prepare(self, ctx, struct)
         return n_rows
 
     def compute(self, ctx) -> Inequality | None:

@@ -79,6 +79,14 @@ class SideReserveConstraint(Constraint):
         """
         self.reserve = check_margins(reserve, 2, "side reserve")
 
+    def prepare(self, ctx) -> int | None:
+        """No rows while no reserve is set, as at a first tick standing (`Constraint.prepare`).
+
+        None (not known) with a reserve: its rows then depend on the state's contact flags.
+        """
+        left, right = self.reserve.tolist()
+        return None if left > 0 or right > 0 else 0
+
     @staticmethod
     def nodes(ctx, n_nodes: int) -> tuple[np.ndarray, np.ndarray]:
         """``(nodes, times [s])``: every node after now (k >= 1), the terminal one last."""

@@ -61,7 +61,7 @@ from wbc.solvers.box_screen import BlockSums, redundant_rows
 from wbc.solvers.box_screen import box_terms as _box_terms
 from wbc.solvers.box_screen import worst as _worst
 from wbc.solvers.daqp_c import LeastDistanceWorkspace, ldp_library
-from wbc.solvers.factor_rows import FactorRows, RowStructure
+from wbc.solvers.factor_rows import FactorRows, RowStructure, row_structure
 from wbc.solvers.product_c import product_library
 from wbc.solvers.screen_c import CompiledScreen, compiled_screen, screen_library
 from wbc.solvers.solution import QPSolution
@@ -249,16 +249,7 @@ class DaqpBackend:
         """The `RowStructure` of a problem's rows, kept while the blocks sit where they did."""
         key = (m_in, tuple((first, block.shape[0]) for first, block in blocks), diagonal)
         if self._rows_structure is None or self._rows_structure[0] != key:
-            constant = np.zeros(m_in, dtype=bool)
-            for first, block in blocks:
-                constant[first:first + block.shape[0]] = True
-            edges = np.flatnonzero(np.diff(np.r_[True, constant, True]))
-            gaps = tuple((int(a), int(b)) for a, b in zip(edges[::2], edges[1::2]))
-            done = constant.copy()
-            for first, d in diagonal:
-                if d.rows >= 2:
-                    done[first:first + d.rows * d.n_blocks] = True
-            self._rows_structure = RowStructure(key, constant, gaps, done)
+            self._rows_structure = row_structure(key, m_in, blocks, diagonal)
         return self._rows_structure
 
     def _screen(self, G: np.ndarray, h: np.ndarray, lb, ub, blocks: tuple,
@@ -290,11 +281,29 @@ class DaqpBackend:
         if not (G.dtype == h.dtype == np.float64 and G.strides[1] == 8 and h.strides[0] == 8
                 and self.compiled):
             return None
-        key = (structure.key, G.shape[1])
+        return self._screen_of(structure, G.shape[1])
+
+    def _screen_of(self, structure: RowStructure, n: int) -> CompiledScreen | None:
+        """The `CompiledScreen` of rows of this structure and n columns, kept."""
+        key = (structure.key, n)
         if self._screen_c is None or self._screen_c[0] != key:
-            self._screen_c = (key, compiled_screen(G.shape[0], G.shape[1], structure.gaps,
-                                                   structure.done))
+            m_in = structure.constant.size
+            self._screen_c = (key, compiled_screen(m_in, n, structure.gaps, structure.done))
         return self._screen_c[1]
+
+    def prepare(self, m_in: int, n: int, blocks: tuple, diagonal: tuple, lb, ub) -> None:
+        """What the first solve makes of rows like these alone, now (`wbc.structure`).
+
+        ``m_in`` rows of n columns, their constant ``blocks`` and ``diagonal`` rows
+        (`wbc.qp.QP`) and bounds (n,) (`wbc.structure.PreparedRows`): the `RowStructure`,
+        its C screening, the blocks' sums (kept while their columns' bounds stay); nothing
+        of a solve (multipliers, factor, workspace). Other rows: made at their solve.
+        """
+        if self.screen and m_in and blocks:  # `_screen` keeps nothing without blocks
+            structure = self._structure(m_in, blocks, diagonal)
+            self._sums.sums(m_in, n, blocks, lb, ub)
+            if self.compiled:
+                self._screen_of(structure, n)
 
     def _fused(self, t0: float, G, kept: np.ndarray, inv_t: np.ndarray, a_all, f, lb, ub,
                h, b, m_in: int, m_eq: int, blocks: tuple, diagonal: tuple,

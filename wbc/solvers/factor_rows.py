@@ -25,7 +25,7 @@ import numpy as np
 from models.cbuild import address
 from wbc.solvers.product_c import CompiledProduct, compiled_product
 
-__all__ = ["FactorRows", "RowStructure"]
+__all__ = ["FactorRows", "RowStructure", "row_structure"]
 
 
 class RowStructure(NamedTuple):
@@ -41,6 +41,24 @@ class RowStructure(NamedTuple):
     constant: np.ndarray
     gaps: tuple
     done: np.ndarray
+
+
+def row_structure(key: tuple, m_in: int, blocks: tuple, diagonal: tuple) -> RowStructure:
+    """The `RowStructure` of ``m_in`` rows with these constant blocks and diagonal rows.
+
+    ``blocks``: ``(first row, block)`` pairs; ``diagonal``: ``(first row, DiagonalBlocks)``
+    pairs (`wbc.qp.QP`); ``key``: the caller's key of them.
+    """
+    constant = np.zeros(m_in, dtype=bool)
+    for first, block in blocks:
+        constant[first:first + block.shape[0]] = True
+    edges = np.flatnonzero(np.diff(np.r_[True, constant, True]))
+    gaps = tuple((int(a), int(b)) for a, b in zip(edges[::2], edges[1::2]))
+    done = constant.copy()
+    for first, d in diagonal:
+        if d.rows >= 2:
+            done[first:first + d.rows * d.n_blocks] = True
+    return RowStructure(key, constant, gaps, done)
 
 
 def _diagonal_product(G: np.ndarray, first: int, d, inv_t: np.ndarray,
