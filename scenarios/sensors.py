@@ -29,7 +29,6 @@ What each sensor measures (the truth before the errors):
 
 from __future__ import annotations
 
-import functools
 import operator
 
 import mujoco
@@ -359,7 +358,7 @@ class SensorSimulator:
 
     def _bind_delivery(self, rng: np.random.Generator):
         """`listeners_c.DELIVER_C`'s functions and arguments; None: `_Stream.deliver`."""
-        passes = compiled_delivery() if self._compiled is not None else None
+        passes = compiled_delivery() if self._compiled is not None else None  # its bind
         if passes is None or max(s.n for s in self._streams) > 64:
             return None
         slots = self._slots
@@ -381,19 +380,14 @@ class SensorSimulator:
         k = np.zeros(N_STREAMS, np.int64)
         areas = np.ascontiguousarray(self._areas, float)
         _, _, _, _, times, truths = self._c_arrays
-        self._d_arrays = (latency, walk, noise, res, width, twidth, scale, bias, scaled, order,
-                          k, areas)  # kept alive: the C reads them
-        count = functools.partial(passes[0], N_STREAMS, self._counts.ctypes.data,
-                                  times.ctypes.data, latency.ctypes.data)
-        count_tail = (width.ctypes.data, walk.ctypes.data, noise.ctypes.data, k.ctypes.data)
-        fill = functools.partial(
-            passes[1], len(ordered), order.ctypes.data, k.ctypes.data, self._counts.ctypes.data,
-            times.ctypes.data, truths.ctypes.data, width.ctypes.data, twidth.ctypes.data,
-            scale.ctypes.data, scaled.ctypes.data, bias.ctypes.data, walk.ctypes.data,
-            noise.ctypes.data, res.ctypes.data, slots.index(self._press), areas.ctypes.data,
-            BACK_PRESSURE)
-        return (count, count_tail, fill, rng, k, [slots.index(s) for s in ordered],
-                [s.n for s in ordered])
+        words = dict(ns=N_STREAMS, count=self._counts, times=times, latency=latency,
+                     width=width, walk=walk, noise=noise, k=k, n_order=len(ordered),
+                     order=order, truths=truths, twidth=twidth, scale=scale, scaled=scaled,
+                     bias=bias, res=res, press=slots.index(self._press), areas=areas,
+                     back=np.array([BACK_PRESSURE]))
+        count, fill, packed = passes(words)
+        self._d_arrays = (words, packed)  # kept alive: the C reads them
+        return count, fill, rng, k, [slots.index(s) for s in ordered], [s.n for s in ordered]
 
     def _readings_compiled(self, tick: float) -> SensorReadings:
         """`readings` by `DELIVER_C`: the Python path's numbers.
@@ -403,8 +397,8 @@ class SensorSimulator:
         torque, link accelerometers), their times and values in one new read-only array
         (times first) that each stream's `Samples` views; the two positions' joined.
         """
-        count, count_tail, fill, rng, k, order, widths = self._delivery
-        z = rng.standard_normal(count(tick, *count_tail))
+        count, fill, rng, k, order, widths = self._delivery
+        z = rng.standard_normal(count(tick))
         ks = k.tolist()
         sizes = [ks[i] for i in order]
         n_t = sum(sizes)
