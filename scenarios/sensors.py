@@ -54,6 +54,7 @@ from scenarios.step_c import StepHook
 __all__ = ["BACK_PRESSURE", "SensorSimulator"]
 
 BACK_PRESSURE = 15e5  # [Pa] return-line pressure of a valve-controlled cylinder (15 bar)
+_F64 = np.dtype(np.float64)
 
 
 class _Stream:
@@ -402,11 +403,18 @@ class SensorSimulator:
         ks = k.tolist()
         sizes = [ks[i] for i in order]
         n_t = sum(sizes)
-        out = np.empty(n_t + sum(map(operator.mul, sizes, widths)))  # times, then values
-        at = address(out)
-        fill(address(z), at, at + 8 * n_t)
+        n_y = n_t + sum(map(operator.mul, sizes, widths))
+        out = np.empty(n_y + N_SERVO_AXES)  # times, values, then the servos' setpoints
+        at, sp = address(out), self.sim.measured_arrays()[3]
+        # the setpoints copied by the C where they are a contiguous (9,) float64 array (else
+        # it copies the slot onto itself) and finite; else `frozen_array`'s copy or error
+        plain = (type(sp) is np.ndarray and sp.dtype == _F64 and sp.shape == (N_SERVO_AXES,)
+                 and sp.strides == (8,))
+        copied = not fill(address(z), at, at + 8 * n_t, address(sp) if plain
+                          else at + 8 * n_y, at + 8 * n_y) and plain
         out.flags.writeable = False  # the views below are read-only too
-        out_t, out_y = out[:n_t], out[n_t:]
+        setpoint = out[n_y:] if copied else frozen_array("servo_setpoint", sp, (N_SERVO_AXES,))
+        out_t, out_y = out[:n_t], out[n_t:n_y]
         wrap = Samples.of_read_only
         got, first, first_y = [], 0, 0
         for kk, n in zip(sizes, widths):
@@ -418,9 +426,7 @@ class SensorSimulator:
         positions = Samples.trusted(lin_t[:n], np.concatenate((lin_y[:n], ang_y[:n]), axis=1))
         return SensorReadings.trusted(
             tick, wrap(*acc), wrap(*gyro), positions, wrap(*press), wrap(*wheels),
-            wrap(*drive), frozen_array("servo_setpoint", self.sim.measured_arrays()[3],
-                                       (N_SERVO_AXES,)),  # one copy
-            wrap(*link[0]) if link else None)
+            wrap(*drive), setpoint, wrap(*link[0]) if link else None)
 
     def readings(self, tick: float) -> SensorReadings:
         """What the sensors delivered by ``tick`` [s] since the previous call."""
