@@ -29,7 +29,6 @@ What each sensor measures (the truth before the errors):
 
 from __future__ import annotations
 
-import functools
 import operator
 
 import mujoco
@@ -55,6 +54,7 @@ from scenarios.step_c import StepHook
 __all__ = ["BACK_PRESSURE", "SensorSimulator"]
 
 BACK_PRESSURE = 15e5  # [Pa] return-line pressure of a valve-controlled cylinder (15 bar)
+_F64 = np.dtype(np.float64)
 
 
 class _Stream:
@@ -359,7 +359,7 @@ class SensorSimulator:
 
     def _bind_delivery(self, rng: np.random.Generator):
         """`listeners_c.DELIVER_C`'s functions and arguments; None: `_Stream.deliver`."""
-        passes = compiled_delivery() if self._compiled is not None else None
+        passes = compiled_delivery() if self._compiled is not None else None  # its bind
         if passes is None or max(s.n for s in self._streams) > 64:
             return None
         slots = self._slots
@@ -381,19 +381,14 @@ class SensorSimulator:
         k = np.zeros(N_STREAMS, np.int64)
         areas = np.ascontiguousarray(self._areas, float)
         _, _, _, _, times, truths = self._c_arrays
-        self._d_arrays = (latency, walk, noise, res, width, twidth, scale, bias, scaled, order,
-                          k, areas)  # kept alive: the C reads them
-        count = functools.partial(passes[0], N_STREAMS, self._counts.ctypes.data,
-                                  times.ctypes.data, latency.ctypes.data)
-        count_tail = (width.ctypes.data, walk.ctypes.data, noise.ctypes.data, k.ctypes.data)
-        fill = functools.partial(
-            passes[1], len(ordered), order.ctypes.data, k.ctypes.data, self._counts.ctypes.data,
-            times.ctypes.data, truths.ctypes.data, width.ctypes.data, twidth.ctypes.data,
-            scale.ctypes.data, scaled.ctypes.data, bias.ctypes.data, walk.ctypes.data,
-            noise.ctypes.data, res.ctypes.data, slots.index(self._press), areas.ctypes.data,
-            BACK_PRESSURE)
-        return (count, count_tail, fill, rng, k, [slots.index(s) for s in ordered],
-                [s.n for s in ordered])
+        words = dict(ns=N_STREAMS, count=self._counts, times=times, latency=latency,
+                     width=width, walk=walk, noise=noise, k=k, n_order=len(ordered),
+                     order=order, truths=truths, twidth=twidth, scale=scale, scaled=scaled,
+                     bias=bias, res=res, press=slots.index(self._press), areas=areas,
+                     back=np.array([BACK_PRESSURE]))
+        count, fill, packed = passes(words)
+        self._d_arrays = (words, packed)  # kept alive: the C reads them
+        return count, fill, rng, k, [slots.index(s) for s in ordered], [s.n for s in ordered]
 
     def _readings_compiled(self, tick: float) -> SensorReadings:
         """`readings` by `DELIVER_C`: the Python path's numbers.
@@ -403,16 +398,23 @@ class SensorSimulator:
         torque, link accelerometers), their times and values in one new read-only array
         (times first) that each stream's `Samples` views; the two positions' joined.
         """
-        count, count_tail, fill, rng, k, order, widths = self._delivery
-        z = rng.standard_normal(count(tick, *count_tail))
+        count, fill, rng, k, order, widths = self._delivery
+        z = rng.standard_normal(count(tick))
         ks = k.tolist()
         sizes = [ks[i] for i in order]
         n_t = sum(sizes)
-        out = np.empty(n_t + sum(map(operator.mul, sizes, widths)))  # times, then values
-        at = address(out)
-        fill(address(z), at, at + 8 * n_t)
+        n_y = n_t + sum(map(operator.mul, sizes, widths))
+        out = np.empty(n_y + N_SERVO_AXES)  # times, values, then the servos' setpoints
+        at, sp = address(out), self.sim.measured_arrays()[3]
+        # the setpoints copied by the C where they are a contiguous (9,) float64 array (else
+        # it copies the slot onto itself) and finite; else `frozen_array`'s copy or error
+        plain = (type(sp) is np.ndarray and sp.dtype == _F64 and sp.shape == (N_SERVO_AXES,)
+                 and sp.strides == (8,))
+        copied = not fill(address(z), at, at + 8 * n_t, address(sp) if plain
+                          else at + 8 * n_y, at + 8 * n_y) and plain
         out.flags.writeable = False  # the views below are read-only too
-        out_t, out_y = out[:n_t], out[n_t:]
+        setpoint = out[n_y:] if copied else frozen_array("servo_setpoint", sp, (N_SERVO_AXES,))
+        out_t, out_y = out[:n_t], out[n_t:n_y]
         wrap = Samples.of_read_only
         got, first, first_y = [], 0, 0
         for kk, n in zip(sizes, widths):
@@ -424,9 +426,7 @@ class SensorSimulator:
         positions = Samples.trusted(lin_t[:n], np.concatenate((lin_y[:n], ang_y[:n]), axis=1))
         return SensorReadings.trusted(
             tick, wrap(*acc), wrap(*gyro), positions, wrap(*press), wrap(*wheels),
-            wrap(*drive), frozen_array("servo_setpoint", self.sim.measured_arrays()[3],
-                                       (N_SERVO_AXES,)),  # one copy
-            wrap(*link[0]) if link else None)
+            wrap(*drive), setpoint, wrap(*link[0]) if link else None)
 
     def readings(self, tick: float) -> SensorReadings:
         """What the sensors delivered by ``tick`` [s] since the previous call."""

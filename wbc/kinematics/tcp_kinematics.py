@@ -106,8 +106,7 @@ class TcpKinematics:
                 and q.dtype == np.float64:
             self._q_in[:] = q
             if self._tree_c() == 0:
-                pin.framesForwardKinematics(self.model, self.data, self._qp)
-                return self.data.oMf[self.frame_id].translation.copy()
+                return self._tcp(self._qp)
         return self._position_python(q)
 
     def _position_python(self, q) -> np.ndarray:
@@ -121,8 +120,17 @@ class TcpKinematics:
                 chain.check_stroke(x[i])
             else:
                 qp[j] = chain.angles(x[i])[0]
-        pin.framesForwardKinematics(self.model, self.data, qp)
-        return self.data.oMf[self.frame_id].translation.copy()
+        return self._tcp(qp)
+
+    def _tcp(self, qp: np.ndarray) -> np.ndarray:
+        """The TCP's position [m] (3,) at Pinocchio's configuration ``qp`` (a copy).
+
+        The joints' placements, then the TCP frame's alone: `pin.updateFramePlacement` is the
+        product `pin.framesForwardKinematics` makes for each of the 53 frames (the same
+        bits), of the one frame read.
+        """
+        pin.forwardKinematics(self.model, self.data, qp)
+        return pin.updateFramePlacement(self.model, self.data, self.frame_id).translation.copy()
 
     def jacobian(self, q) -> np.ndarray:
         """``d p_tcp / d q_axes`` [m/m, m/rad], shape (3, 9), columns the nine axes."""
