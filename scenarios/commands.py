@@ -7,6 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from models.records import trusted
 from scenarios.errors import CommandError
 
 __all__ = ["ActuatorCommand", "rates_by_name"]
@@ -98,10 +99,8 @@ class ActuatorCommand:
         if every.shape != (11,) or every.dtype != np.float64 or not _all(np.isfinite(every)):
             return cls(servo_rates[:6], servo_rates[6:9], wheel_speeds)
         every.setflags(write=False)  # its views below are read-only too
-        command = object.__new__(cls)
-        command.__dict__.update(cylinder_rates=every[:6], wrist_rates=every[6:9],
-                                wheel_speeds=every[9:], _servo_rates=every[:9])
-        return command
+        return trusted(cls, cylinder_rates=every[:6], wrist_rates=every[6:9],
+                       wheel_speeds=every[9:], _servo_rates=every[:9])
 
     @classmethod
     def zero(cls) -> ActuatorCommand:

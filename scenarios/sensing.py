@@ -18,6 +18,7 @@ from estimators.observer import Observer
 from estimators.payload import PayloadEstimator
 from estimators.uncertainty import StateUncertainty
 from models.description import Machine
+from models.records import trusted
 from models.sensor_suites import SUITES, sensor_suite
 from models.state import MachineState
 from scenarios.errors import RunInputError
@@ -107,11 +108,9 @@ class Sensing:
         est = self.observer.update(readings)
         seconds = time.perf_counter() - t0
         # the observer's fields, valid: without the frozen dataclass's per-field setting
-        obs = object.__new__(Observation)
-        obs.__dict__.update(state=est.state, uncertainty=est.uncertainty,
-                            payload_mass=est.payload_mass, payload_std=est.payload_std,
-                            payload_event=est.payload_event, observer_seconds=seconds)
-        return obs
+        return trusted(Observation, state=est.state, uncertainty=est.uncertainty,
+                       payload_mass=est.payload_mass, payload_std=est.payload_std,
+                       payload_event=est.payload_event, observer_seconds=seconds)
 
     def close(self) -> None:
         """Detach the sensors from the simulator."""

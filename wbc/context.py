@@ -10,6 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from models.records import trusted
 from models.state import MachineState
 from wbc.axes import N_AXES, AxisLimits
 from wbc.layout import VariableLayout
@@ -39,9 +40,7 @@ class ReferenceSample:
         The fields set as its ``__init__`` sets them (it has no ``__post_init__``): the
         MPC samples its horizon every tick.
         """
-        sample = object.__new__(cls)
-        sample.__dict__.update(position=position, velocity=velocity, acceleration=acceleration)
-        return sample
+        return trusted(cls, position=position, velocity=velocity, acceleration=acceleration)
 
 
 @dataclass(frozen=True)

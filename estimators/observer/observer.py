@@ -56,6 +56,7 @@ from estimators.uncertainty import StateUncertainty, model_normal_forces
 from models.coordinates import N_INDEPENDENT
 from models.description import Machine
 from models.numeric import clip
+from models.records import trusted
 from models.sensing import (
     N_LINEAR_AXES,
     PRESSURE_CYLINDERS,
@@ -341,11 +342,10 @@ class Observer:
         """
         if std is None:
             std = self.payload.std
-        est = object.__new__(ObserverEstimate)
-        est.__dict__.update(state=state, payload_mass=mass, payload_std=std,
-                            payload_event=self.payload.event,
-                            uncertainty=self._uncertainty.with_payload_mass(std),
-                            forces_four=four, stale=stale)
+        est = trusted(ObserverEstimate, state=state, payload_mass=mass, payload_std=std,
+                      payload_event=self.payload.event,
+                      uncertainty=self._uncertainty.with_payload_mass(std),
+                      forces_four=four, stale=stale)
         self._last_time = t
         self._last = est
         return est

@@ -6,6 +6,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from models.records import trusted
 from wbc.axes import CRANE_AXES, SUSPENSION_AXES
 
 __all__ = ["ControlCommand"]
@@ -39,10 +40,8 @@ class ControlCommand:
         The fields set as its ``__init__`` sets them (it has no ``__post_init__``): one a
         tick.
         """
-        cmd = object.__new__(cls)
-        cmd.__dict__.update(rates=rates, wheel_speed_scale=wheel_speed_scale,
-                            accelerations=accelerations, fallback=fallback, info=info)
-        return cmd
+        return trusted(cls, rates=rates, wheel_speed_scale=wheel_speed_scale,
+                       accelerations=accelerations, fallback=fallback, info=info)
 
     @property
     def suspension_rates(self) -> np.ndarray:

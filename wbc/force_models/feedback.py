@@ -48,6 +48,7 @@ from estimators.compliance import WarpCompliance
 from estimators.uncertainty import model_normal_forces
 from models.description import Machine
 from models.numeric import clip
+from models.records import trusted
 from models.state import MachineState
 from wbc.axes import N_AXES, SUSPENSION_AXES
 from wbc.errors import ForceModelError
@@ -97,10 +98,8 @@ class ForceFeedback:
         The fields set as its ``__init__`` sets them (it has no ``__post_init__``): the
         MPC makes two each tick.
         """
-        fb = object.__new__(cls)
-        fb.__dict__.update(forces=forces, model_forces=model_forces, in_contact=in_contact,
-                           time=time)
-        return fb
+        return trusted(cls, forces=forces, model_forces=model_forces, in_contact=in_contact,
+                       time=time)
 
     @property
     def bias(self) -> np.ndarray:

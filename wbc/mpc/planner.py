@@ -8,6 +8,7 @@ from dataclasses import dataclass
 import numpy as np
 import qpsolvers
 
+from models.records import trusted
 from models.state import MachineState
 from wbc.axes import N_AXES, AxisLimits
 from wbc.constraints.constraint import Constraint
@@ -53,10 +54,8 @@ class MpcPlan:
         The fields set as its ``__init__`` sets them (it has no ``__post_init__``): one a
         tick.
         """
-        plan = object.__new__(cls)
-        plan.__dict__.update(inputs=inputs, speed_scale=speed_scale, slack=slack,
-                             solution=solution, start=start)
-        return plan
+        return trusted(cls, inputs=inputs, speed_scale=speed_scale, slack=slack,
+                       solution=solution, start=start)
 
     @property
     def positions(self) -> np.ndarray:
