@@ -44,7 +44,8 @@ from models.coordinates import N_INDEPENDENT
 from models.state import MachineState, frozen_array
 
 __all__ = ["StateUncertainty", "closure_margin", "force_margin", "model_normal_forces",
-           "normal_force_std", "prepare_margin", "suspension_sensitivity"]
+           "normal_force_std", "numpy_closure_margin", "prepare_margin",
+           "suspension_sensitivity"]
 
 # [N] the forces are affine in the cylinder forces: any step works (`margin_terms`' kernel
 # is built for this one)
@@ -169,6 +170,16 @@ def closure_margin(closure, model, state: MachineState, uncertainty: StateUncert
                            _quantile(_confidence(confidence)))
             if margin is not None:
                 return margin
+    return numpy_closure_margin(closure, model, state, uncertainty, confidence)
+
+
+def numpy_closure_margin(closure, model, state: MachineState, uncertainty: StateUncertainty,
+                         confidence: float) -> np.ndarray:
+    """`closure_margin` in numpy.
+
+    Its path where the compiled pass does not apply, and the reference its compiled pass is
+    tested against, bit for bit.
+    """
     model_g = None if model is closure else model.linearize(state).G
     lin = closure.linearize(state)
     if model_g is not None:

@@ -16,9 +16,7 @@ from estimators.uncertainty import (
     _compiled_margin,
     _margin_pass,
     closure_margin,
-    force_margin,
-    normal_force_std,
-    suspension_sensitivity,
+    numpy_closure_margin,
 )
 from models import StateError, build_reference_machine
 from models import terrain as T
@@ -70,12 +68,6 @@ def test_the_setpoint_and_the_measured_arrays_are_the_simulators(sim):
         sensors.close()
 
 
-def _numpy_margin(closure, model, state, unc, confidence):
-    lin = closure.linearize(state)
-    if model is not closure:
-        lin = replace(lin, G=lin.G - model.linearize(state).G)
-    return force_margin(normal_force_std(lin, unc, suspension_sensitivity(closure, state),
-                                         closure.payload_sensitivity(state)), confidence)
 
 
 @pytest.mark.skipif(_compiled_margin() is None, reason="no C compiler")
@@ -99,7 +91,7 @@ def test_the_margin_pass_copies_a_new_uncertainty_only():
         fast = closure_margin(closure, model, s, unc, 0.99)
         ref = unc if unc is not loose else StateUncertainty(
             loose.acceleration, loose.qd, loose.suspension_force, loose.payload_mass)
-        assert fast.tobytes() == _numpy_margin(closure, model, s, ref, 0.99).tobytes(), k
+        assert fast.tobytes() == numpy_closure_margin(closure, model, s, ref, 0.99).tobytes(), k
     assert _margin_pass()._sigmas is None  # the last one (loose) is not kept
 
 

@@ -14,7 +14,7 @@ from estimators.uncertainty import (
     closure_margin,
     force_margin,
     normal_force_std,
-    suspension_sensitivity,
+    numpy_closure_margin,
 )
 from models import build_reference_machine
 from testkit.estimator_states import random_state
@@ -22,13 +22,6 @@ from testkit.estimator_states import random_state
 MACHINE = build_reference_machine()
 
 
-def _numpy_margin(closure, model, state, unc, confidence):
-    """The margin as numpy computes it (`normal_force_std`, `force_margin`)."""
-    lin = closure.linearize(state)
-    if model is not closure:
-        lin = replace(lin, G=lin.G - model.linearize(state).G)
-    return force_margin(normal_force_std(lin, unc, suspension_sensitivity(closure, state),
-                                         closure.payload_sensitivity(state)), confidence)
 
 
 @pytest.mark.skipif(_compiled_margin() is None, reason="no C compiler")
@@ -44,7 +37,7 @@ def test_compiled_margin_is_numpys_to_the_bit():
                                rng.uniform(0.0, 500.0, 2), float(rng.uniform(0.0, 40.0)))
         for m in (model, closure):
             fast = closure_margin(closure, m, s, unc, 0.99)
-            assert fast.tobytes() == _numpy_margin(closure, m, s, unc, 0.99).tobytes(), k
+            assert fast.tobytes() == numpy_closure_margin(closure, m, s, unc, 0.99).tobytes(), k
 
 
 def test_a_non_finite_load_split_is_refused():
