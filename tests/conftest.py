@@ -45,3 +45,17 @@ def random_state(machine, rng, dynamic=True):
         qd=scale * rng.normal(scale=0.1, size=models.N_INDEPENDENT),
         qdd=scale * rng.normal(scale=0.3, size=models.N_INDEPENDENT),
     )
+
+
+@pytest.fixture(scope="module")
+def rough():
+    """Swing-out's settled machine on its rough ground (several contacts per wheel)."""
+    from models import build_reference_machine
+    from scenarios.closed_loop_scenarios import SCENARIOS, scenario_terrain
+    from scenarios.simulator import Simulator
+
+    sc = SCENARIOS["swing-out"]
+    machine = build_reference_machine(payload_mass=sc.payload_mass)
+    sim = Simulator(machine, scenario_terrain(sc, 0))
+    sim.reset(sc.start_pose.q(machine), sc.start, settle_time=0.2)
+    return sim

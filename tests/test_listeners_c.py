@@ -5,27 +5,14 @@ import dataclasses
 import numpy as np
 import pytest
 
-from models import build_reference_machine
 from models.sensor_suites import sensor_suite
-from scenarios.closed_loop_scenarios import SCENARIOS, scenario_terrain
 from scenarios.listeners_c import compiled_delivery, compiled_forces, compiled_sensors
 from scenarios.physics_rate import NormalForceRecorder
 from scenarios.sensors import SensorSimulator
-from scenarios.simulator import Simulator
 
 pytestmark = pytest.mark.skipif(
     compiled_sensors() is None or compiled_delivery() is None or compiled_forces() is None,
     reason="no C compiler")
-
-
-@pytest.fixture(scope="module")
-def rough():
-    """Swing-out's rough ground: several contacts per wheel, some merged away."""
-    sc = SCENARIOS["swing-out"]
-    machine = build_reference_machine(payload_mass=sc.payload_mass)
-    sim = Simulator(machine, scenario_terrain(sc, 0))
-    sim.reset(sc.start_pose.q(machine), sc.start, settle_time=0.2)
-    return sim
 
 
 def _fields(r) -> dict:

@@ -8,25 +8,12 @@ contiguous (9,) float64 array and checks them finite; anything else goes through
 import numpy as np
 import pytest
 
-from models import build_reference_machine
 from models.errors import StateError
 from models.sensor_suites import sensor_suite
-from scenarios.closed_loop_scenarios import SCENARIOS, scenario_terrain
 from scenarios.listeners_c import compiled_delivery
 from scenarios.sensors import SensorSimulator
-from scenarios.simulator import Simulator
 
 pytestmark = pytest.mark.skipif(compiled_delivery() is None, reason="no C compiler")
-
-
-@pytest.fixture(scope="module")
-def rough():
-    """Swing-out's settled machine on its rough ground."""
-    sc = SCENARIOS["swing-out"]
-    machine = build_reference_machine(payload_mass=sc.payload_mass)
-    sim = Simulator(machine, scenario_terrain(sc, 0))
-    sim.reset(sc.start_pose.q(machine), sc.start, settle_time=0.2)
-    return sim
 
 
 @pytest.fixture()
